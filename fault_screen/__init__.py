@@ -1,0 +1,8 @@
+"""fault_screen: coupled hydro-mechanical X-FEM screening of fluid injection into faults."""
+__version__ = "0.1.0"
+
+from .scene import Scene, SceneError  # noqa: E402
+from .result import Result  # noqa: E402
+from .simulate import SimulationError, simulate  # noqa: E402
+
+__all__ = ["Scene", "SceneError", "Result", "simulate", "SimulationError", "__version__"]

@@ -1,0 +1,1 @@
+"""Readers and writers for operator data files (injection logs, ...)."""

@@ -1,0 +1,90 @@
+"""Biot poroelastic rock (paper Eq. 1-2, 8-9): local matrices of one element from basis values
+tabulated at its quadrature points. Local displacement DOFs are interleaved (x, y) per basis
+function; strain is Voigt (xx, yy, 2xy); stress tension-positive.
+
+    K = int B^T D B,  Q = int B^T alpha m Np,  H = int grad Np^T (k/mu) grad Np,  S = int Np^T (1/M) Np
+"""
+import numpy as np
+
+from .._jit import kernel
+
+
+@kernel
+def plane_strain_elasticity(youngs_modulus, poissons_ratio):
+    """Drained plane-strain stiffness D (3x3), Pa."""
+    E, nu = youngs_modulus, poissons_ratio
+    c = E / ((1 + nu) * (1 - 2 * nu))
+    D = np.zeros((3, 3))
+    D[0, 0] = D[1, 1] = c * (1 - nu)
+    D[0, 1] = D[1, 0] = c * nu
+    D[2, 2] = c * (1 - 2 * nu) / 2
+    return D
+
+
+@kernel
+def elastic_stiffness(gu, w, D):
+    nq, nb = gu.shape[0], gu.shape[1]
+    K = np.zeros((2 * nb, 2 * nb))
+    B = np.zeros((3, 2 * nb))
+    for q in range(nq):
+        if w[q] == 0.0:
+            continue
+        for b in range(nb):
+            B[0, 2 * b] = gu[q, b, 0]
+            B[1, 2 * b + 1] = gu[q, b, 1]
+            B[2, 2 * b] = gu[q, b, 1]
+            B[2, 2 * b + 1] = gu[q, b, 0]
+        K += w[q] * (B.T @ (D @ B))
+    return K
+
+
+@kernel
+def biot_coupling(gu, Np, w, biot_coefficient):
+    """Q (2 nbu x nbp): volumetric strain of the skeleton against pore pressure."""
+    nq, nbu, nbp = gu.shape[0], gu.shape[1], Np.shape[1]
+    Q = np.zeros((2 * nbu, nbp))
+    for q in range(nq):
+        if w[q] == 0.0:
+            continue
+        for b in range(nbu):
+            for c in range(nbp):
+                f = w[q] * biot_coefficient * Np[q, c]
+                Q[2 * b, c] += gu[q, b, 0] * f
+                Q[2 * b + 1, c] += gu[q, b, 1] * f
+    return Q
+
+
+@kernel
+def darcy_conductance(gp, w, mobility):
+    """H (nbp x nbp) with mobility = permeability / viscosity (m^2 / (Pa s))."""
+    nq, nb = gp.shape[0], gp.shape[1]
+    H = np.zeros((nb, nb))
+    for q in range(nq):
+        for a in range(nb):
+            for b in range(nb):
+                H[a, b] += w[q] * mobility * (gp[q, a, 0] * gp[q, b, 0] + gp[q, a, 1] * gp[q, b, 1])
+    return H
+
+
+@kernel
+def pore_storage(Np, w, inverse_biot_modulus):
+    """S (nbp x nbp) with 1/M = (alpha - n)/Ks + n/Kf (1/Pa)."""
+    nq, nb = Np.shape[0], Np.shape[1]
+    S = np.zeros((nb, nb))
+    for q in range(nq):
+        for a in range(nb):
+            for b in range(nb):
+                S[a, b] += w[q] * inverse_biot_modulus * Np[q, a] * Np[q, b]
+    return S
+
+
+@kernel
+def body_force(Nu, w, force_density):
+    """Consistent nodal forces of a body force density (N/m^3) (2 nbu,)."""
+    nq, nb = Nu.shape[0], Nu.shape[1]
+    f = np.zeros(2 * nb)
+    for q in range(nq):
+        for b in range(nb):
+            f[2 * b] += w[q] * Nu[q, b] * force_density[0]
+            f[2 * b + 1] += w[q] * Nu[q, b] * force_density[1]
+    return f

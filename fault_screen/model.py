@@ -1,0 +1,480 @@
+"""Discretisation of a scene: mesh, fault, unknowns, and the matrices that do not change in time.
+
+Only what the scene's effects call for is created: no displacement unknowns for rigid rock, no
+rock pressure for impermeable rock, no enriched pressure without leak-off, no fault-pressure line
+when the rock pressure carries the fault, no Lagrange multiplier under rate control. Assembly
+touches only the terms that exist.
+
+Unknown vector layout (blocks that the scene does not need are empty)::
+
+    [ u (2 per node) | a (2 per Heaviside-enriched node) | p (rock, per node)
+      | c (per level-set-enriched node) | pf (per fault node) | q_inj (pressure control) ]
+
+Pressures are overpressures (Pa) from the initial pore pressure; displacements (m) from the
+in-situ state, which is in equilibrium on its own.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import scipy.sparse as sp
+
+from . import xfem
+from .assembly import TripletBuilder
+from .kernels import basis, contact, fault_flow, rock
+from .mesh import build_mesh
+from .scene import EDGES, RockSpec, Scene
+
+
+@dataclass
+class Blocks:
+    """Start and size of each unknown block."""
+    u: slice
+    a: slice
+    p: slice
+    c: slice
+    pf: slice
+    q: slice
+    n: int
+
+
+@dataclass
+class FaultPoints:
+    """Fault Gauss-point data (plain arrays, ordered by s)."""
+    N: np.ndarray            # (n_gp, 4) standard shape functions of the cut element (jump basis)
+    jump_dofs: np.ndarray    # (n_gp, 8) Heaviside DOFs (x, y per node) or -1
+    Np: np.ndarray           # (n_gp, nbp) fault-pressure basis
+    dNp_ds: np.ndarray       # (n_gp, nbp)
+    p_dofs: np.ndarray       # (n_gp, nbp) fault-pressure DOFs or -1
+    weight: np.ndarray       # (n_gp,) m
+    s: np.ndarray            # (n_gp,) m along the fault
+    xy: np.ndarray           # (n_gp, 2) m
+    sigma_n0: np.ndarray     # (n_gp,) in-situ effective normal stress on the fault, Pa (compr. +)
+    tau0: np.ndarray         # (n_gp,) in-situ shear stress on the fault, Pa
+    p0: np.ndarray           # (n_gp,) initial pore pressure, Pa
+
+
+def effective_rock(spec: RockSpec, fluid_bulk_modulus: float) -> dict:
+    """Derived rock constants in SI: drained bulk modulus, Ks, 1/M (Biot modulus)."""
+    E, nu, alpha, n = spec.youngs_modulus, spec.poissons_ratio, spec.biot_coefficient, spec.porosity
+    K = E / (3.0 * (1.0 - 2.0 * nu))
+    Ks = spec.solid_bulk_modulus
+    if Ks is None:
+        Ks = K / (1.0 - alpha) if alpha < 1.0 else np.inf
+    inv_M = (alpha - n) / Ks + n / fluid_bulk_modulus
+    return {"E": E, "nu": nu, "alpha": alpha, "mobility": None, "inv_M": inv_M, "Ks": Ks}
+
+
+class Model:
+    """Everything about a scene that is fixed for the whole run."""
+
+    def __init__(self, scene: Scene):
+        self.scene = scene
+        ef = scene.effects
+        m = scene.mesh
+        self.mesh = build_mesh(m.nx, m.ny, m.lx, m.ly, m.origin, m.refinement)
+        self.coords = self.mesh.coordinates
+        self.elements = self.mesh.elements
+        self.fault = xfem.locate_fault(self.mesh, scene.fault_point, scene.fault.angle)
+        self.has_u = ef.mechanics
+        self.has_p = ef.poroelastic
+        self.has_c = ef.poroelastic and ef.leak_off
+        self.has_pf = ef.fault_flow and not ef.leak_off
+        self.has_q = scene.injection.control == "pressure"
+        self._materials()
+        self._number_unknowns()
+        self._tabulate_bulk()
+        self._tabulate_fault()
+        self._boundary_conditions()
+        self._injection_point()
+        self._assemble_static()
+
+    # ------------------------------------------------------------------ materials
+    def _materials(self):
+        s = self.scene
+        centroids = self.coords[self.elements].mean(axis=1)
+        zone_of = np.zeros(self.mesh.n_elements, dtype=np.int64)
+        specs = [s.rock]
+        for k, z in enumerate(s.zones, start=1):
+            if z.band is not None:
+                inside = np.abs((centroids - self.fault.point) @ self.fault.normal) <= z.band
+            else:
+                x0, x1, y0, y1 = z.box
+                inside = ((centroids[:, 0] >= x0) & (centroids[:, 0] <= x1)
+                          & (centroids[:, 1] >= y0) & (centroids[:, 1] <= y1))
+            zone_of[inside] = k
+            specs.append(replace(s.rock, **z.rock))
+        self.zone_of = zone_of
+        mu = s.fluid.viscosity
+        props = []
+        for spec in specs:
+            d = effective_rock(spec, s.fluid.bulk_modulus)
+            d["mobility"] = spec.permeability / mu
+            props.append(d)
+        self.zone_props = props
+        self.el_D = np.array([rock.plane_strain_elasticity(props[z]["E"], props[z]["nu"]) for z in zone_of])
+        self.el_alpha = np.array([props[z]["alpha"] for z in zone_of])
+        self.el_mobility = np.array([props[z]["mobility"] for z in zone_of])
+        self.el_inv_M = np.array([props[z]["inv_M"] for z in zone_of])
+
+    # ------------------------------------------------------------------ unknowns
+    def _number_unknowns(self):
+        nn = self.mesh.n_nodes
+        f = self.fault
+        self.heav_index = np.full(nn, -1, dtype=np.int64)
+        self.lset_index = np.full(nn, -1, dtype=np.int64)
+        sizes = {}
+        sizes["u"] = 2 * nn if self.has_u else 0
+        if self.has_u:
+            ids = np.flatnonzero(f.heaviside_enriched)
+            self.heav_index[ids] = np.arange(len(ids))
+            sizes["a"] = 2 * len(ids)
+        else:
+            sizes["a"] = 0
+        sizes["p"] = nn if self.has_p else 0
+        if self.has_c:
+            ids = np.flatnonzero(f.pressure_enriched)
+            self.lset_index[ids] = np.arange(len(ids))
+            sizes["c"] = len(ids)
+        else:
+            sizes["c"] = 0
+        sizes["pf"] = len(f.fault_node_s) if self.has_pf else 0
+        sizes["q"] = 1 if self.has_q else 0
+        start = 0
+        sl = {}
+        for key in ("u", "a", "p", "c", "pf", "q"):
+            sl[key] = slice(start, start + sizes[key])
+            start += sizes[key]
+        self.blocks = Blocks(n=start, **sl)
+        self.n_dofs = start
+
+    def dof_counts(self) -> dict:
+        b = self.blocks
+        return {k: getattr(b, k).stop - getattr(b, k).start for k in ("u", "a", "p", "c", "pf", "q")}
+
+    def _u_map(self, nodes):
+        """(n, 8) standard displacement DOFs of element nodes."""
+        d = np.empty((len(nodes), 8), dtype=np.int64)
+        d[:, 0::2] = self.blocks.u.start + 2 * nodes
+        d[:, 1::2] = self.blocks.u.start + 2 * nodes + 1
+        return d
+
+    def _a_map(self, nodes):
+        h = self.heav_index[nodes]
+        d = np.empty((len(nodes), 8), dtype=np.int64)
+        d[:, 0::2] = np.where(h >= 0, self.blocks.a.start + 2 * h, -1)
+        d[:, 1::2] = np.where(h >= 0, self.blocks.a.start + 2 * h + 1, -1)
+        return d
+
+    def _p_map(self, nodes):
+        return (self.blocks.p.start + nodes).astype(np.int64)
+
+    def _c_map(self, nodes):
+        c = self.lset_index[nodes]
+        return np.where(c >= 0, self.blocks.c.start + c, -1).astype(np.int64)
+
+    # ------------------------------------------------------------------ bulk tabulation
+    def _tabulate_bulk(self):
+        f = self.fault
+        ne = self.mesh.n_elements
+        is_cut = np.zeros(ne, dtype=bool)
+        is_cut[f.cut_elements] = True
+        self.std_elements = np.flatnonzero(~is_cut)
+        self.cut_elements = f.cut_elements
+        sizes = self.mesh.element_sizes
+        g = xfem.GAUSS2
+        ref = np.array([[x, y] for y in g for x in g])
+        N = xfem._bilinear(ref)  # (4 qp, 4)
+        hs = sizes[self.std_elements]
+        nq = len(ref)
+        grads = np.zeros((len(hs), nq, 4, 2))
+        for q in range(nq):
+            xi, eta = ref[q]
+            dxi = 0.25 * np.array([-(1 - eta), (1 - eta), (1 + eta), -(1 + eta)])
+            deta = 0.25 * np.array([-(1 - xi), -(1 + xi), (1 + xi), (1 - xi)])
+            grads[:, q, :, 0] = dxi[None, :] * 2.0 / hs[:, :1]
+            grads[:, q, :, 1] = deta[None, :] * 2.0 / hs[:, 1:]
+        self.std_N = np.broadcast_to(N, (len(hs), nq, 4)).copy()
+        self.std_grad = grads
+        self.std_w = np.broadcast_to(0.25 * hs[:, :1] * hs[:, 1:], (len(hs), nq)).copy()
+
+        # cut elements: 8 displacement functions (4 standard, 4 Heaviside), 8 pressure functions
+        nc, nqc = f.cut_qp.shape[:2]
+        self.cut_Nu = np.zeros((nc, nqc, 8))
+        self.cut_gu = np.zeros((nc, nqc, 8, 2))
+        self.cut_Np = np.zeros((nc, nqc, 8))
+        self.cut_gp = np.zeros((nc, nqc, 8, 2))
+        for k, e in enumerate(f.cut_elements):
+            nodes = self.elements[e]
+            phi_e = f.node_phi[nodes]
+            node_side = (phi_e > 0).astype(np.float64)
+            hx, hy = sizes[e]
+            for q in range(nqc):
+                xi, eta = f.cut_qp[k, q]
+                Nq = basis.shape(xi, eta)
+                dN = basis.shape_gradient(xi, eta, hx, hy)
+                Nh, dNh = basis.heaviside_basis(Nq, dN, float(f.cut_side[k, q]), node_side)
+                Nl, dNl = basis.level_set_basis(Nq, dN, phi_e)
+                self.cut_Nu[k, q, :4], self.cut_Nu[k, q, 4:] = Nq, Nh
+                self.cut_gu[k, q, :4], self.cut_gu[k, q, 4:] = dN, dNh
+                self.cut_Np[k, q, :4], self.cut_Np[k, q, 4:] = Nq, Nl
+                self.cut_gp[k, q, :4], self.cut_gp[k, q, 4:] = dN, dNl
+        self.cut_w = f.cut_w
+
+        # local -> global maps
+        std_nodes = self.elements[self.std_elements]
+        cut_nodes = self.elements[self.cut_elements]
+        none8 = -np.ones((len(cut_nodes), 4), dtype=np.int64)
+        if self.has_u:
+            self.std_umap = self._u_map(std_nodes)
+            self.cut_umap = np.hstack([self._u_map(cut_nodes), self._a_map(cut_nodes)])
+        if self.has_p:
+            self.std_pmap = self._p_map(std_nodes)
+            self.cut_pmap = np.hstack([self._p_map(cut_nodes),
+                                       self._c_map(cut_nodes) if self.has_c else none8])
+
+    # ------------------------------------------------------------------ fault tabulation
+    def _tabulate_fault(self):
+        f = self.fault
+        s = self.scene
+        ng = len(f.gp_s)
+        cut_nodes = self.elements[self.cut_elements]
+        sizes = self.mesh.element_sizes
+        N = np.zeros((ng, 4))
+        xy = np.zeros((ng, 2))
+        trace = self.has_c or (not self.has_pf and self.has_p)
+        nbp = 8 if trace else 2
+        Np = np.zeros((ng, nbp))
+        dNp = np.zeros((ng, nbp))
+        pmap = -np.ones((ng, nbp), dtype=np.int64)
+        for g in range(ng):
+            k = f.gp_element[g]
+            e = self.cut_elements[k]
+            xi, eta = f.gp_ref[g]
+            Ng = basis.shape(xi, eta)
+            N[g] = Ng
+            xy[g] = Ng @ self.coords[cut_nodes[k]]
+            if trace:
+                dN = basis.shape_gradient(xi, eta, sizes[e, 0], sizes[e, 1])
+                Nl, dNl = basis.level_set_basis(Ng, dN, f.node_phi[cut_nodes[k]])
+                Np[g, :4], Np[g, 4:] = Ng, Nl
+                dNp[g, :4], dNp[g, 4:] = dN @ f.tangent, dNl @ f.tangent
+                if self.has_p:
+                    pmap[g, :4] = self._p_map(cut_nodes[k])
+                if self.has_c:
+                    pmap[g, 4:] = self._c_map(cut_nodes[k])
+            else:
+                lam = f.gp_xi1d[g]
+                s0, s1 = f.segment_s[f.gp_segment[g]]
+                Np[g] = (1.0 - lam, lam)
+                dNp[g] = (-1.0 / (s1 - s0), 1.0 / (s1 - s0))
+                if self.has_pf:
+                    pmap[g] = self.blocks.pf.start + f.segment_nodes[f.gp_segment[g]]
+        self.fault_pressure_is_trace = trace
+        jump = self._a_map(cut_nodes[f.gp_element]) if self.has_u else -np.ones((ng, 8), dtype=np.int64)
+        sig = np.array(s.initial.effective_stress)
+        stress = np.array([[sig[0], sig[2]], [sig[2], sig[1]]])
+        t, n = f.tangent, f.normal
+        # bulk total stress sigma' - alpha p0 I balances the fault's sigma_n + p0 (Biot 1 on the fault)
+        alpha_gp = self.el_alpha[self.cut_elements[f.gp_element]]
+        p0 = np.full(ng, s.initial.pore_pressure)
+        sigma_n0 = -(n @ stress @ n) - (1.0 - alpha_gp) * p0
+        tau0 = np.full(ng, t @ stress @ n)
+        self.fp = FaultPoints(N=N, jump_dofs=jump, Np=Np, dNp_ds=dNp, p_dofs=pmap, weight=f.gp_w,
+                              s=f.gp_s, xy=xy, sigma_n0=sigma_n0, tau0=tau0, p0=p0)
+
+    # ------------------------------------------------------------------ boundary conditions
+    def _boundary_conditions(self):
+        s = self.scene
+        fixed = np.zeros(self.n_dofs, dtype=bool)
+        self.load = np.zeros(self.n_dofs)  # applied traction changes (N per m thickness)
+        f = self.fault
+        for edge in EDGES:
+            spec = getattr(s.boundary, edge)
+            nodes = self.mesh.edge_nodes(edge)
+            if self.has_u:
+                comps = {"pinned": (0, 1), "roller": ((0,) if edge in ("left", "right") else (1,)),
+                         "free": ()}[spec.mechanical]
+                for c in comps:
+                    fixed[self.blocks.u.start + 2 * nodes + c] = True
+                    h = self.heav_index[nodes]
+                    fixed[self.blocks.a.start + 2 * h[h >= 0] + c] = True
+                if any(spec.traction):
+                    self._edge_traction(nodes, np.asarray(spec.traction))
+            if spec.hydraulic == "drained":
+                if self.has_p:
+                    fixed[self.blocks.p.start + nodes] = True
+                if self.has_c:
+                    c = self.lset_index[nodes]
+                    fixed[self.blocks.c.start + c[c >= 0]] = True
+                if self.has_pf:
+                    # a fault end that lies on a drained edge is drained
+                    ends = [(0, f.segment_s[0, 0]), (len(f.fault_node_s) - 1, f.segment_s[-1, 1])]
+                    xmin, xmax, ymin, ymax = self.mesh.bounds
+                    tol = 1e-9 * max(xmax - xmin, ymax - ymin)
+                    for node, s_end in ends:
+                        x, y = f.point + s_end * f.tangent
+                        on = {"left": abs(x - xmin), "right": abs(x - xmax),
+                              "bottom": abs(y - ymin), "top": abs(y - ymax)}[edge] < tol
+                        if on:
+                            fixed[self.blocks.pf.start + node] = True
+        self.fixed = fixed
+        self.free = np.flatnonzero(~fixed)
+
+    def _edge_traction(self, nodes, traction):
+        """Consistent forces of a uniform traction change on a boundary edge, split at the fault
+        so that the Heaviside DOFs of cut edge segments get their share."""
+        f = self.fault
+        xy = self.coords[nodes]
+        gx, gw = np.polynomial.legendre.leggauss(2)
+        for i in range(len(nodes) - 1):
+            a, b = nodes[i], nodes[i + 1]
+            pa, pb = xy[i], xy[i + 1]
+            L = np.linalg.norm(pb - pa)
+            fa, fb = f.node_phi[a], f.node_phi[b]
+            cuts = [0.0, 1.0]
+            if fa * fb < 0:
+                cuts = [0.0, fa / (fa - fb), 1.0]
+            for lo, hi in zip(cuts[:-1], cuts[1:]):
+                for x, w in zip(gx, gw):
+                    lam = lo + 0.5 * (x + 1) * (hi - lo)
+                    ww = 0.5 * w * (hi - lo) * L
+                    Na, Nb = 1 - lam, lam
+                    side = 1.0 if (1 - lam) * fa + lam * fb > 0 else 0.0
+                    for node, Nv in ((a, Na), (b, Nb)):
+                        self.load[self.blocks.u.start + 2 * node: self.blocks.u.start + 2 * node + 2] += ww * Nv * traction
+                        h = self.heav_index[node]
+                        if h >= 0:
+                            shift = side - (1.0 if f.node_phi[node] > 0 else 0.0)
+                            j = self.blocks.a.start + 2 * h
+                            self.load[j:j + 2] += ww * Nv * shift * traction
+
+    # ------------------------------------------------------------------ injection point
+    def _injection_point(self):
+        f = self.fault
+        s_inj = self.scene.injection.position
+        k, lam = xfem.locate_point_on_fault(f, s_inj)
+        r0, r1 = f.segment_ref[k]
+        xi, eta = r0 + lam * (r1 - r0)
+        nodes = self.elements[self.cut_elements[k]]
+        Ng = basis.shape(xi, eta)
+        self.inj_N = Ng
+        self.inj_jump_dofs = self._a_map(nodes[None, :])[0] if self.has_u else -np.ones(8, dtype=np.int64)
+        if self.fault_pressure_is_trace:
+            e = self.cut_elements[k]
+            hx, hy = self.mesh.element_sizes[e]
+            Nl, _ = basis.level_set_basis(Ng, basis.shape_gradient(xi, eta, hx, hy), f.node_phi[nodes])
+            self.inj_Np = np.concatenate([Ng, Nl])
+            pm = -np.ones(8, dtype=np.int64)
+            if self.has_p:
+                pm[:4] = self._p_map(nodes)
+            if self.has_c:
+                pm[4:] = self._c_map(nodes)
+            self.inj_p_dofs = pm
+        else:
+            self.inj_Np = np.array([1.0 - lam, lam])
+            self.inj_p_dofs = self.blocks.pf.start + f.segment_nodes[k]
+        self.inj_s = s_inj
+        self.inj_p0 = self.scene.initial.pore_pressure
+
+    # ------------------------------------------------------------------ static matrices
+    def _assemble_static(self):
+        """K, Q, H, S of the rock; fault storage, conduction (constant aperture) and opening
+        coupling. Split into: ``A`` (mechanics rows, acts on x at n+1), ``C`` (rate terms,
+        acts on (x - x_n)/dt) and ``Hf`` (flow terms, theta-weighted)."""
+        n = self.n_dofs
+        A, C, Hf = TripletBuilder(n), TripletBuilder(n), TripletBuilder(n)
+        groups = []
+        if len(self.std_elements):
+            groups.append(("std", self.std_elements, self.std_N, self.std_grad, self.std_N, self.std_grad, self.std_w))
+        if len(self.cut_elements):
+            groups.append(("cut", self.cut_elements, self.cut_Nu, self.cut_gu, self.cut_Np, self.cut_gp, self.cut_w))
+        for name, els, Nu, gu, Np, gp, w in groups:
+            umap = getattr(self, f"{name}_umap", None)
+            pmap = getattr(self, f"{name}_pmap", None)
+            if self.has_u:
+                K = _per_element(rock.elastic_stiffness, gu, w, self.el_D[els])
+                A.add(K, umap, umap)
+            if self.has_u and self.has_p:
+                Q = _per_element(rock.biot_coupling, gu, Np, w, self.el_alpha[els])
+                A.add(Q, umap, pmap, scale=-1.0)
+                C.add(np.transpose(Q, (0, 2, 1)), pmap, umap)
+            if self.has_p:
+                C.add(_per_element(rock.pore_storage, Np, w, self.el_inv_M[els]), pmap, pmap)
+                Hf.add(_per_element(rock.darcy_conductance, gp, w, self.el_mobility[els]), pmap, pmap)
+        # fault: storage and conduction on the fault-pressure carrier; walls pushed by pressure
+        s = self.scene
+        fp = self.fp
+        if s.effects.fault_flow:
+            w2h = s.fault.hydraulic_aperture
+            storativity = s.fault.storativity if s.fault.storativity is not None else w2h / s.fluid.bulk_modulus
+            T = fault_flow.cubic_law_transmissivity(w2h, s.fluid.viscosity, s.fault.kappa)
+            Sf = np.array([fault_flow.fault_storage(fp.Np[g], storativity, fp.weight[g]) for g in range(len(fp.s))])
+            Hc = np.array([fault_flow.fault_conduction(fp.dNp_ds[g], T, fp.weight[g]) for g in range(len(fp.s))])
+            C.add(Sf, fp.p_dofs, fp.p_dofs)
+            Hf.add(Hc, fp.p_dofs, fp.p_dofs)
+            self.fault_storativity = storativity
+            self.fault_transmissivity = T
+        if self.has_u:
+            G = np.array([fault_flow.opening_coupling(fp.Np[g], fp.N[g], self.fault.normal, fp.weight[g])
+                          for g in range(len(fp.s))])
+            # the opening rate stores fluid in the fault (mass balance rows) ...
+            if s.effects.fault_flow or self.has_c:
+                C.add(G, fp.p_dofs, fp.jump_dofs)
+            # ... and fault pressure pushes the walls apart (momentum rows)
+            A.add(np.transpose(G, (0, 2, 1)), fp.jump_dofs, fp.p_dofs, scale=-1.0)
+        if self.has_q:
+            # pressure control: the injection rate is the multiplier of p(x_inj) = prescribed
+            q = self.blocks.q.start
+            rows = self.inj_p_dofs[None, :]
+            Hf.add(-self.inj_Np[None, :, None], rows, np.array([[q]]))
+            A.add(self.inj_Np[None, None, :], np.array([[q]]), rows)
+        self.A = A.tocsr()
+        self.C = C.tocsr()
+        self.Hf = Hf.tocsr()
+        self.source_vector = np.zeros(self.n_dofs)
+        if not self.has_q:
+            ok = self.inj_p_dofs >= 0
+            self.source_vector[self.inj_p_dofs[ok]] = self.inj_Np[ok]
+
+    # ------------------------------------------------------------------ evaluation helpers
+    def fault_jump(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(slip, opening) at the fault Gauss points (m)."""
+        if not self.has_u:
+            z = np.zeros(len(self.fp.s))
+            return z, z.copy()
+        return _fault_jump(x, self.fp.N, self.fp.jump_dofs, self.fault.tangent, self.fault.normal)
+
+    def fault_overpressure(self, x: np.ndarray) -> np.ndarray:
+        xv = np.where(self.fp.p_dofs >= 0, x[np.maximum(self.fp.p_dofs, 0)], 0.0)
+        return np.sum(self.fp.Np * xv, axis=1)
+
+    def injection_overpressure(self, x):
+        xv = np.where(self.inj_p_dofs >= 0, x[np.maximum(self.inj_p_dofs, 0)], 0.0)
+        return float(self.inj_Np @ xv)
+
+    def injection_jump(self, x):
+        if not self.has_u:
+            return 0.0, 0.0
+        d = self.inj_jump_dofs
+        av = np.where(d >= 0, x[np.maximum(d, 0)], 0.0).reshape(4, 2)
+        g = self.inj_N @ av
+        return float(g @ self.fault.tangent), float(g @ self.fault.normal)
+
+
+def _per_element(fn, *args):
+    """Call a kernel element by element; the last argument may be per element or shared."""
+    n = args[0].shape[0]
+    first = fn(*[a[0] for a in args])
+    out = np.empty((n,) + first.shape)
+    out[0] = first
+    for e in range(1, n):
+        out[e] = fn(*[a[e] for a in args])
+    return out
+
+
+def _fault_jump(x, N, dofs, t, n):
+    av = np.where(dofs >= 0, x[np.maximum(dofs, 0)], 0.0).reshape(len(N), 4, 2)
+    g = np.einsum("gi,gic->gc", N, av)
+    return g @ t, g @ n

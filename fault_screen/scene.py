@@ -1,0 +1,467 @@
+"""Scenes: what to simulate, in one validated, immutable object loaded from TOML or a dict.
+
+Every field is SI (unit in its docstring). Validation happens once, here, and errors name the
+key and the offending value (``SceneError``). ``Scene.to_toml()`` writes the fully resolved scene
+(defaults included) back out.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+EDGES = ("bottom", "right", "top", "left")
+
+
+class SceneError(ValueError):
+    """A scene that cannot be simulated; the message names the key and the value."""
+
+
+def _spec(cls):
+    return dataclass(frozen=True, kw_only=True)(cls)
+
+
+@_spec
+class Refinement:
+    """Graded mesh: spacing ``size`` within ``half_width`` of ``center``, growing outside."""
+    center: tuple[float, float]
+    """Centre of the fine region (m)."""
+    half_width: tuple[float, float]
+    """Half widths of the fine region along x and y (m)."""
+    size: float
+    """Element size in the fine region (m)."""
+    growth: float = 1.15
+    """Ratio of consecutive element sizes outside the fine region (-)."""
+
+
+@_spec
+class MeshSpec:
+    nx: int = 50
+    """Elements along x (-); ignored with ``refinement``."""
+    ny: int = 51
+    """Elements along y (-); ignored with ``refinement``."""
+    lx: float = 250.0
+    """Domain width (m)."""
+    ly: float = 250.0
+    """Domain height (m)."""
+    origin: tuple[float, float] = (0.0, 0.0)
+    """Lower-left corner (m)."""
+    refinement: Refinement | None = None
+
+
+@_spec
+class FaultSpec:
+    point: tuple[float, float] | None = None
+    """A point on the fault, origin of the along-fault coordinate (m); default: domain centre."""
+    angle: float = 0.0
+    """Fault angle counter-clockwise from the x axis (degrees)."""
+    normal_stiffness: float = 31.8e9
+    """Apparent normal penalty stiffness kN (Pa/m)."""
+    shear_stiffness: float = 13.0e9
+    """Apparent tangential penalty stiffness kT (Pa/m)."""
+    friction: float = 0.61
+    """Friction coefficient mu0 (-)."""
+    hydraulic_aperture: float = 5.57e-5
+    """Initial hydraulic aperture 2h0 (m)."""
+    kappa: float = 1.2
+    """Deviation from the parallel-plate cubic law: transmissivity (2h)^3/(12 mu kappa) (-)."""
+    storativity: float | None = None
+    """Fault storativity (m/Pa); default 2h0/Kf (fluid compressibility in the aperture)."""
+
+
+@_spec
+class RockSpec:
+    youngs_modulus: float = 31.3e9
+    """Drained Young's modulus E (Pa)."""
+    poissons_ratio: float = 0.30
+    """Drained Poisson's ratio (-), in (-1, 0.5)."""
+    biot_coefficient: float = 0.77
+    """Biot coefficient alpha (-), in (porosity, 1]."""
+    porosity: float = 0.148
+    """Porosity n (-)."""
+    permeability: float = 6.77e-19
+    """Intrinsic permeability (m^2)."""
+    solid_bulk_modulus: float | None = None
+    """Grain bulk modulus Ks (Pa); default K_drained / (1 - alpha), consistent with alpha."""
+    density: float = 2364.0
+    """Solid grain density (kg/m^3)."""
+
+
+@_spec
+class Zone:
+    """A region with its own rock properties: a band around the fault or a box."""
+    name: str = "zone"
+    band: float | None = None
+    """Half width of a band on both sides of the fault (m)."""
+    box: tuple[float, float, float, float] | None = None
+    """xmin, xmax, ymin, ymax (m)."""
+    rock: dict = field(default_factory=dict)
+    """Overrides of ``[rock]`` keys in this zone (same units)."""
+
+
+@_spec
+class FluidSpec:
+    viscosity: float = 8.9e-4
+    """Dynamic viscosity (Pa s)."""
+    bulk_modulus: float = 2.15e9
+    """Fluid bulk modulus Kf (Pa)."""
+    density: float = 999.4
+    """Fluid density (kg/m^3)."""
+
+
+@_spec
+class InitialSpec:
+    effective_stress: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """In-situ effective stress sxx', syy', sxy' (Pa, tension positive)."""
+    pore_pressure: float = 0.0
+    """Initial pore pressure (Pa)."""
+
+
+@_spec
+class EdgeSpec:
+    mechanical: str = "pinned"
+    """'pinned' (both displacements fixed), 'roller' (normal fixed) or 'free'."""
+    hydraulic: str = "no_flow"
+    """'drained' (overpressure 0) or 'no_flow'."""
+    traction: tuple[float, float] = (0.0, 0.0)
+    """Change of applied traction tx, ty on a free or roller edge (Pa); applied from t > 0."""
+
+
+@_spec
+class BoundarySpec:
+    bottom: EdgeSpec = EdgeSpec()
+    right: EdgeSpec = EdgeSpec()
+    top: EdgeSpec = EdgeSpec()
+    left: EdgeSpec = EdgeSpec()
+
+
+@_spec
+class InjectionSpec:
+    control: str = "rate"
+    """'rate' (flow rate of the whole interval, m^3/s) or 'pressure' (overpressure, Pa)."""
+    position: float = 0.0
+    """Injection point along the fault from ``fault.point`` (m)."""
+    number_of_fractures: float = 1.0
+    """NoF: fractures sharing the interval's flow (Eq. 29); the model fault takes rate/NoF (-)."""
+    schedule: tuple[tuple[float, float], ...] = ((0.0, 0.0),)
+    """Steps (time s, value): value holds from its time to the next (m^3/s or Pa)."""
+
+
+@_spec
+class TimeSpec:
+    end: float = 1400.0
+    """End time (s)."""
+    dt: float = 5.0
+    """First time step (s)."""
+    growth: float = 1.0
+    """Each step is ``growth`` times the previous one (-), up to ``dt_max``."""
+    dt_max: float | None = None
+    """Largest step (s); default ``dt``."""
+    theta: float = 1.0
+    """Time integration weight of the flow terms: 1 backward Euler, 0.5 Crank-Nicolson (-)."""
+
+
+@_spec
+class SolverSpec:
+    tolerance: float = 1e-8
+    """Newton converges when every field's scaled residual is below this fraction of its
+    reference (-)."""
+    max_iterations: int = 30
+    max_step_cuts: int = 8
+    """A step whose Newton iteration fails is halved and retried at most this often."""
+
+
+@_spec
+class EffectsSpec:
+    mechanics: bool = True
+    """Deformable rock and fault contact; off = rigid rock (no displacement unknowns)."""
+    poroelastic: bool = True
+    """Pore pressure in the rock (Biot); off = impermeable rock, pressure lives on the fault only."""
+    leak_off: bool = True
+    """Fault and rock share the pressure field (enriched), so fluid leaks off into the rock."""
+    fault_flow: bool = True
+    """Flow along the fault (cubic law) and fault storage."""
+
+
+@_spec
+class Scene:
+    title: str = "untitled"
+    mesh: MeshSpec = MeshSpec()
+    fault: FaultSpec = FaultSpec()
+    rock: RockSpec = RockSpec()
+    zones: tuple[Zone, ...] = ()
+    fluid: FluidSpec = FluidSpec()
+    initial: InitialSpec = InitialSpec()
+    boundary: BoundarySpec = BoundarySpec()
+    injection: InjectionSpec = InjectionSpec()
+    time: TimeSpec = TimeSpec()
+    solver: SolverSpec = SolverSpec()
+    effects: EffectsSpec = EffectsSpec()
+
+    # ---- loading -------------------------------------------------------------------------
+    @classmethod
+    def from_toml(cls, path) -> "Scene":
+        path = Path(path)
+        try:
+            data = tomllib.loads(path.read_text())
+        except FileNotFoundError:
+            raise SceneError(f"scene file not found: {path}") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise SceneError(f"{path}: not valid TOML: {exc}") from None
+        return cls.from_dict(data)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "Scene":
+        scene = _build(cls, data, "")
+        _validate(scene)
+        return scene
+
+    def replace(self, **changes) -> "Scene":
+        """A copy with top-level sections replaced (validated)."""
+        new = dataclasses.replace(self, **changes)
+        _validate(new)
+        return new
+
+    def to_dict(self) -> dict:
+        return _to_plain(self)
+
+    def to_toml(self) -> str:
+        return dumps_toml(self.to_dict())
+
+    # ---- derived quantities --------------------------------------------------------------
+    @property
+    def fault_point(self) -> tuple[float, float]:
+        if self.fault.point is not None:
+            return self.fault.point
+        m = self.mesh
+        return (m.origin[0] + 0.5 * m.lx, m.origin[1] + 0.5 * m.ly)
+
+
+def _to_plain(obj):
+    if dataclasses.is_dataclass(obj):
+        out = {}
+        for f in fields(obj):
+            v = getattr(obj, f.name)
+            if v is None:
+                continue
+            out[f.name] = _to_plain(v)
+        return out
+    if isinstance(obj, (tuple, list)):
+        return [_to_plain(v) for v in obj]
+    if isinstance(obj, dict):
+        return {k: _to_plain(v) for k, v in obj.items()}
+    return obj
+
+
+def _build(cls, data, where):
+    if not isinstance(data, dict):
+        raise SceneError(f"[{where or 'scene'}] must be a table, got {data!r}")
+    known = {f.name: f for f in fields(cls)}
+    unknown = sorted(set(data) - set(known))
+    if unknown:
+        raise SceneError(f"unknown key {_key(where, unknown[0])!s} = {data[unknown[0]]!r}; "
+                         f"known keys in [{where or 'scene'}]: {', '.join(sorted(known))}")
+    kwargs = {}
+    hints = {f.name: f.type for f in fields(cls)}
+    for name, value in data.items():
+        kwargs[name] = _coerce(hints[name], value, _key(where, name))
+    return cls(**kwargs)
+
+
+def _key(where, name):
+    return f"{where}.{name}" if where else name
+
+
+_SECTIONS = {}
+
+
+def _coerce(hint, value, key):
+    hint = str(hint)
+    base = hint.replace(" | None", "")
+    if base in _SECTIONS:
+        return _build(_SECTIONS[base], value, key)
+    if base == "tuple[Zone, ...]":
+        if not isinstance(value, list):
+            raise SceneError(f"{key} must be an array of tables ([[zones]]), got {value!r}")
+        return tuple(_build(Zone, v, f"{key}[{i}]") for i, v in enumerate(value))
+    if base == "bool":
+        if not isinstance(value, bool):
+            raise SceneError(f"{key} = {value!r} must be true or false")
+        return value
+    if base == "int":
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise SceneError(f"{key} = {value!r} must be an integer")
+        return value
+    if base == "float":
+        return _number(value, key)
+    if base == "str":
+        if not isinstance(value, str):
+            raise SceneError(f"{key} = {value!r} must be a string")
+        return value
+    if base == "dict":
+        if not isinstance(value, dict):
+            raise SceneError(f"{key} = {value!r} must be a table")
+        return dict(value)
+    if base.startswith("tuple[tuple[float, float]"):
+        if not isinstance(value, list) or not value:
+            raise SceneError(f"{key} = {value!r} must be a non-empty array of [time, value] pairs")
+        out = []
+        for i, pair in enumerate(value):
+            if not isinstance(pair, list) or len(pair) != 2:
+                raise SceneError(f"{key}[{i}] = {pair!r} must be a [time, value] pair")
+            out.append((_number(pair[0], f"{key}[{i}][0]"), _number(pair[1], f"{key}[{i}][1]")))
+        return tuple(out)
+    if base.startswith("tuple[float"):
+        n = base.count("float")
+        if not isinstance(value, list) or len(value) != n:
+            raise SceneError(f"{key} = {value!r} must be an array of {n} numbers")
+        return tuple(_number(v, f"{key}[{i}]") for i, v in enumerate(value))
+    raise SceneError(f"{key}: cannot read {value!r}")  # pragma: no cover - schema error
+
+
+def _number(value, key):
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise SceneError(f"{key} = {value!r} must be a number (SI units)")
+    if not math.isfinite(value):
+        raise SceneError(f"{key} = {value!r} must be finite")
+    return float(value)
+
+
+for _cls in (Refinement, MeshSpec, FaultSpec, RockSpec, FluidSpec, InitialSpec, EdgeSpec,
+             BoundarySpec, InjectionSpec, TimeSpec, SolverSpec, EffectsSpec):
+    _SECTIONS[_cls.__name__] = _cls
+
+
+def _check(ok, key, value, why):
+    if not ok:
+        raise SceneError(f"{key} = {value!r}: {why}")
+
+
+def _validate_rock(rock: RockSpec, where: str):
+    _check(rock.youngs_modulus > 0, f"{where}.youngs_modulus", rock.youngs_modulus, "must be > 0 Pa")
+    _check(-1.0 < rock.poissons_ratio < 0.5, f"{where}.poissons_ratio", rock.poissons_ratio,
+           "must be in (-1, 0.5)")
+    _check(0.0 <= rock.porosity < 1.0, f"{where}.porosity", rock.porosity, "must be in [0, 1)")
+    _check(rock.porosity <= rock.biot_coefficient <= 1.0, f"{where}.biot_coefficient",
+           rock.biot_coefficient, f"must be in [porosity = {rock.porosity}, 1]")
+    _check(rock.permeability >= 0, f"{where}.permeability", rock.permeability, "must be >= 0 m^2")
+    _check(rock.density >= 0, f"{where}.density", rock.density, "must be >= 0 kg/m^3")
+    if rock.solid_bulk_modulus is not None:
+        _check(rock.solid_bulk_modulus > 0, f"{where}.solid_bulk_modulus", rock.solid_bulk_modulus,
+               "must be > 0 Pa")
+
+
+def _validate(s: Scene):
+    m = s.mesh
+    _check(m.nx >= 1, "mesh.nx", m.nx, "must be >= 1")
+    _check(m.ny >= 1, "mesh.ny", m.ny, "must be >= 1")
+    _check(m.lx > 0, "mesh.lx", m.lx, "must be > 0 m")
+    _check(m.ly > 0, "mesh.ly", m.ly, "must be > 0 m")
+    if m.refinement is not None:
+        r = m.refinement
+        _check(r.size > 0, "mesh.refinement.size", r.size, "must be > 0 m")
+        _check(1.0 <= r.growth <= 2.0, "mesh.refinement.growth", r.growth, "must be in [1, 2]")
+        _check(min(r.half_width) >= 0, "mesh.refinement.half_width", r.half_width, "must be >= 0 m")
+    f = s.fault
+    x0, y0 = m.origin
+    px, py = s.fault_point
+    _check(x0 <= px <= x0 + m.lx and y0 <= py <= y0 + m.ly, "fault.point", f.point,
+           f"must lie in the domain [{x0}, {x0 + m.lx}] x [{y0}, {y0 + m.ly}] m")
+    for key in ("normal_stiffness", "shear_stiffness", "hydraulic_aperture", "kappa"):
+        _check(getattr(f, key) > 0, f"fault.{key}", getattr(f, key), "must be > 0")
+    _check(f.friction >= 0, "fault.friction", f.friction, "must be >= 0")
+    if f.storativity is not None:
+        _check(f.storativity >= 0, "fault.storativity", f.storativity, "must be >= 0 m/Pa")
+    _validate_rock(s.rock, "rock")
+    rock_keys = {fl.name for fl in fields(RockSpec)}
+    for i, z in enumerate(s.zones):
+        where = f"zones[{i}]"
+        _check((z.band is None) != (z.box is None), where, z.name, "give exactly one of band or box")
+        if z.band is not None:
+            _check(z.band > 0, f"{where}.band", z.band, "must be > 0 m")
+        bad = sorted(set(z.rock) - rock_keys)
+        _check(not bad, f"{where}.rock.{bad[0] if bad else ''}", z.rock.get(bad[0]) if bad else None,
+               f"unknown rock key; known: {', '.join(sorted(rock_keys))}")
+        for k, v in z.rock.items():
+            _number(v, f"{where}.rock.{k}")
+        _validate_rock(dataclasses.replace(s.rock, **z.rock), f"{where}.rock")
+    fl = s.fluid
+    for key in ("viscosity", "bulk_modulus"):
+        _check(getattr(fl, key) > 0, f"fluid.{key}", getattr(fl, key), "must be > 0")
+    for edge in EDGES:
+        e = getattr(s.boundary, edge)
+        _check(e.mechanical in ("pinned", "roller", "free"), f"boundary.{edge}.mechanical",
+               e.mechanical, "must be 'pinned', 'roller' or 'free'")
+        _check(e.hydraulic in ("drained", "no_flow"), f"boundary.{edge}.hydraulic", e.hydraulic,
+               "must be 'drained' or 'no_flow'")
+        _check(e.mechanical != "pinned" or e.traction == (0.0, 0.0), f"boundary.{edge}.traction",
+               e.traction, "a pinned edge cannot carry an applied traction")
+    inj = s.injection
+    _check(inj.control in ("rate", "pressure"), "injection.control", inj.control,
+           "must be 'rate' or 'pressure'")
+    _check(inj.number_of_fractures >= 1, "injection.number_of_fractures", inj.number_of_fractures,
+           "must be >= 1")
+    times = [t for t, _ in inj.schedule]
+    _check(all(b > a for a, b in zip(times, times[1:])), "injection.schedule", inj.schedule,
+           "times must increase strictly")
+    if inj.control == "rate":
+        _check(all(v >= 0 for _, v in inj.schedule), "injection.schedule", inj.schedule,
+               "flow rates must be >= 0 m^3/s")
+    t = s.time
+    _check(t.end > 0, "time.end", t.end, "must be > 0 s")
+    _check(0 < t.dt <= t.end, "time.dt", t.dt, f"must be in (0, end = {t.end}] s")
+    _check(t.growth >= 1.0, "time.growth", t.growth, "must be >= 1")
+    if t.dt_max is not None:
+        _check(t.dt_max >= t.dt, "time.dt_max", t.dt_max, f"must be >= dt = {t.dt} s")
+    _check(0.5 <= t.theta <= 1.0, "time.theta", t.theta, "must be in [0.5, 1] (unconditionally stable)")
+    sv = s.solver
+    _check(0 < sv.tolerance < 1, "solver.tolerance", sv.tolerance, "must be in (0, 1)")
+    _check(sv.max_iterations >= 1, "solver.max_iterations", sv.max_iterations, "must be >= 1")
+    _check(sv.max_step_cuts >= 0, "solver.max_step_cuts", sv.max_step_cuts, "must be >= 0")
+    ef = s.effects
+    _check(not (ef.leak_off and not ef.poroelastic), "effects.leak_off", ef.leak_off,
+           "leak-off needs a permeable rock: set effects.poroelastic = true or leak_off = false")
+    _check(ef.fault_flow or ef.leak_off, "effects.fault_flow", ef.fault_flow,
+           "without fault flow the fault pressure needs leak_off = true to be defined")
+    _check(ef.mechanics or ef.poroelastic or ef.fault_flow, "effects", "all off", "nothing to simulate")
+    if not ef.mechanics:
+        _check(not ef.poroelastic, "effects.poroelastic", ef.poroelastic,
+               "Biot rock needs mechanics = true (rigid rock has no pore volume change)")
+
+
+# ---- a small TOML writer for resolved scenes (tables, arrays of tables, scalars, arrays) ----
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + "}"
+    raise TypeError(f"cannot write {v!r} as TOML")
+
+
+def dumps_toml(data: dict, prefix: str = "") -> str:
+    lines, tables = [], []
+    for k, v in data.items():
+        if isinstance(v, dict) and not (prefix.endswith("rock") or k == "rock" and prefix.startswith("zones")):
+            tables.append((k, v))
+        elif isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
+            tables.append((k, v))
+        else:
+            lines.append(f"{k} = {_toml_value(v)}")
+    out = "\n".join(lines)
+    for k, v in tables:
+        name = f"{prefix}.{k}" if prefix else k
+        if isinstance(v, list):
+            for item in v:
+                out += f"\n\n[[{name}]]\n" + dumps_toml(item, name)
+        else:
+            out += f"\n\n[{name}]\n" + dumps_toml(v, name)
+    return out.strip() + "\n"

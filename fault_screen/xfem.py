@@ -1,0 +1,250 @@
+"""Geometry of the embedded fault: level set, cut elements, enriched nodes and quadrature.
+
+The fault is a straight line through ``point`` at ``angle`` (counter-clockwise from x). Its unit
+tangent is ``t = (cos a, sin a)`` and normal ``n = (-sin a, cos a)``; the level set (paper Eq. 5)
+is the signed distance ``phi(x) = n . (x - point)``, so the "+" side is the one ``n`` points to.
+
+Cut elements (level set of both signs at their nodes) are integrated by splitting the reference
+square along the fault into two convex polygons, fanning them into triangles and using a 7-point
+degree-5 rule on each; the fault itself by 4-point Gauss–Legendre on its segment in each cut
+element. Everything here is set up once per scene (plain numpy); kernels get the arrays.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .mesh import StructuredMesh
+
+# Radon's 7-point, degree-5 rule on the reference triangle, barycentric coordinates and weights
+# summing to 1 (multiply by the triangle's area).
+_S15 = np.sqrt(15.0)
+_A1, _A2 = (6.0 - _S15) / 21.0, (6.0 + _S15) / 21.0
+_W1, _W2 = (155.0 - _S15) / 1200.0, (155.0 + _S15) / 1200.0
+TRI_BARY = np.array(
+    [[1 / 3, 1 / 3, 1 / 3],
+     [_A1, _A1, 1 - 2 * _A1], [_A1, 1 - 2 * _A1, _A1], [1 - 2 * _A1, _A1, _A1],
+     [_A2, _A2, 1 - 2 * _A2], [_A2, 1 - 2 * _A2, _A2], [1 - 2 * _A2, _A2, _A2]]
+)
+TRI_W = np.array([9 / 40, _W1, _W1, _W1, _W2, _W2, _W2])
+GL4_X, GL4_W = np.polynomial.legendre.leggauss(4)
+GAUSS2 = np.array([-1.0, 1.0]) / np.sqrt(3.0)
+REF_CORNERS = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
+
+#: Heaviside enrichment of a node is dropped when its support on the far side of the fault is
+#: smaller than this fraction of the node's support in the cut elements: the enriched function
+#: there is nearly zero, adds no approximation power and only spoils the conditioning.
+SLIVER_FRACTION = 1e-4
+
+
+def _clip(poly: np.ndarray, f: np.ndarray, sign: float) -> np.ndarray:
+    """Part of convex polygon ``poly`` where ``sign * f >= 0`` (``f`` linear, given at vertices)."""
+    out = []
+    n = len(poly)
+    for k in range(n):
+        a, b = poly[k], poly[(k + 1) % n]
+        fa, fb = sign * f[k], sign * f[(k + 1) % n]
+        if fa >= 0:
+            out.append(a)
+        if (fa > 0 > fb) or (fa < 0 < fb):
+            out.append(a + (b - a) * fa / (fa - fb))
+    return np.array(out)
+
+
+def _polygon_quadrature(poly: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points and reference-area weights of a fan triangulation of a convex polygon."""
+    pts, wts = [], []
+    for k in range(1, len(poly) - 1):
+        tri = np.array([poly[0], poly[k], poly[k + 1]])
+        area = 0.5 * abs((tri[1, 0] - tri[0, 0]) * (tri[2, 1] - tri[0, 1])
+                         - (tri[2, 0] - tri[0, 0]) * (tri[1, 1] - tri[0, 1]))
+        if area <= 1e-14:
+            continue
+        pts.append(TRI_BARY @ tri)
+        wts.append(TRI_W * area)
+    if not pts:
+        return np.zeros((0, 2)), np.zeros(0)
+    return np.vstack(pts), np.concatenate(wts)
+
+
+@dataclass(frozen=True)
+class FaultGeometry:
+    """Where the fault is with respect to the mesh (all arrays plain numpy)."""
+
+    point: np.ndarray              # (2,) m, origin of the along-fault coordinate s
+    tangent: np.ndarray            # (2,)
+    normal: np.ndarray             # (2,)
+    node_phi: np.ndarray           # (n_nodes,) signed distance, m
+    cut_elements: np.ndarray       # (n_cut,) element ids
+    # sub-cell quadrature of cut elements, padded with zero weights
+    cut_qp: np.ndarray             # (n_cut, nq, 2) reference coordinates
+    cut_w: np.ndarray              # (n_cut, nq) weights in m^2 (area)
+    cut_side: np.ndarray           # (n_cut, nq) Heaviside value 0/1 at the point
+    # fault Gauss points, ordered by s
+    gp_element: np.ndarray         # (n_gp,) index into cut_elements
+    gp_ref: np.ndarray             # (n_gp, 2) reference coordinates
+    gp_w: np.ndarray               # (n_gp,) length weights, m
+    gp_s: np.ndarray               # (n_gp,) along-fault coordinate, m
+    gp_segment: np.ndarray         # (n_gp,) segment index
+    gp_xi1d: np.ndarray            # (n_gp,) position on its segment in [0, 1]
+    # fault segments (one per cut element) and the 1-D fault node line
+    segment_s: np.ndarray          # (n_cut, 2) s at the segment ends, increasing
+    segment_ref: np.ndarray        # (n_cut, 2, 2) reference coordinates of the segment ends
+    fault_node_s: np.ndarray       # (n_fault_nodes,) s of segment ends
+    segment_nodes: np.ndarray      # (n_cut, 2) fault-node ids of each segment
+    heaviside_enriched: np.ndarray  # (n_nodes,) bool: node carries Heaviside DOFs
+    pressure_enriched: np.ndarray  # (n_nodes,) bool: node carries modified-level-set DOFs
+
+    @property
+    def length(self) -> float:
+        return float(self.fault_node_s[-1] - self.fault_node_s[0])
+
+
+def locate_fault(mesh: StructuredMesh, point, angle_deg: float) -> FaultGeometry:
+    """Cut a straight through-going fault into ``mesh``. Raises ``ValueError`` if it misses."""
+    a = np.deg2rad(angle_deg)
+    t = np.array([np.cos(a), np.sin(a)])
+    n = np.array([-np.sin(a), np.cos(a)])
+    point = np.asarray(point, dtype=float)
+    coords = mesh.coordinates
+    elems = mesh.elements
+    phi = (coords - point) @ n
+    ephi = phi[elems]
+    cut = np.flatnonzero((ephi.min(axis=1) < 0.0) & (ephi.max(axis=1) > 0.0))
+    if cut.size == 0:
+        raise ValueError("the fault does not cross the mesh (no element has nodes on both sides)")
+    sizes = mesh.element_sizes
+
+    qps, ws, sides, seg_s, seg_pts = [], [], [], [], []
+    for e in cut:
+        fref = ephi[e]
+        # phi is linear in reference coordinates on a rectangle: phi = c0 + c1 xi + c2 eta
+        c1 = 0.25 * (-fref[0] + fref[1] + fref[2] - fref[3])
+        c2 = 0.25 * (-fref[0] - fref[1] + fref[2] + fref[3])
+        c0 = 0.25 * fref.sum()
+        det = 0.25 * sizes[e, 0] * sizes[e, 1]
+        q, w, sd = [], [], []
+        for side, sign in ((1, 1.0), (0, -1.0)):
+            poly = _clip(REF_CORNERS, fref, sign)
+            if len(poly) >= 3:
+                p, pw = _polygon_quadrature(poly)
+                q.append(p)
+                w.append(pw * det)
+                sd.append(np.full(len(pw), side))
+        qps.append(np.vstack(q))
+        ws.append(np.concatenate(w))
+        sides.append(np.concatenate(sd))
+        # segment: where c0 + c1 xi + c2 eta = 0 crosses the reference square's edges
+        ends = []
+        for k in range(4):
+            pa, pb = REF_CORNERS[k], REF_CORNERS[(k + 1) % 4]
+            fa = c0 + c1 * pa[0] + c2 * pa[1]
+            fb = c0 + c1 * pb[0] + c2 * pb[1]
+            if fa == 0.0:
+                ends.append(pa)
+            elif fa * fb < 0.0:
+                ends.append(pa + (pb - pa) * fa / (fa - fb))
+        ends = np.unique(np.round(np.array(ends), 14), axis=0)
+        if len(ends) != 2:
+            raise ValueError(f"fault meets element {e} in {len(ends)} points; expected 2")
+        xe = coords[elems[e]]
+        phys = np.array([_ref_to_phys(xe, r) for r in ends])
+        s_ends = (phys - point) @ t
+        order = np.argsort(s_ends)
+        seg_s.append(s_ends[order])
+        seg_pts.append(ends[order])
+
+    nq = max(len(w) for w in ws)
+    n_cut = len(cut)
+    cut_qp = np.zeros((n_cut, nq, 2))
+    cut_w = np.zeros((n_cut, nq))
+    cut_side = np.zeros((n_cut, nq), dtype=np.int64)
+    for k in range(n_cut):
+        m = len(ws[k])
+        cut_qp[k, :m], cut_w[k, :m], cut_side[k, :m] = qps[k], ws[k], sides[k]
+
+    segment_s = np.array(seg_s)
+    order = np.argsort(segment_s[:, 0])
+    # renumber cut elements along the fault so that everything is ordered by s
+    cut = cut[order]
+    cut_qp, cut_w, cut_side = cut_qp[order], cut_w[order], cut_side[order]
+    segment_s = segment_s[order]
+    seg_pts = [seg_pts[k] for k in order]
+
+    # 1-D fault nodes: segment ends, merged where consecutive segments meet
+    h_min = float(sizes[cut].min())
+    ends_all = np.sort(segment_s.ravel())
+    nodes = [ends_all[0]]
+    for v in ends_all[1:]:
+        if v - nodes[-1] > 1e-9 * h_min:
+            nodes.append(v)
+    fault_node_s = np.array(nodes)
+    segment_nodes = np.column_stack([
+        np.abs(fault_node_s[None, :] - segment_s[:, :1]).argmin(axis=1),
+        np.abs(fault_node_s[None, :] - segment_s[:, 1:]).argmin(axis=1),
+    ]).astype(np.int64)
+    zero_length = segment_nodes[:, 0] == segment_nodes[:, 1]
+    if zero_length.any():
+        raise ValueError("the fault only touches the corner of an element; move it slightly")
+
+    gp_el, gp_ref, gp_w, gp_s, gp_seg, gp_xi = [], [], [], [], [], []
+    for k in range(n_cut):
+        e = cut[k]
+        r0, r1 = seg_pts[k]
+        s0, s1 = segment_s[k]
+        for xg, wg in zip(GL4_X, GL4_W):
+            lam = 0.5 * (xg + 1.0)
+            gp_el.append(k)
+            gp_ref.append(r0 + lam * (r1 - r0))
+            gp_w.append(0.5 * wg * (s1 - s0))
+            gp_s.append(s0 + lam * (s1 - s0))
+            gp_seg.append(k)
+            gp_xi.append(lam)
+
+    # enriched nodes and the sliver criterion for the Heaviside enrichment
+    cut_nodes = elems[cut]
+    enriched = np.zeros(mesh.n_nodes, dtype=bool)
+    enriched[cut_nodes.ravel()] = True
+    support = np.zeros(mesh.n_nodes)
+    far_side = np.zeros(mesh.n_nodes)
+    for k in range(n_cut):
+        xe_nodes = cut_nodes[k]
+        shape = _bilinear(cut_qp[k])  # (nq, 4)
+        for a in range(4):
+            node = xe_nodes[a]
+            node_side = 1 if phi[node] > 0 else 0
+            wN = cut_w[k] * shape[:, a]
+            support[node] += wN.sum()
+            far_side[node] += wN[cut_side[k] != node_side].sum()
+    heav = enriched & (far_side > SLIVER_FRACTION * np.maximum(support, 1e-300))
+
+    return FaultGeometry(
+        point=point, tangent=t, normal=n, node_phi=phi, cut_elements=cut,
+        cut_qp=cut_qp, cut_w=cut_w, cut_side=cut_side,
+        gp_element=np.array(gp_el, dtype=np.int64), gp_ref=np.array(gp_ref), gp_w=np.array(gp_w),
+        gp_s=np.array(gp_s), gp_segment=np.array(gp_seg, dtype=np.int64), gp_xi1d=np.array(gp_xi),
+        segment_s=segment_s, segment_ref=np.array(seg_pts), fault_node_s=fault_node_s, segment_nodes=segment_nodes,
+        heaviside_enriched=heav, pressure_enriched=enriched,
+    )
+
+
+def _bilinear(ref: np.ndarray) -> np.ndarray:
+    xi, eta = ref[..., 0], ref[..., 1]
+    return 0.25 * np.stack([(1 - xi) * (1 - eta), (1 + xi) * (1 - eta),
+                            (1 + xi) * (1 + eta), (1 - xi) * (1 + eta)], axis=-1)
+
+
+def _ref_to_phys(xe: np.ndarray, r: np.ndarray) -> np.ndarray:
+    return _bilinear(r) @ xe
+
+
+def locate_point_on_fault(geom: FaultGeometry, s: float) -> tuple[int, float]:
+    """Segment index containing along-fault coordinate ``s`` and the position in it (0..1)."""
+    if s < geom.segment_s[0, 0] - 1e-12 or s > geom.segment_s[-1, 1] + 1e-12:
+        raise ValueError(f"point s = {s} m is off the fault (fault spans {geom.segment_s[0, 0]:.6g} "
+                         f"to {geom.segment_s[-1, 1]:.6g} m)")
+    k = int(np.searchsorted(geom.segment_s[:, 1], s))
+    k = min(k, len(geom.segment_s) - 1)
+    s0, s1 = geom.segment_s[k]
+    return k, float(np.clip((s - s0) / (s1 - s0), 0.0, 1.0))
