@@ -18,10 +18,11 @@ def graded_line(start: float, length: float, focus: float, half_width: float, si
     """Node coordinates on ``[start, start + length]``: spacing ``size`` within ``half_width`` of
     ``focus``, then growing geometrically by ``growth`` towards both ends (m)."""
     end = start + length
-    lo = max(start, focus - half_width)
-    hi = min(end, focus + half_width)
-    n_core = max(1, int(round((hi - lo) / size)))
-    core = np.linspace(lo, hi, n_core + 1)
+    # whole elements of exactly ``size`` on each side of the focus, so the focus is a node line
+    n_lo = int(np.floor(min(half_width, focus - start) / size + 1e-9))
+    n_hi = int(np.floor(min(half_width, end - focus) / size + 1e-9))
+    lo, hi = focus - n_lo * size, focus + n_hi * size
+    core = focus + size * np.arange(-n_lo, n_hi + 1)
 
     def outward(extent: float) -> np.ndarray:
         if extent <= 1e-12 * length:

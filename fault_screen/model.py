@@ -76,12 +76,14 @@ class Model:
         self.mesh = build_mesh(m.nx, m.ny, m.lx, m.ly, m.origin, m.refinement)
         self.coords = self.mesh.coordinates
         self.elements = self.mesh.elements
-        self.fault = xfem.locate_fault(self.mesh, scene.fault_point, scene.fault.angle)
+        self.has_fault = ef.fault
+        self.fault = (xfem.locate_fault(self.mesh, scene.fault_point, scene.fault.angle)
+                      if ef.fault else xfem.no_fault(self.mesh))
         self.has_u = ef.mechanics
         self.has_p = ef.poroelastic
-        self.has_c = ef.poroelastic and ef.leak_off
-        self.has_pf = ef.fault_flow and not ef.leak_off
-        self.has_q = scene.injection.control == "pressure"
+        self.has_c = ef.fault and ef.poroelastic and ef.leak_off
+        self.has_pf = ef.fault and ef.fault_flow and not ef.leak_off
+        self.has_q = ef.fault and scene.injection.control == "pressure"
         self._materials()
         self._number_unknowns()
         self._tabulate_bulk()
@@ -353,6 +355,13 @@ class Model:
     # ------------------------------------------------------------------ injection point
     def _injection_point(self):
         f = self.fault
+        if not self.has_fault:
+            self.inj_N, self.inj_Np = np.zeros(4), np.zeros(0)
+            self.inj_jump_dofs = -np.ones(8, dtype=np.int64)
+            self.inj_p_dofs = np.zeros(0, dtype=np.int64)
+            self.inj_s, self.inj_p0 = 0.0, self.scene.initial.pore_pressure
+            self.fault_pressure_is_trace = False
+            return
         s_inj = self.scene.injection.position
         k, lam = xfem.locate_point_on_fault(f, s_inj)
         r0, r1 = f.segment_ref[k]
@@ -372,9 +381,12 @@ class Model:
             if self.has_c:
                 pm[4:] = self._c_map(nodes)
             self.inj_p_dofs = pm
-        else:
+        elif self.has_pf:
             self.inj_Np = np.array([1.0 - lam, lam])
             self.inj_p_dofs = self.blocks.pf.start + f.segment_nodes[k]
+        else:  # dry fault: no fluid to inject into
+            self.inj_Np = np.zeros(2)
+            self.inj_p_dofs = -np.ones(2, dtype=np.int64)
         self.inj_s = s_inj
         self.inj_p0 = self.scene.initial.pore_pressure
 
@@ -406,7 +418,8 @@ class Model:
         # fault: storage and conduction on the fault-pressure carrier; walls pushed by pressure
         s = self.scene
         fp = self.fp
-        if s.effects.fault_flow:
+        self.fault_storativity = self.fault_transmissivity = 0.0
+        if s.effects.fault_flow and self.has_fault:
             w2h = s.fault.hydraulic_aperture
             storativity = s.fault.storativity if s.fault.storativity is not None else w2h / s.fluid.bulk_modulus
             T = fault_flow.cubic_law_transmissivity(w2h, s.fluid.viscosity, s.fault.kappa)
@@ -416,7 +429,7 @@ class Model:
             Hf.add(Hc, fp.p_dofs, fp.p_dofs)
             self.fault_storativity = storativity
             self.fault_transmissivity = T
-        if self.has_u:
+        if self.has_u and self.has_fault:
             G = np.array([fault_flow.opening_coupling(fp.Np[g], fp.N[g], self.fault.normal, fp.weight[g])
                           for g in range(len(fp.s))])
             # the opening rate stores fluid in the fault (mass balance rows) ...
@@ -466,6 +479,8 @@ class Model:
 def _per_element(fn, *args):
     """Call a kernel element by element; the last argument may be per element or shared."""
     n = args[0].shape[0]
+    if n == 0:
+        return np.zeros((0, 1, 1))
     first = fn(*[a[0] for a in args])
     out = np.empty((n,) + first.shape)
     out[0] = first

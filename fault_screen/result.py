@@ -1,7 +1,8 @@
 """Results of a run and their HDF5 form.
 
 Layout (SI units; every fault array is shaped (time, x)):
-``/time`` s; ``/fault/x`` m along the fault (0 at the injection point); ``/fault/xy`` m;
+``/time`` s; ``/fault/x`` m along the fault (0 at the injection point) at the fault's Gauss
+points; ``/fault/xy`` m; ``/fault/weight`` m (Gauss weights: integrals along the fault are sums);
 ``/fault/{pressure, overpressure, shear_traction, effective_normal_stress}`` Pa (effective normal
 stress compression-positive); ``/fault/{slip, opening}`` m (opening positive apart);
 ``/fault/slip_rate`` m/s; ``/fault/friction`` -; ``/fault/contact_state`` 0 stick 1 slip 2 open;
@@ -28,6 +29,7 @@ class Result:
     time: np.ndarray
     fault_x: np.ndarray
     fault_xy: np.ndarray
+    fault_weights: np.ndarray
     fault: dict
     injection: dict
     balance: dict
@@ -48,6 +50,7 @@ class Result:
                 g = h5.create_group("fault")
                 g.create_dataset("x", data=self.fault_x).attrs["unit"] = "m"
                 g.create_dataset("xy", data=self.fault_xy).attrs["unit"] = "m"
+                g.create_dataset("weight", data=self.fault_weights).attrs["unit"] = "m"
                 for k, v in self.fault.items():
                     g.create_dataset(k, data=v, compression="gzip").attrs["unit"] = _UNITS.get(k, "")
                 for name in ("injection", "balance", "solver"):
@@ -73,9 +76,9 @@ class Result:
             scene = Scene.from_dict(tomllib.loads(h5.attrs["scene"]))
             read = lambda grp: {k: grp[k][()] for k in grp}
             fault = read(h5["fault"])
-            fx, fxy = fault.pop("x"), fault.pop("xy")
+            fx, fxy, fw = fault.pop("x"), fault.pop("xy"), fault.pop("weight")
             extra = {k: read(h5[k]) for k in h5 if k not in ("time", "fault", "injection", "balance", "solver")}
-            return cls(scene=scene, time=h5["time"][()], fault_x=fx, fault_xy=fxy, fault=fault,
+            return cls(scene=scene, time=h5["time"][()], fault_x=fx, fault_xy=fxy, fault_weights=fw, fault=fault,
                        injection=read(h5["injection"]), balance=read(h5["balance"]),
                        solver=read(h5["solver"]), meta=json.loads(h5.attrs["meta"]), extra=extra)
 

@@ -176,6 +176,8 @@ class SolverSpec:
 
 @_spec
 class EffectsSpec:
+    fault: bool = True
+    """An embedded fault (enrichment, contact, fault flow, injection); off = intact rock."""
     mechanics: bool = True
     """Deformable rock and fault contact; off = rigid rock (no displacement unknowns)."""
     poroelastic: bool = True
@@ -422,10 +424,18 @@ def _validate(s: Scene):
     _check(sv.max_iterations >= 1, "solver.max_iterations", sv.max_iterations, "must be >= 1")
     _check(sv.max_step_cuts >= 0, "solver.max_step_cuts", sv.max_step_cuts, "must be >= 0")
     ef = s.effects
+    if not ef.fault:
+        for key in ("fault_flow", "leak_off"):
+            _check(not getattr(ef, key), f"effects.{key}", getattr(ef, key),
+                   "needs a fault: set effects.fault = true or this switch to false")
+        _check(all(v == 0 for _, v in s.injection.schedule), "injection.schedule", s.injection.schedule,
+               "injection happens on the fault; without a fault the schedule must be zero")
     _check(not (ef.leak_off and not ef.poroelastic), "effects.leak_off", ef.leak_off,
            "leak-off needs a permeable rock: set effects.poroelastic = true or leak_off = false")
-    _check(ef.fault_flow or ef.leak_off, "effects.fault_flow", ef.fault_flow,
-           "without fault flow the fault pressure needs leak_off = true to be defined")
+    if ef.fault and not (ef.fault_flow or ef.leak_off):
+        # a dry fault: contact only, no fluid of its own
+        _check(all(v == 0 for _, v in s.injection.schedule), "injection.schedule", s.injection.schedule,
+               "a fault without fault_flow or leak_off holds no fluid, so nothing can be injected")
     _check(ef.mechanics or ef.poroelastic or ef.fault_flow, "effects", "all off", "nothing to simulate")
     if not ef.mechanics:
         _check(not ef.poroelastic, "effects.poroelastic", ef.poroelastic,

@@ -44,9 +44,10 @@ def step_schedule_value(schedule, t: float) -> float:
 
 
 def simulate(scene: Scene, *, progress: Callable | None = None, injected_volume=None,
-             model: Model | None = None) -> Result:
+             model: Model | None = None, observer: Callable | None = None) -> Result:
     """Run ``scene``; ``injected_volume(t0, t1)`` (m^3 of the whole interval) overrides the scene's
-    rate schedule (used for logs); ``progress(step, t, end, wall)`` is called after each step."""
+    rate schedule (used for logs); ``progress(step, t, end, wall)`` is called after each step;
+    ``observer(t, x, model)`` sees every accepted state vector (for checks on nodal fields)."""
     wall0 = _time.perf_counter()
     model = model or Model(scene)
     build_time = _time.perf_counter() - wall0
@@ -61,6 +62,8 @@ def simulate(scene: Scene, *, progress: Callable | None = None, injected_volume=
     hist = ContactState(np.zeros(len(model.fp.s)), model.fp.tau0.copy())
     rec = _Recorder(model, solver)
     rec.record(0.0, x, None, hist, 0.0, 0.0, 0.0, 0, 0)
+    if observer is not None:
+        observer(0.0, x, model)
     t, dt, step = 0.0, ts.dt, 0
     q_old = 0.0
     leaked = 0.0
@@ -101,6 +104,8 @@ def simulate(scene: Scene, *, progress: Callable | None = None, injected_volume=
         t = t1
         rec.record(t, x, out, hist, slip_rate, q_model * nof, injected_total, out.iterations, cuts,
                    leaked=leaked, dt=dt_try)
+        if observer is not None:
+            observer(t, x, model)
         if progress is not None:
             progress(step, t, ts.end, _time.perf_counter() - wall0)
         dt = min(dt_try * ts.growth, dt_max) if cuts == 0 else dt_try
@@ -166,4 +171,5 @@ class _Recorder:
         meta.update(dofs=m.n_dofs, dof_counts=m.dof_counts(),
                     number_of_fractures=scene.injection.number_of_fractures)
         return Result(scene=scene, time=stack("time"), fault_x=m.fp.s - m.inj_s, fault_xy=m.fp.xy,
+                      fault_weights=m.fp.weight,
                       fault=fault, injection=injection, balance=balance, solver=solver, meta=meta)
