@@ -426,7 +426,8 @@ class Model:
             Sf = np.array([fault_flow.fault_storage(fp.Np[g], storativity, fp.weight[g]) for g in range(len(fp.s))])
             Hc = np.array([fault_flow.fault_conduction(fp.dNp_ds[g], T, fp.weight[g]) for g in range(len(fp.s))])
             C.add(Sf, fp.p_dofs, fp.p_dofs)
-            Hf.add(Hc, fp.p_dofs, fp.p_dofs)
+            if not s.effects.aperture_evolution:  # else assembled per iteration (solver)
+                Hf.add(Hc, fp.p_dofs, fp.p_dofs)
             self.fault_storativity = storativity
             self.fault_transmissivity = T
         if self.has_u and self.has_fault:

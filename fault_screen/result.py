@@ -85,5 +85,5 @@ class Result:
 
 _UNITS = {"pressure": "Pa", "overpressure": "Pa", "shear_traction": "Pa",
           "effective_normal_stress": "Pa", "slip": "m", "opening": "m", "slip_rate": "m/s",
-          "friction": "1", "flow_rate": "m3/s", "volume": "m3", "stored_rock": "m3/m",
+          "friction": "1", "hydraulic_aperture": "m", "flow_rate": "m3/s", "volume": "m3", "stored_rock": "m3/m",
           "stored_fault": "m3/m", "leaked": "m3/m", "dt": "s"}

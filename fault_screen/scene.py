@@ -70,6 +70,22 @@ class FaultSpec:
     """Deviation from the parallel-plate cubic law: transmissivity (2h)^3/(12 mu kappa) (-)."""
     storativity: float | None = None
     """Fault storativity (m/Pa); default 2h0/Kf (fluid compressibility in the aperture)."""
+    rate_parameter: float = 0.0
+    """a of rate(-and-state) friction (-); used with effects.rate_friction."""
+    state_parameter: float = 0.0
+    """b of rate-and-state friction (-); used with effects.state_evolution."""
+    reference_velocity: float = 1e-7
+    """V0 of rate(-and-state) friction (m/s)."""
+    critical_slip_distance: float = 1e-4
+    """Dc of the aging law (m); used with effects.state_evolution."""
+    initial_state: float | None = None
+    """Initial state theta0 (s); default Dc / V0 (steady state at the reference velocity)."""
+    dilation_angle: float = 0.0
+    """Dilation angle (degrees); used with effects.dilation."""
+    asperity_height_std: float = 0.0
+    """sigma_h of Renshaw's aperture law (m); used with effects.aperture_evolution."""
+    slip_rate_threshold: float = 1e-9
+    """Slip rate above which a point counts as slipping (m/s) for rate friction and alerts."""
 
 
 @_spec
@@ -186,6 +202,18 @@ class EffectsSpec:
     """Fault and rock share the pressure field (enriched), so fluid leaks off into the rock."""
     fault_flow: bool = True
     """Flow along the fault (cubic law) and fault storage."""
+    rate_friction: bool = False
+    """Friction mu0 + a ln(V/V0) (regularised); off = constant Coulomb friction mu0."""
+    state_evolution: bool = False
+    """Rate-and-state friction with the aging law (b, Dc); needs rate_friction."""
+    dilation: bool = False
+    """Normal opening from shear slip through the dilation angle (Eq. 21)."""
+    aperture_evolution: bool = False
+    """Hydraulic aperture from the mechanical opening (Renshaw, Eq. 28); off = constant 2h0."""
+    gravity: bool = False
+    """Body force and depth-dependent in-situ stress and hydrostatic pore pressure."""
+    damage_zone: bool = False
+    """A band of damaged rock on both sides of the fault, properties from [damage_zone]."""
 
 
 @_spec

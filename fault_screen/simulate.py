@@ -59,7 +59,7 @@ def simulate(scene: Scene, *, progress: Callable | None = None, injected_volume=
     dt_max = ts.dt_max if ts.dt_max is not None else ts.dt
 
     x = np.zeros(model.n_dofs)
-    hist = ContactState(np.zeros(len(model.fp.s)), model.fp.tau0.copy())
+    hist = ContactState.initial(model)
     rec = _Recorder(model, solver)
     rec.record(0.0, x, None, hist, 0.0, 0.0, 0.0, 0, 0)
     if observer is not None:
@@ -99,7 +99,7 @@ def simulate(scene: Scene, *, progress: Callable | None = None, injected_volume=
         leaked += -dt_try * _boundary_inflow(model, out.reactions)
         slip_rate = (out.slip - hist.slip) / dt_try
         x = out.x
-        hist = ContactState(out.slip.copy(), out.tau.copy())
+        hist = out.history
         step += 1
         t = t1
         rec.record(t, x, out, hist, slip_rate, q_model * nof, injected_total, out.iterations, cuts,
@@ -131,22 +131,23 @@ class _Recorder:
         fp = m.fp
         dp = m.fault_overpressure(x)
         if out is None:
-            slip = np.zeros(len(fp.s))
-            opening = np.zeros(len(fp.s))
+            ng = len(fp.s)
+            slip, opening, slip_rate = np.zeros(ng), np.zeros(ng), np.zeros(ng)
             tau, sn = fp.tau0.copy(), fp.sigma_n0.copy()
-            state = np.zeros(len(fp.s), dtype=np.int64)
-            slip_rate = np.zeros(len(fp.s))
+            state = np.zeros(ng, dtype=np.int64)
+            friction = np.full(ng, m.scene.fault.friction)
+            aperture = np.full(ng, m.scene.fault.hydraulic_aperture)
         else:
             slip, opening, tau, sn, state = out.slip, out.opening, out.tau, out.sigma_n, out.state
-            if not m.has_u:
-                tau, sn = fp.tau0.copy(), fp.sigma_n0 - dp
+            friction, aperture = out.friction, out.aperture
         s_inj, o_inj = m.injection_jump(x)
         p_inj = m.injection_overpressure(x)
         vols = fluid_volumes(m, x)
         self.rows.append(dict(
             time=t, overpressure=dp, pressure=fp.p0 + dp, slip=slip, opening=opening,
             slip_rate=np.asarray(slip_rate, dtype=float) * np.ones(len(fp.s)), shear_traction=tau,
-            effective_normal_stress=sn, friction=self.solver.friction.copy(), contact_state=state,
+            effective_normal_stress=sn, friction=friction, contact_state=state,
+            hydraulic_aperture=aperture,
             inj_flow=flow_rate, inj_overpressure=p_inj, inj_pressure=m.inj_p0 + p_inj, inj_slip=s_inj,
             inj_opening=o_inj, inj_volume=volume, iterations=iterations, cuts=cuts, dt=dt,
             stored_rock=vols["rock"], stored_fault=vols["fault"], leaked=leaked,
@@ -157,7 +158,7 @@ class _Recorder:
         stack = lambda k: np.array([row[k] for row in r])
         fault = {k: stack(k) for k in ("pressure", "overpressure", "slip", "opening", "slip_rate",
                                         "shear_traction", "effective_normal_stress", "friction",
-                                        "contact_state")}
+                                        "contact_state", "hydraulic_aperture")}
         injection = {
             "flow_rate": stack("inj_flow"), "pressure": stack("inj_pressure"),
             "overpressure": stack("inj_overpressure"), "slip": stack("inj_slip"),

@@ -15,7 +15,8 @@ import scipy.linalg
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .kernels.contact import assemble_contact
+from .kernels.contact import assemble_contact, coulomb_law, fault_jumps, rate_state_law
+from .kernels.fault_flow import assemble_evolving_conduction
 from .model import Model
 
 
@@ -25,12 +26,57 @@ class StepFailed(RuntimeError):
 
 @dataclass
 class ContactState:
-    """Converged contact history at the fault Gauss points."""
+    """Converged history at the fault Gauss points: total slip and shear traction (for the
+    incremental tangential return map), cumulative plastic slip (dilation) and friction state."""
     slip: np.ndarray
     tau: np.ndarray
+    dilatant_slip: np.ndarray
+    theta: np.ndarray
 
-    def copy(self):
-        return ContactState(self.slip.copy(), self.tau.copy())
+    @classmethod
+    def initial(cls, model: Model) -> "ContactState":
+        fp = model.fp
+        ng = len(fp.s)
+        f = model.scene.fault
+        theta0 = f.initial_state if f.initial_state is not None else f.critical_slip_distance / f.reference_velocity
+        return cls(np.zeros(ng), fp.tau0.copy(), np.zeros(ng), np.full(ng, theta0))
+
+
+class CoulombFriction:
+    """Constant friction mu0 (effects.rate_friction off)."""
+
+    def __init__(self, model: Model):
+        f = model.scene.fault
+        ng = len(model.fp.s)
+        self.mu = np.full(ng, f.friction)
+        self.kN, self.kT = f.normal_stiffness, f.shear_stiffness
+        self.tan_dilation = np.tan(np.radians(f.dilation_angle)) if model.scene.effects.dilation else 0.0
+        self.sigma_n0 = model.fp.sigma_n0
+
+    def __call__(self, slip, opening, hist: ContactState, dt):
+        tau, sn, state, ds, tangent = coulomb_law(slip, opening, hist.slip, hist.tau, hist.dilatant_slip,
+                                                  self.sigma_n0, self.kN, self.kT, self.mu,
+                                                  self.tan_dilation)
+        return tau, sn, state, ds, hist.theta, self.mu, tangent
+
+
+class RateStateFriction(CoulombFriction):
+    """mu0 + a ln(V/V0) (+ b ln(V0 theta/Dc) with the aging law), regularised (kernels.friction)."""
+
+    def __init__(self, model: Model):
+        super().__init__(model)
+        f = model.scene.fault
+        self.params = (f.friction, f.rate_parameter,
+                       f.state_parameter if model.scene.effects.state_evolution else 0.0,
+                       f.reference_velocity, f.critical_slip_distance)
+        self.threshold = f.slip_rate_threshold
+
+    def __call__(self, slip, opening, hist: ContactState, dt):
+        mu0, a, b, V0, Dc = self.params
+        tau, sn, state, ds, theta, mu, tangent = rate_state_law(
+            slip, opening, hist.slip, hist.tau, hist.dilatant_slip, hist.theta, self.sigma_n0,
+            self.kN, self.kT, self.tan_dilation, mu0, a, b, V0, Dc, dt, self.threshold)
+        return tau, sn, state, ds, theta, mu, tangent
 
 
 @dataclass
@@ -44,6 +90,9 @@ class StepOutcome:
     sigma_n: np.ndarray
     state: np.ndarray
     reactions: np.ndarray
+    history: ContactState
+    friction: np.ndarray
+    aperture: np.ndarray
 
 
 class NewtonSolver:
@@ -77,6 +126,12 @@ class NewtonSolver:
         if self.static_B:
             nonlinear[b.pf] = True
             nonlinear[b.q] = True
+        sc = model.scene
+        self.evolving_aperture = sc.effects.aperture_evolution and model.has_fault and sc.effects.fault_flow
+        if self.evolving_aperture:  # the fault conduction depends on the opening
+            pd = model.fp.p_dofs
+            nonlinear[pd[pd >= 0]] = True
+        self.friction_law = (RateStateFriction if sc.effects.rate_friction else CoulombFriction)(model)
         self.scale = None
         self.lu_B = None
         nl_free = nonlinear[self.free]
@@ -85,17 +140,46 @@ class NewtonSolver:
         # position of each global DOF in N (for the contact tangent), -1 elsewhere
         self.n_index = np.full(model.n_dofs, -1, dtype=np.int64)
         self.n_index[self.N] = np.arange(len(self.N))
-        ng = len(model.fp.s)
-        self.friction = np.full(ng, s.fault.friction)
         self.factorizations = 0
 
-    def contact(self, x, hist: ContactState, residual):
+    def fault_terms(self, x, hist: ContactState, dt, residual):
+        """Nonlinear fault terms at x: contact (and evolving-aperture conduction) added into
+        ``residual``; returns their Jacobian triplets and the point-wise fault state."""
         m = self.model
         fp = m.fp
-        s = m.scene.fault
-        return assemble_contact(x, fp.N, fp.jump_dofs, m.fault.tangent, m.fault.normal, fp.weight,
-                                hist.slip, hist.tau, fp.sigma_n0, fp.tau0, s.normal_stiffness,
-                                s.shear_stiffness, self.friction, residual)
+        ng = len(fp.s)
+        empty = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0))
+        point = {"slip": np.zeros(ng), "opening": np.zeros(ng), "aperture": None}
+        rows, cols, vals = [empty[0]], [empty[1]], [empty[2]]
+        if m.has_u:
+            slip, opening = fault_jumps(x, fp.N, fp.jump_dofs, m.fault.tangent, m.fault.normal)
+            tau, sn, state, ds, theta, mu, tangent = self.friction_law(slip, opening, hist, dt)
+            r, c, v = assemble_contact(fp.N, fp.jump_dofs, m.fault.tangent, m.fault.normal,
+                                       fp.weight, tau, sn, fp.tau0, fp.sigma_n0, tangent, residual)
+            rows.append(r), cols.append(c), vals.append(v)
+            point.update(slip=slip, opening=opening, tau=tau, sigma_n=sn, state=state, ds=ds,
+                         theta=theta, mu=mu)
+        if self.evolving_aperture:
+            f = m.scene.fault
+            r, c, v, aperture = assemble_evolving_conduction(
+                x, fp.N, fp.jump_dofs, fp.Np, fp.dNp_ds, fp.p_dofs, m.fault.normal, fp.weight,
+                f.hydraulic_aperture, f.asperity_height_std, m.scene.fluid.viscosity, f.kappa,
+                self.theta, residual)
+            rows.append(r), cols.append(c), vals.append(v)
+            point["aperture"] = aperture
+        return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals), point
+
+    def old_conduction(self, x_n):
+        """(1 - theta) times the evolving-aperture conduction at the start of the step."""
+        out = np.zeros(self.model.n_dofs)
+        if self.evolving_aperture and self.theta < 1.0:
+            m, f = self.model, self.model.scene.fault
+            fp = m.fp
+            assemble_evolving_conduction(x_n, fp.N, fp.jump_dofs, fp.Np, fp.dNp_ds, fp.p_dofs,
+                                         m.fault.normal, fp.weight, f.hydraulic_aperture,
+                                         f.asperity_height_std, m.scene.fluid.viscosity, f.kappa,
+                                         1.0 - self.theta, out)
+        return out
 
     def _prepare(self, dt, x_n, hist):
         """Factorise the linear block for step size ``dt`` and form its Schur complement.
@@ -109,8 +193,8 @@ class NewtonSolver:
         L = (m.A + m.C * (1.0 / dt) + m.Hf * self.theta).tocsr()
         if self.scale is None:
             diag = np.abs(L.diagonal())
-            if m.has_u:  # contact stiffness belongs in the scaling of the Heaviside DOFs
-                rows, cols, vals, *_ = self.contact(x_n, hist, np.zeros(m.n_dofs))
+            if m.has_u or self.evolving_aperture:  # nonlinear stiffness belongs in the scaling
+                rows, cols, vals, _ = self.fault_terms(x_n, hist, dt, np.zeros(m.n_dofs))
                 on_diag = rows == cols
                 np.add.at(diag, rows[on_diag], np.abs(vals[on_diag]))
             zero = diag == 0.0
@@ -179,23 +263,16 @@ class NewtonSolver:
         rhs = rhs + m.source_vector * (th * source_rate + (1.0 - th) * source_rate_old)
         if m.has_q:
             rhs[m.blocks.q.start] += prescribed_q
+        rhs -= self.old_conduction(x_n)
         x = x_n.copy()
         free = self.free
         ref0 = None
         kc = None
         last_vals = None
         n_fact = 0
-        ng = len(m.fp.s)
-        zeros = np.zeros(ng)
         for it in range(self.max_it + 1):
             R = L @ x - rhs
-            if m.has_u:
-                rows, cols, vals, slip, opening, tau, sn, state = self.contact(x, hist, R)
-            else:
-                rows = cols = np.zeros(0, dtype=np.int64)
-                vals = np.zeros(0)
-                slip, opening, tau, sn = zeros, zeros, zeros, zeros
-                state = np.zeros(ng, dtype=np.int64)
+            rows, cols, vals, point = self.fault_terms(x, hist, dt, R)
             sR = scale * R
             if not np.all(np.isfinite(sR[free])):
                 raise StepFailed("non-finite residual")
@@ -212,9 +289,7 @@ class NewtonSolver:
             ref = (max(ref0[0], np.linalg.norm(s_mech[mf])), max(ref0[1], np.linalg.norm(s_flow[~mf])))
             if it > 0 or max(norms) == 0.0:
                 if norms[0] <= self.tol * ref[0] and norms[1] <= self.tol * ref[1]:
-                    reactions = np.zeros(m.n_dofs)
-                    reactions[m.fixed] = R[m.fixed]
-                    return StepOutcome(x, it, n_fact, slip, opening, tau, sn, state, reactions)
+                    return self._outcome(x, it, n_fact, R, point, hist)
             if it == self.max_it:
                 break
             if kc is None or len(vals) != len(last_vals) or np.any(vals != last_vals):
@@ -227,6 +302,25 @@ class NewtonSolver:
             x += dx
         raise StepFailed(f"Newton did not converge in {self.max_it} iterations "
                          f"(scaled residuals {norms[0]:.3e}, {norms[1]:.3e})")
+
+    def _outcome(self, x, it, n_fact, R, point, hist):
+        m = self.model
+        ng = len(m.fp.s)
+        reactions = np.zeros(m.n_dofs)
+        reactions[m.fixed] = R[m.fixed]
+        if m.has_u:
+            new_hist = ContactState(point["slip"].copy(), point["tau"].copy(),
+                                    hist.dilatant_slip + point["ds"], point["theta"].copy())
+            tau, sn, state, mu = point["tau"], point["sigma_n"], point["state"], point["mu"]
+        else:
+            new_hist = hist
+            tau, sn = m.fp.tau0.copy(), m.fp.sigma_n0 - m.fault_overpressure(x)
+            state, mu = np.zeros(ng, dtype=np.int64), np.full(ng, m.scene.fault.friction)
+        aperture = point["aperture"]
+        if aperture is None:
+            aperture = np.full(ng, m.scene.fault.hydraulic_aperture)
+        return StepOutcome(x, it, n_fact, point["slip"], point["opening"], tau, sn, state,
+                           reactions, new_hist, np.asarray(mu).copy(), aperture)
 
     def _contact_system(self, rows, cols, vals):
         """Dense LU of the condensed system: Schur complement plus scaled contact tangent."""

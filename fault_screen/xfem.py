@@ -114,7 +114,8 @@ def locate_fault(mesh: StructuredMesh, point, angle_deg: float) -> FaultGeometry
     ephi = phi[elems]
     cut = np.flatnonzero((ephi.min(axis=1) < 0.0) & (ephi.max(axis=1) > 0.0))
     if cut.size == 0:
-        raise ValueError("the fault does not cross the mesh (no element has nodes on both sides)")
+        raise ValueError("the fault does not cross any element: it misses the domain or runs along a "
+                         "mesh line; move it off the node lines by part of an element")
     sizes = mesh.element_sizes
 
     qps, ws, sides, seg_s, seg_pts = [], [], [], [], []

@@ -44,7 +44,7 @@ def _projected(model, stress_voigt):
 def test_in_situ_stress_alone(angle, offset):
     model = Model(scene_for(angle, offset))
     solver = NewtonSolver(model)
-    hist = ContactState(np.zeros(len(model.fp.s)), model.fp.tau0.copy())
+    hist = ContactState.initial(model)
     out = solver.step(np.zeros(model.n_dofs), hist, 1.0, model.load, 0.0, 0.0, 0.0)
     assert np.all(np.isfinite(out.x))
     assert np.max(np.abs(out.slip)) < 1e-15
@@ -75,7 +75,7 @@ def test_uniform_stress_change_is_reproduced_exactly(angle, offset):
     exact[a_dofs + 1] = g[1]
     x_n = np.where(model.fixed, exact, 0.0)
     solver = NewtonSolver(model)
-    hist = ContactState(np.zeros(len(model.fp.s)), model.fp.tau0.copy())
+    hist = ContactState.initial(model)
     out = solver.step(x_n, hist, 1.0, model.load, 0.0, 0.0, 0.0)
     scale = np.max(np.abs(exact))
     # round-off of a direct solve on a scaled system: 1e-8 of the displacement scale
@@ -89,11 +89,11 @@ def test_uniform_stress_change_is_reproduced_exactly(angle, offset):
 def _conditions(angle, offset):
     model = Model(scene_for(angle, offset))
     solver = NewtonSolver(model)
-    hist = ContactState(np.zeros(len(model.fp.s)), model.fp.tau0.copy())
+    hist = ContactState.initial(model)
     x0 = np.zeros(model.n_dofs)
     solver._prepare(1.0, x0, hist)
     J = solver.L.toarray()
-    rows, cols, vals, *_ = solver.contact(x0, hist, np.zeros(model.n_dofs))
+    rows, cols, vals, _ = solver.fault_terms(x0, hist, 1.0, np.zeros(model.n_dofs))
     np.add.at(J, (rows, cols), vals)
     free = model.free
     Jff = J[np.ix_(free, free)]

@@ -12,29 +12,91 @@ No fastmath here: the stick / slip / open decisions are comparisons.
 import numpy as np
 
 from .._jit import kernel
+from .friction import aging_state, rate_state_friction
 
 STICK, SLIP, OPEN = 0, 1, 2
 
 
 @kernel
-def coulomb_return_map(slip, opening, slip_old, tau_old, sigma_n0, normal_stiffness,
-                       shear_stiffness, friction):
-    """Returns (tau, sigma_n, state, dtau_dslip, dtau_dopening, dsigma_n_dopening)."""
-    sigma_n = sigma_n0 - normal_stiffness * opening
-    if not sigma_n > 0.0:  # also catches NaN: treat as open, never as a silent stick
-        return 0.0, 0.0, OPEN, 0.0, 0.0, 0.0
-    tau_trial = tau_old + shear_stiffness * (slip - slip_old)
-    strength = friction * sigma_n
-    if abs(tau_trial) <= strength:
-        return tau_trial, sigma_n, STICK, shear_stiffness, 0.0, -normal_stiffness
-    sgn = 1.0 if tau_trial > 0 else -1.0
-    return (sgn * strength, sigma_n, SLIP, 0.0, -sgn * friction * normal_stiffness,
-            -normal_stiffness)
+def _slip_tangent(sgn, kT, kN, tan_dilation, mu, Fp):
+    """Consistent derivatives of (tau, sigma_n) with respect to (slip, opening) while sliding,
+    from the scalar return-map equation |tau_trial| - kT ds - mu sigma_n(ds) = 0 whose
+    derivative in the plastic slip increment ds is -Fp."""
+    dtau_ds = kT * (1.0 - kT / Fp)
+    dtau_do = -sgn * kT * mu * kN / Fp
+    dsig_ds = kN * tan_dilation * sgn * kT / Fp
+    dsig_do = -kN + kN * tan_dilation * mu * kN / Fp
+    return dtau_ds, dtau_do, dsig_ds, dsig_do
 
 
 @kernel
-def contact_local(N, tangent, normal, tau, sigma_n, tau0, sigma_n0, dtau_dslip, dtau_dopening,
-                  dsigma_dopening, weight):
+def coulomb_point(slip, opening, slip_old, tau_old, dilatant_slip_old, sigma_n0, kN, kT, mu,
+                  tan_dilation):
+    """Rate-independent Coulomb return map with dilation.
+
+    Returns (tau, sigma_n, state, plastic slip increment, dtau_ds, dtau_do, dsig_ds, dsig_do);
+    sigma_n = sigma_n0 - kN (opening - tan(psi) * cumulative plastic slip)."""
+    sigma_base = sigma_n0 - kN * opening + kN * tan_dilation * dilatant_slip_old
+    if not sigma_base > 0.0:  # also catches NaN: treat as open, never as a silent stick
+        return 0.0, 0.0, OPEN, 0.0, 0.0, 0.0, 0.0, 0.0
+    tau_trial = tau_old + kT * (slip - slip_old)
+    if abs(tau_trial) <= mu * sigma_base:
+        return tau_trial, sigma_base, STICK, 0.0, kT, 0.0, 0.0, -kN
+    sgn = 1.0 if tau_trial > 0 else -1.0
+    Fp = kT + mu * kN * tan_dilation
+    ds = (abs(tau_trial) - mu * sigma_base) / Fp
+    sigma_n = sigma_base + kN * tan_dilation * ds
+    d = _slip_tangent(sgn, kT, kN, tan_dilation, mu, Fp)
+    return sgn * mu * sigma_n, sigma_n, SLIP, ds, d[0], d[1], d[2], d[3]
+
+
+@kernel
+def rate_state_point(slip, opening, slip_old, tau_old, dilatant_slip_old, theta_old, sigma_n0,
+                     kN, kT, tan_dilation, mu0, a, b, V0, Dc, dt, slip_rate_threshold):
+    """Viscoplastic return map with rate(-and-state) friction, spring kT in series.
+
+    Solves |tau_trial| - kT ds = mu(V = ds/dt, theta(V)) sigma_n(ds) for the plastic slip
+    increment ds in [0, |tau_trial|/kT] (safeguarded Newton: the left side falls and the right
+    side is 0 at ds = 0). Returns (tau, sigma_n, state, ds, theta, mu, dtau_ds, dtau_do, dsig_ds,
+    dsig_do); state is SLIP where the slip rate exceeds ``slip_rate_threshold``."""
+    sigma_base = sigma_n0 - kN * opening + kN * tan_dilation * dilatant_slip_old
+    if not sigma_base > 0.0:
+        return 0.0, 0.0, OPEN, 0.0, theta_old, 0.0, 0.0, 0.0, 0.0, 0.0
+    tau_trial = tau_old + kT * (slip - slip_old)
+    Tt = abs(tau_trial)
+    sgn = 1.0 if tau_trial >= 0 else -1.0
+    lo, hi = 0.0, Tt / kT
+    ds = 0.0
+    theta = theta_old
+    mu = 0.0
+    Fp = kT
+    for _ in range(200):
+        V = ds / dt
+        if b != 0.0:
+            theta, dtheta_dV = aging_state(theta_old, V, dt, Dc)
+        else:
+            dtheta_dV = 0.0
+        mu, dmu_dV, dmu_dtheta = rate_state_friction(V, theta, mu0, a, b, V0, Dc)
+        sigma = sigma_base + kN * tan_dilation * ds
+        F = Tt - kT * ds - mu * sigma
+        Fp = kT + (dmu_dV + dmu_dtheta * dtheta_dV) / dt * sigma + mu * kN * tan_dilation
+        if F > 0.0:
+            lo = ds
+        else:
+            hi = ds
+        if abs(F) <= 1e-13 * max(Tt, 1.0) or hi - lo <= 1e-15 * max(hi, 1e-300):
+            break
+        step = ds + F / Fp
+        ds = step if lo < step < hi else 0.5 * (lo + hi)
+    sigma_n = sigma_base + kN * tan_dilation * ds
+    state = SLIP if ds / dt > slip_rate_threshold else STICK
+    d = _slip_tangent(sgn, kT, kN, tan_dilation, mu, Fp)
+    return sgn * (Tt - kT * ds), sigma_n, state, ds, theta, mu, d[0], d[1], d[2], d[3]
+
+
+@kernel
+def contact_local(N, tangent, normal, tau, sigma_n, tau0, sigma_n0, dtau_ds, dtau_do, dsig_ds,
+                  dsig_do, weight):
     """Residual (8,) and tangent (8, 8) on the Heaviside DOFs of one cut element.
 
     The residual carries the change of contact traction from the in-situ state (the in-situ
@@ -43,12 +105,12 @@ def contact_local(N, tangent, normal, tau, sigma_n, tau0, sigma_n0, dtau_dslip, 
     T = np.empty(2)
     for c in range(2):
         T[c] = (tau - tau0) * tangent[c] - (sigma_n - sigma_n0) * normal[c]
-    # d(traction vector)/d(jump vector) = R^T C R with R = [t; n]
+    # d(traction vector)/d(jump vector) = R^T C R with R = [t; n], C = d(tau, -sigma_n)/d(s, o)
     C = np.empty((2, 2))
     for c in range(2):
         for d in range(2):
-            C[c, d] = (tangent[c] * (dtau_dslip * tangent[d] + dtau_dopening * normal[d])
-                       - normal[c] * dsigma_dopening * normal[d])
+            C[c, d] = (tangent[c] * (dtau_ds * tangent[d] + dtau_do * normal[d])
+                       - normal[c] * (dsig_ds * tangent[d] + dsig_do * normal[d]))
     r = np.zeros(8)
     k = np.zeros((8, 8))
     for i in range(4):
@@ -61,20 +123,11 @@ def contact_local(N, tangent, normal, tau, sigma_n, tau0, sigma_n0, dtau_dslip, 
 
 
 @kernel
-def assemble_contact(x, N, jump_dofs, tangent, normal, weight, slip_old, tau_old, sigma_n0, tau0,
-                     normal_stiffness, shear_stiffness, friction, residual):
-    """Contact forces of every fault Gauss point added into ``residual``; returns the tangent's
-    COO triplets and the point-wise (slip, opening, tau, sigma_n, state)."""
+def fault_jumps(x, N, jump_dofs, tangent, normal):
+    """(slip, opening) at every fault Gauss point from the Heaviside DOFs."""
     ng = N.shape[0]
-    rows = np.empty(ng * 64, dtype=np.int64)
-    cols = np.empty(ng * 64, dtype=np.int64)
-    vals = np.empty(ng * 64)
     slip = np.empty(ng)
     opening = np.empty(ng)
-    tau = np.empty(ng)
-    sigma_n = np.empty(ng)
-    state = np.empty(ng, dtype=np.int64)
-    k = 0
     for g in range(ng):
         gx = 0.0
         gy = 0.0
@@ -87,14 +140,61 @@ def assemble_contact(x, N, jump_dofs, tangent, normal, weight, slip_old, tau_old
                 gy += N[g, i] * x[dy]
         slip[g] = gx * tangent[0] + gy * tangent[1]
         opening[g] = gx * normal[0] + gy * normal[1]
-        t, sn, st, dts, dto, dso = coulomb_return_map(
-            slip[g], opening[g], slip_old[g], tau_old[g], sigma_n0[g], normal_stiffness,
-            shear_stiffness, friction[g])
-        tau[g] = t
-        sigma_n[g] = sn
-        state[g] = st
-        r, kl = contact_local(N[g], tangent, normal, t, sn, tau0[g], sigma_n0[g], dts, dto, dso,
-                              weight[g])
+    return slip, opening
+
+
+@kernel
+def coulomb_law(slip, opening, slip_old, tau_old, dilatant_old, sigma_n0, kN, kT, mu, tan_dilation):
+    """Coulomb return map at every point: arrays (tau, sigma_n, state, ds, tangent (ng, 4))."""
+    ng = slip.shape[0]
+    tau = np.empty(ng)
+    sigma_n = np.empty(ng)
+    state = np.empty(ng, dtype=np.int64)
+    ds = np.empty(ng)
+    tangent = np.empty((ng, 4))
+    for g in range(ng):
+        r = coulomb_point(slip[g], opening[g], slip_old[g], tau_old[g], dilatant_old[g],
+                          sigma_n0[g], kN, kT, mu[g], tan_dilation)
+        tau[g], sigma_n[g], state[g], ds[g] = r[0], r[1], r[2], r[3]
+        tangent[g, 0], tangent[g, 1], tangent[g, 2], tangent[g, 3] = r[4], r[5], r[6], r[7]
+    return tau, sigma_n, state, ds, tangent
+
+
+@kernel
+def rate_state_law(slip, opening, slip_old, tau_old, dilatant_old, theta_old, sigma_n0, kN, kT,
+                   tan_dilation, mu0, a, b, V0, Dc, dt, slip_rate_threshold):
+    """Rate-and-state return map at every point: (tau, sigma_n, state, ds, theta, mu, tangent)."""
+    ng = slip.shape[0]
+    tau = np.empty(ng)
+    sigma_n = np.empty(ng)
+    state = np.empty(ng, dtype=np.int64)
+    ds = np.empty(ng)
+    theta = np.empty(ng)
+    mu = np.empty(ng)
+    tangent = np.empty((ng, 4))
+    for g in range(ng):
+        r = rate_state_point(slip[g], opening[g], slip_old[g], tau_old[g], dilatant_old[g],
+                             theta_old[g], sigma_n0[g], kN, kT, tan_dilation, mu0, a, b, V0, Dc,
+                             dt, slip_rate_threshold)
+        tau[g], sigma_n[g], state[g], ds[g], theta[g], mu[g] = r[0], r[1], r[2], r[3], r[4], r[5]
+        tangent[g, 0], tangent[g, 1], tangent[g, 2], tangent[g, 3] = r[6], r[7], r[8], r[9]
+    return tau, sigma_n, state, ds, theta, mu, tangent
+
+
+@kernel
+def assemble_contact(N, jump_dofs, tangent_vec, normal_vec, weight, tau, sigma_n, tau0, sigma_n0,
+                     point_tangent, residual):
+    """Contact forces of every fault Gauss point added into ``residual``; returns the COO
+    triplets of their tangent on the Heaviside DOFs."""
+    ng = N.shape[0]
+    rows = np.empty(ng * 64, dtype=np.int64)
+    cols = np.empty(ng * 64, dtype=np.int64)
+    vals = np.empty(ng * 64)
+    k = 0
+    for g in range(ng):
+        r, kl = contact_local(N[g], tangent_vec, normal_vec, tau[g], sigma_n[g], tau0[g],
+                              sigma_n0[g], point_tangent[g, 0], point_tangent[g, 1],
+                              point_tangent[g, 2], point_tangent[g, 3], weight[g])
         for a in range(8):
             ra = jump_dofs[g, a]
             if ra < 0:
@@ -108,4 +208,4 @@ def assemble_contact(x, N, jump_dofs, tangent, normal, weight, slip_old, tau_old
                 cols[k] = cb
                 vals[k] = kl[a, b]
                 k += 1
-    return rows[:k], cols[:k], vals[:k], slip, opening, tau, sigma_n, state
+    return rows[:k], cols[:k], vals[:k]

@@ -46,3 +46,79 @@ def opening_coupling(Np, N, normal, weight):
             for c in range(2):
                 G[a, 2 * j + c] = weight * Np[a] * N[j] * normal[c]
     return G
+
+
+@kernel
+def renshaw_aperture(opening_change, aperture0, sigma_h):
+    """Hydraulic aperture 2h from the mechanical opening change (paper Eq. 28, Renshaw 1995):
+    2h = 2h0 + d exp(-ln(1 + (sigma_h/d)^2)/2) = 2h0 + d^2 / sqrt(d^2 + sigma_h^2) for d >= 0.
+    Closing (d < 0, contact compressed further) uses the odd extension r(d) of that increment
+    through 2h = 2h0 exp(r / 2h0): value and slope match at d = 0 and the aperture stays
+    positive however hard the fault is pressed. Returns (2h, d(2h)/dd)."""
+    d = opening_change
+    q = d * d + sigma_h * sigma_h
+    if q == 0.0:
+        return aperture0, 1.0 if sigma_h == 0.0 else 0.0
+    root = np.sqrt(q)
+    r = d * abs(d) / root
+    dr = abs(d) * (d * d + 2.0 * sigma_h * sigma_h) / (q * root)
+    if d >= 0.0:
+        return aperture0 + r, dr
+    e = np.exp(r / aperture0)
+    return aperture0 * e, e * dr
+
+
+@kernel
+def assemble_evolving_conduction(x, N, jump_dofs, Np, dNp_ds, p_dofs, normal, weight, aperture0,
+                                 sigma_h, viscosity, kappa, theta, residual):
+    """Fault conduction with the aperture of the current opening (Eq. 28) at every fault point:
+    adds theta * int dNp/ds T(2h) dp/ds into ``residual`` and returns the Jacobian triplets on
+    the fault-pressure and Heaviside DOFs, plus the aperture at every point."""
+    ng, nbp = Np.shape
+    per = nbp * nbp + nbp * 8
+    rows = np.empty(ng * per, dtype=np.int64)
+    cols = np.empty(ng * per, dtype=np.int64)
+    vals = np.empty(ng * per)
+    aperture = np.empty(ng)
+    k = 0
+    for g in range(ng):
+        gx = 0.0
+        gy = 0.0
+        for i in range(4):
+            if jump_dofs[g, 2 * i] >= 0:
+                gx += N[g, i] * x[jump_dofs[g, 2 * i]]
+            if jump_dofs[g, 2 * i + 1] >= 0:
+                gy += N[g, i] * x[jump_dofs[g, 2 * i + 1]]
+        opening = gx * normal[0] + gy * normal[1]
+        h, dh = renshaw_aperture(opening, aperture0, sigma_h)
+        aperture[g] = h
+        T = cubic_law_transmissivity(h, viscosity, kappa)
+        dT = 3.0 * T / h * dh
+        grad = 0.0
+        for a in range(nbp):
+            if p_dofs[g, a] >= 0:
+                grad += dNp_ds[g, a] * x[p_dofs[g, a]]
+        w = theta * weight[g]
+        for a in range(nbp):
+            ra = p_dofs[g, a]
+            if ra < 0:
+                continue
+            residual[ra] += w * T * dNp_ds[g, a] * grad
+            for b in range(nbp):
+                cb = p_dofs[g, b]
+                if cb < 0:
+                    continue
+                rows[k] = ra
+                cols[k] = cb
+                vals[k] = w * T * dNp_ds[g, a] * dNp_ds[g, b]
+                k += 1
+            for j in range(4):
+                for c in range(2):
+                    cb = jump_dofs[g, 2 * j + c]
+                    if cb < 0:
+                        continue
+                    rows[k] = ra
+                    cols[k] = cb
+                    vals[k] = w * dT * dNp_ds[g, a] * grad * N[g, j] * normal[c]
+                    k += 1
+    return rows[:k], cols[:k], vals[:k], aperture

@@ -1,0 +1,36 @@
+"""Command-line interface: ``fault-screen run | replay | plot``.
+
+Exit codes: 0 success, 1 failure (simulation failed, output not written), 2 bad usage or bad
+input (bad scene, bad log, unknown unit, missing file).  See :mod:`fault_screen.cli._options`.
+"""
+from __future__ import annotations
+
+import click
+
+from ._options import Group, version_option
+from .plot import plot
+from .replay import replay
+from .run import run
+
+__all__ = ["main"]
+
+
+@click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"]})
+@version_option
+def main():
+    """Induced-seismicity screening: coupled hydro-mechanical X-FEM model of fluid injection
+    into a fault.
+
+    \b
+    fault-screen run                      the bundled Rustrel 2015 scene
+    fault-screen run SCENE.toml --plot figs
+    fault-screen replay SCENE.toml --log injection.csv --events catalog.xml --plot figs
+    fault-screen plot result.h5 --out figs
+
+    Exit codes: 0 success, 1 run failed or output not written, 2 bad usage or bad input.
+    """
+
+
+main.add_command(run)
+main.add_command(replay)
+main.add_command(plot)

@@ -1,0 +1,201 @@
+"""Shared options of the ``fault-screen`` commands and the mapping of errors to exit codes.
+
+Exit codes (the only place they are decided):
+
+* 0 -- success;
+* 1 -- the run failed (:class:`~fault_screen.SimulationError`), an output could not be written,
+  or an unexpected internal error;
+* 2 -- bad usage or bad input: unknown option (click), bad scene (:class:`~fault_screen.SceneError`),
+  bad injection log (:class:`~fault_screen.io.injection_log.InjectionLogError`), unknown unit,
+  missing or unreadable input file, bad event catalogue.
+
+Every error is printed as one line ``Error: ...`` on stderr, without a traceback (set the
+environment variable ``FAULT_SCREEN_TRACEBACK=1`` to get one for unexpected errors).
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+from datetime import datetime, timezone
+from pathlib import Path
+
+import click
+
+from .. import __version__
+
+EXIT_OK = 0
+EXIT_FAILURE = 1
+EXIT_BAD_INPUT = 2
+
+
+class BadInput(click.ClickException):
+    """Bad usage or bad input (exit code 2)."""
+    exit_code = EXIT_BAD_INPUT
+
+
+class RunFailed(click.ClickException):
+    """The run or an output failed (exit code 1)."""
+    exit_code = EXIT_FAILURE
+
+
+def _describe_os_error(exc: OSError) -> str:
+    name = getattr(exc, "filename", None)
+    why = exc.strerror or str(exc)
+    return f"{name}: {why}" if name else why
+
+
+@contextlib.contextmanager
+def reading(what: str | None = None):
+    """Turn any error raised while reading user input into :class:`BadInput` (exit code 2).
+
+    ``what`` (e.g. the file name) prefixes the message unless the message already names it.
+    """
+    try:
+        yield
+    except click.ClickException:
+        raise
+    except FileNotFoundError as exc:
+        raise BadInput(f"file not found: {exc.filename or what}") from None
+    except IsADirectoryError as exc:
+        raise BadInput(f"{exc.filename or what}: is a directory, expected a file") from None
+    except OSError as exc:
+        msg = _describe_os_error(exc)
+        if what and str(what) not in msg:
+            msg = f"{what}: {msg}"
+        raise BadInput(msg) from None
+    except (ValueError, KeyError, TypeError) as exc:
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        if what and str(what) not in msg and Path(str(what)).name not in msg:
+            msg = f"{what}: {msg}"
+        raise BadInput(msg) from None
+
+
+def to_exit(exc: BaseException) -> click.ClickException | None:
+    """The click exception (message + exit code) for an error escaping a command, or None to
+    let it propagate (click's own exceptions, aborts, exits)."""
+    from ..simulate import SimulationError
+
+    if isinstance(exc, (click.ClickException, click.exceptions.Exit, click.Abort,
+                        KeyboardInterrupt, SystemExit)):
+        return None
+    if isinstance(exc, SimulationError):
+        return RunFailed(f"simulation failed: {exc}")
+    if isinstance(exc, OSError):
+        return RunFailed(f"I/O error: {_describe_os_error(exc)}")
+    if os.environ.get("FAULT_SCREEN_TRACEBACK"):
+        return None
+    return RunFailed(f"internal error: {type(exc).__name__}: {exc} "
+                     f"(set FAULT_SCREEN_TRACEBACK=1 for a traceback)")
+
+
+class Group(click.Group):
+    """The command group; every error escaping a command goes through :func:`to_exit`."""
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except Exception as exc:  # noqa: BLE001 - mapped to an exit code, one line
+            mapped = to_exit(exc)
+            if mapped is None:
+                raise
+            raise mapped from None
+
+
+# ---- option callbacks ---------------------------------------------------------------------
+def _unit_callback(quantity: str):
+    def check(ctx, param, value):
+        if value is None:
+            return None
+        from ..units import UnitError, factor
+
+        try:
+            factor(value, quantity)
+        except UnitError as exc:
+            raise BadInput(f"--{param.name.replace('_', '-')} {value!r}: {exc}") from None
+        return value
+    return check
+
+
+def parse_iso(text: str, what: str = "--t0") -> datetime:
+    """An ISO 8601 timestamp with a time zone (``Z`` accepted) as an aware datetime."""
+    txt = text.strip()
+    if txt[-1:] in ("Z", "z"):
+        txt = txt[:-1] + "+00:00"
+    try:
+        dt = datetime.fromisoformat(txt)
+    except ValueError:
+        raise BadInput(f"{what} {text!r}: not an ISO 8601 timestamp "
+                       f"(e.g. 2015-03-12T10:00:00+01:00)") from None
+    if dt.utcoffset() is None:
+        raise BadInput(f"{what} {text!r}: timestamp without time zone (add e.g. +01:00 or Z)")
+    return dt
+
+
+def _t0_callback(ctx, param, value):
+    return None if value is None else parse_iso(value, "--t0")
+
+
+def _positive_callback(ctx, param, value):
+    if value is not None and not value > 0:
+        raise BadInput(f"--{param.name.replace('_', '-')} {value!r}: must be > 0")
+    return value
+
+
+def version_option(f):
+    return click.version_option(__version__, "--version", prog_name="fault-screen",
+                                message="%(prog)s %(version)s")(f)
+
+
+def _compose(*decorators):
+    def apply(f):
+        for d in reversed(decorators):
+            f = d(f)
+        return f
+    return apply
+
+
+FILE = click.Path(dir_okay=False, path_type=Path)
+DIR = click.Path(file_okay=False, path_type=Path)
+
+out_option = click.option(
+    "--out", "-o", type=FILE, default=None, metavar="RESULT.h5",
+    help="HDF5 result file to write [default: <scene-stem>.h5 in the current directory].")
+
+events_option = click.option(
+    "--events", type=FILE, default=None, metavar="CATALOG",
+    help="Seismic event catalogue (QuakeML, read with obspy) drawn as markers on the time axes.")
+
+t0_option = click.option(
+    "--t0", type=str, default=None, metavar="ISO", callback=_t0_callback,
+    help="Date-time of model time 0, ISO 8601 with zone (e.g. 2015-03-12T10:00:00+01:00): "
+         "reference of the event times. Default: the log's first stamp (replay), the start "
+         "stored in the result (plot), else the first event.")
+
+#: options common to ``run`` and ``replay``
+run_options = _compose(
+    out_option,
+    click.option("--plot", "plot_dir", type=DIR, default=None, metavar="DIR",
+                 help="Write the figures (PNG) into DIR after a successful run."),
+    events_option,
+    t0_option,
+    click.option("--quiet", "-q", is_flag=True, help="No progress display."),
+)
+
+#: options of ``replay`` that control how the injection log is read
+log_options = _compose(
+    click.option("--log", "log_path", type=FILE, required=True, metavar="LOG",
+                 help="Injection log (CSV: time + flow rate [+ pressure] columns)."),
+    click.option("--flow-unit", default=None, metavar="U", callback=_unit_callback("flow_rate"),
+                 help="Unit of the flow-rate column when its header has none (e.g. L/min, m3/h)."),
+    click.option("--pressure-unit", default=None, metavar="U", callback=_unit_callback("pressure"),
+                 help="Unit of the pressure column when its header has none (e.g. MPa, bar, psi)."),
+    click.option("--max-gap", type=float, default=600.0, show_default=True, metavar="S",
+                 callback=_positive_callback,
+                 help="Longest accepted interval between log samples (s); 'inf' disables."),
+    click.option("--policy", type=click.Choice(["stop", "skip", "hold"]), default="stop",
+                 show_default=True,
+                 help="On a bad row or gap: stop with an error, skip the row (gaps bridged "
+                      "linearly), or hold the last good value."),
+    click.option("--end", type=float, default=None, metavar="S", callback=_positive_callback,
+                 help="End time of the run (s after the first stamp) [default: log duration]."),
+)

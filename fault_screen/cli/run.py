@@ -1,0 +1,139 @@
+"""``fault-screen run [SCENE]``: run a scene with its own injection schedule.
+
+Also holds :func:`run_scene`, the part shared with ``replay`` (checks of the outputs, progress,
+saving, figures, summary).
+"""
+from __future__ import annotations
+
+import sys
+from datetime import datetime
+from pathlib import Path
+
+import click
+import numpy as np
+
+from ._options import FILE, BadInput, reading, run_options, version_option
+from ._progress import Progress, format_duration
+
+BUNDLED_SCENE = "rustrel-2015-calibrated.toml"
+
+
+def configs_dir() -> Path:
+    import fault_screen
+
+    return Path(fault_screen.__file__).resolve().parents[1] / "configs"
+
+
+def default_scene_path() -> Path:
+    path = configs_dir() / BUNDLED_SCENE
+    if not path.is_file():
+        raise BadInput(f"the bundled scene {path} does not exist (the package was installed "
+                       f"without its configs directory); pass a SCENE file")
+    return path
+
+
+def load_scene(path: Path):
+    from ..scene import Scene
+
+    with reading(path):
+        return Scene.from_toml(path)
+
+
+def load_events(path: Path, start: datetime | None):
+    from ..io.events import read_events
+
+    with reading(path):
+        return read_events(path, start)
+
+
+def _check_outputs(out: Path, plot_dir: Path | None) -> None:
+    """Fail before a long run rather than after it."""
+    if out.is_dir():
+        raise BadInput(f"--out {out}: is a directory, expected a file name")
+    parent = out.parent if str(out.parent) else Path(".")
+    if not parent.is_dir():
+        raise BadInput(f"--out {out}: directory {parent} does not exist")
+    if plot_dir is not None and plot_dir.exists() and not plot_dir.is_dir():
+        raise BadInput(f"--plot {plot_dir}: exists and is not a directory")
+
+
+def run_scene(scene, *, scene_label: str, out: Path | None, plot_dir: Path | None,
+              events_path: Path | None, start: datetime | None, quiet: bool,
+              injected_volume=None, meta: dict | None = None, extra: dict | None = None,
+              stem: str = "result"):
+    """Simulate ``scene`` and write its result (and figures); returns (result, out path)."""
+    from ..simulate import simulate
+
+    out = Path(out) if out is not None else Path.cwd() / f"{stem}.h5"
+    _check_outputs(out, plot_dir)
+    catalog = load_events(events_path, start) if events_path is not None else None
+
+    if not quiet:
+        m = scene.mesh
+        size = "graded mesh" if m.refinement is not None else f"{m.nx} x {m.ny} elements"
+        click.echo(f"running {scene_label} ({scene.title}; {size}; "
+                   f"0 to {scene.time.end:g} s, dt {scene.time.dt:g} s)")
+    progress = None if quiet else Progress(sys.stdout)
+    try:
+        result = simulate(scene, progress=progress, injected_volume=injected_volume)
+    finally:
+        if progress is not None:
+            progress.close()
+
+    result.meta.update(meta or {})
+    result.meta["scene_file"] = scene_label
+    if start is not None:
+        result.meta["start"] = start.isoformat()
+    result.extra.update(extra or {})
+    if catalog is not None:
+        result.meta["events_file"] = str(events_path)
+        result.meta["events_start"] = catalog.start.isoformat() if catalog.start else None
+        result.extra["events"] = {"time": catalog.time, "magnitude": catalog.magnitude}
+    result.save(out)
+
+    figures = []
+    if plot_dir is not None:
+        from ..plotting import plot_result
+
+        figures = plot_result(result, plot_dir, events=catalog, prefix=f"{out.stem}-")
+    _summary(result, out, figures, catalog)
+    return result, out
+
+
+def _summary(result, out: Path, figures, catalog) -> None:
+    inj = result.injection
+    peak_p = float(np.max(inj["overpressure"])) * 1e-6
+    peak_slip = float(np.max(np.abs(result.fault["slip"]))) * 1e3 if result.fault["slip"].size else 0.0
+    volume = float(inj["volume"][-1]) * 1e3
+    rows = [
+        ("peak injection overpressure", f"{peak_p:.4g} MPa"),
+        ("peak slip on the fault", f"{peak_slip:.4g} mm"),
+        ("injected volume", f"{volume:.5g} L"),
+        ("steps", f"{len(result.time) - 1}"),
+        ("wall time", format_duration(float(result.meta.get("wall_time", float("nan"))))),
+        ("result", str(out)),
+    ]
+    if catalog is not None:
+        inside = int(np.count_nonzero((catalog.time >= result.time[0]) & (catalog.time <= result.time[-1])))
+        rows.append(("seismic events", f"{len(catalog)} read, {inside} within the run"))
+    for f in figures:
+        rows.append(("figure", str(f)))
+    click.echo("summary:")
+    for k, v in rows:
+        click.echo(f"  {k:<28} {v}")
+
+
+@click.command("run")
+@click.argument("scene_path", type=FILE, required=False, metavar="[SCENE]")
+@run_options
+@version_option
+def run(scene_path, out, plot_dir, events, t0, quiet):
+    """Run SCENE (TOML) with its own injection schedule and save the result (HDF5).
+
+    Without SCENE, runs the bundled Rustrel 2015 calibrated scene
+    (configs/rustrel-2015-calibrated.toml, stand-in step-rate schedule).
+    """
+    path = Path(scene_path) if scene_path is not None else default_scene_path()
+    scene = load_scene(path)
+    run_scene(scene, scene_label=str(path), out=out, plot_dir=plot_dir, events_path=events,
+              start=t0, quiet=quiet, stem=path.stem, meta={"command": "run"})

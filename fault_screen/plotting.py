@@ -1,0 +1,282 @@
+"""Figures of a run (PNG, matplotlib's Agg canvas; pyplot and the global backend are not touched).
+
+* :func:`plot_injection_point` -- overpressure (MPa), slip and opening (mm) at the injection point
+  against time, flow rate (L/min) on a twin axis (the layout of Fig. 9 of Schwartzkopff et al.);
+* :func:`plot_space_time` -- space-time maps (distance along the fault x time) of fault pressure
+  (MPa), slip and opening (mm) (Fig. 10);
+* :func:`plot_result` -- both, into a directory.
+
+Seismic events (``events``: anything with ``.time`` in s of model time and ``.magnitude``, e.g.
+:class:`fault_screen.io.events.EventCatalog`) are drawn as markers on every time axis.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+MPA = 1e-6
+MM = 1e3
+L_PER_MIN = 60e3
+
+__all__ = ["plot_result", "plot_injection_point", "plot_space_time", "time_scale"]
+
+
+def time_scale(t_end: float) -> tuple[float, str]:
+    """(factor from s, unit) for a time axis spanning ``t_end`` seconds."""
+    if t_end <= 3600.0:
+        return 1.0, "s"
+    if t_end <= 10 * 3600.0:
+        return 1 / 60.0, "min"
+    if t_end <= 5 * 86400.0:
+        return 1 / 3600.0, "h"
+    return 1 / 86400.0, "d"
+
+
+def _figure(**kw):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(**kw)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig, path) -> Path:
+    """Write a PNG atomically (temporary name, then rename)."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".part")
+    try:
+        fig.savefig(tmp, format="png", dpi=150)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def _events_in(events, t0, t1):
+    """(times, magnitudes, number outside [t0, t1]) of the events, or None."""
+    if events is None or len(np.asarray(events.time)) == 0:
+        return None
+    t = np.asarray(events.time, dtype=float)
+    m = np.asarray(events.magnitude, dtype=float)
+    keep = (t >= t0) & (t <= t1)
+    return t[keep], m[keep], int(np.count_nonzero(~keep))
+
+
+def _marker_sizes(m):
+    m = np.asarray(m, dtype=float)
+    if m.size == 0 or not np.any(np.isfinite(m)):
+        return np.full(m.size, 36.0)
+    lo = np.nanmin(m)
+    s = 25.0 + 30.0 * np.nan_to_num(m - lo, nan=0.0)
+    return np.clip(s, 25.0, 250.0)
+
+
+def _event_label(n_in, n_out):
+    lab = f"seismic events ({n_in})"
+    if n_out:
+        lab += f"; {n_out} outside the run not shown"
+    return lab
+
+
+def _rug_time_x(ax, times, mags, label=None):
+    """Events as triangles along the top of an axis whose x is time."""
+    import matplotlib.transforms as mtransforms
+
+    tr = mtransforms.blended_transform_factory(ax.transData, ax.transAxes)
+    return ax.scatter(times, np.full(times.size, 0.97), s=_marker_sizes(mags), marker="v",
+                      facecolor="crimson", edgecolor="k", linewidth=0.5, transform=tr,
+                      clip_on=False, zorder=5, label=label)
+
+
+def _rug_time_y(ax, times, mags, label=None):
+    """Events as triangles along the left edge of an axis whose y is time."""
+    import matplotlib.transforms as mtransforms
+
+    tr = mtransforms.blended_transform_factory(ax.transAxes, ax.transData)
+    return ax.scatter(np.full(times.size, 0.0), times, s=_marker_sizes(mags), marker=">",
+                      facecolor="crimson", edgecolor="k", linewidth=0.5, transform=tr,
+                      clip_on=False, zorder=5, label=label)
+
+
+def _title(result) -> str:
+    try:
+        return str(result.scene.title)
+    except AttributeError:  # pragma: no cover - a result without a scene
+        return ""
+
+
+def plot_injection_point(result, path, events=None) -> Path:
+    """Injection point history (Fig. 9 layout) to the PNG ``path``."""
+    t = np.asarray(result.time, dtype=float)
+    f, tu = time_scale(float(t[-1]) if t.size else 0.0)
+    inj = result.injection
+    q = np.asarray(inj["flow_rate"], dtype=float) * L_PER_MIN
+    ev = _events_in(events, float(t[0]), float(t[-1])) if t.size else None
+    has_mag = ev is not None and np.any(np.isfinite(ev[1]))
+
+    nrows = 3 if has_mag else 2
+    ratios = [1, 3, 3] if has_mag else [3, 3]
+    fig = _figure(figsize=(9, 8 if has_mag else 7), layout="constrained")
+    axes = fig.subplots(nrows, 1, sharex=True, gridspec_kw={"height_ratios": ratios})
+    ax_p, ax_d = axes[-2], axes[-1]
+
+    log = result.extra.get("log") if getattr(result, "extra", None) else None
+
+    def flow_twin(ax):
+        tw = ax.twinx()
+        hs = []
+        if log is not None and "time" in log and "flow_rate" in log:
+            tl = np.asarray(log["time"], dtype=float)
+            ql = np.asarray(log["flow_rate"], dtype=float) * L_PER_MIN
+            hs += tw.plot(tl * f, ql, color="tab:orange", lw=2.5, alpha=0.45,
+                          label="flow rate, log samples (L/min)")
+        # the model's rate is the average over each step, recorded at the step's end
+        hs += tw.plot(t * f, q, color="0.35", lw=1.2, drawstyle="steps-pre",
+                      label="flow rate, model step average (L/min)")
+        tw.set_ylabel("flow rate (L/min)")
+        top = max(float(np.nanmax(q)) if q.size else 0.0, 1e-12)
+        if log is not None and "flow_rate" in log and np.size(log["flow_rate"]):
+            top = max(top, float(np.nanmax(log["flow_rate"])) * L_PER_MIN)
+        tw.set_ylim(0, 1.15 * top)
+        return tw, hs
+
+    hp = ax_p.plot(t * f, np.asarray(inj["overpressure"], dtype=float) * MPA, color="tab:blue",
+                   lw=1.8, label="overpressure (MPa)")
+    ax_p.set_ylabel("overpressure at injection point (MPa)")
+    _, hq = flow_twin(ax_p)
+    ax_p.set_zorder(2)
+    ax_p.patch.set_visible(False)
+
+    hs = ax_d.plot(t * f, np.asarray(inj["slip"], dtype=float) * MM, color="tab:red", lw=1.8,
+                   label="slip (mm)")
+    ho = ax_d.plot(t * f, np.asarray(inj["opening"], dtype=float) * MM, color="tab:green",
+                   lw=1.8, label="opening (mm)")
+    ax_d.set_ylabel("slip, opening at injection point (mm)")
+    _, hq2 = flow_twin(ax_d)
+    ax_d.set_zorder(2)
+    ax_d.patch.set_visible(False)
+    ax_d.set_xlabel(f"time ({tu})")
+
+    he = []
+    if ev is not None:
+        te, me, n_out = ev
+        lab = _event_label(te.size, n_out)
+        for ax in (ax_p, ax_d):
+            h = _rug_time_x(ax, te * f, me, label=lab)
+        he = [h]
+        if has_mag:
+            ax_m = axes[0]
+            ok = np.isfinite(me)
+            ax_m.vlines(te[ok] * f, np.nanmin(me[ok]) - 0.5, me[ok], color="crimson", lw=0.8)
+            ax_m.scatter(te[ok] * f, me[ok], s=_marker_sizes(me[ok]), color="crimson",
+                         edgecolor="k", linewidth=0.5, zorder=3)
+            mtypes = sorted({str(m) for m in getattr(events, "magnitude_type", ()) if m})
+            ax_m.set_ylabel(f"magnitude ({', '.join(mtypes)})" if mtypes else "magnitude")
+            ax_m.set_title(f"{_title(result)}: injection point", loc="left")
+            ax_m.grid(alpha=0.3)
+    if not has_mag:
+        ax_p.set_title(f"{_title(result)}: injection point", loc="left")
+
+    handles = hp + hs + ho + hq + he
+    fig.legend(handles, [h.get_label() for h in handles], loc="outside lower center", ncols=3,
+               fontsize="small", frameon=False)
+    for ax in (ax_p, ax_d):
+        ax.grid(alpha=0.3)
+        ax.set_xlim(t[0] * f, t[-1] * f)
+    return _save(fig, path)
+
+
+def active_half_width(result, *, fraction: float = 0.01, slip_floor: float = 1e-9,
+                      pad: float = 1.5) -> float | None:
+    """Half width (m) around the injection point holding the fault's activity: where the
+    overpressure, opening change or slip ever exceeds ``fraction`` of its peak (slip and opening
+    only above ``slip_floor`` m, so numerical noise does not count), times ``pad``.  None when the
+    activity covers most of the fault (then the whole fault is shown)."""
+    x = np.asarray(result.fault_x, dtype=float)
+    if x.size < 2:
+        return None
+    reach = 0.0
+    for key, floor in (("overpressure", 0.0), ("opening", slip_floor), ("slip", slip_floor)):
+        if key not in result.fault:
+            continue
+        a = np.asarray(result.fault[key], dtype=float)
+        if key == "opening":
+            a = a - a[:1]
+        amax = np.nanmax(np.abs(a), axis=0) if a.size else np.zeros_like(x)
+        peak = float(np.nanmax(amax)) if amax.size else 0.0
+        if peak <= floor:
+            continue
+        hot = amax > max(fraction * peak, floor)
+        if np.any(hot):
+            reach = max(reach, float(np.max(np.abs(x[hot]))))
+    full = float(max(-x.min(), x.max()))
+    lim = max(pad * reach, 0.05 * full)
+    return None if lim >= 0.8 * full or reach == 0.0 else lim
+
+
+def plot_space_time(result, path, events=None, *, xlim=None) -> Path:
+    """Space-time maps of fault pressure, slip and opening (Fig. 10 layout) to the PNG ``path``.
+
+    The distance axis is zoomed on the active part of the fault (:func:`active_half_width`)
+    unless ``xlim`` (m, m) is given."""
+    t = np.asarray(result.time, dtype=float)
+    f, tu = time_scale(float(t[-1]) if t.size else 0.0)
+    x = np.asarray(result.fault_x, dtype=float)
+    order = np.argsort(x, kind="stable")
+    x = x[order]
+    fields = [
+        ("pressure", MPA, "fault pressure (MPa)", "viridis"),
+        ("slip", MM, "slip (mm)", None),
+        ("opening", MM, "opening (mm)", "magma"),
+    ]
+    ev = _events_in(events, float(t[0]), float(t[-1])) if t.size else None
+    fig = _figure(figsize=(15, 5.5), layout="constrained")
+    axes = fig.subplots(1, 3, sharey=True)
+    for ax, (key, scale, label, cmap) in zip(axes, fields):
+        z = np.asarray(result.fault[key], dtype=float)[:, order] * scale
+        kw = {}
+        if cmap is None:  # slip: diverging if it changes sign
+            lo, hi = float(np.nanmin(z)), float(np.nanmax(z))
+            if lo < 0 < hi:
+                lim = max(-lo, hi)
+                cmap, kw = "RdBu_r", {"vmin": -lim, "vmax": lim}
+            else:
+                cmap = "viridis"
+        mesh = ax.pcolormesh(x, t * f, z, shading="nearest", cmap=cmap, rasterized=True, **kw)
+        cb = fig.colorbar(mesh, ax=ax, pad=0.01)
+        cb.set_label(label)
+        ax.set_title(label.split(" (")[0], loc="left")
+        if key in ("slip", "opening") and float(np.nanmax(np.abs(z), initial=0.0)) < 1e-6:
+            ax.text(0.5, 0.5, f"no {key} (all |{key}| < 1e-6 mm)", transform=ax.transAxes,
+                    ha="center", va="center", fontsize="small",
+                    bbox={"facecolor": "w", "alpha": 0.8, "edgecolor": "0.5"})
+        ax.set_xlabel("distance along fault from injection point (m)")
+        ax.axvline(0.0, color="w", lw=0.6, ls=":", alpha=0.8)
+        if ev is not None:
+            te, me, n_out = ev
+            h = _rug_time_y(ax, te * f, me, label=_event_label(te.size, n_out))
+    axes[0].set_ylabel(f"time ({tu})")
+    axes[0].set_ylim(t[0] * f, t[-1] * f)
+    lim = active_half_width(result) if xlim is None else None
+    if xlim is not None:
+        axes[0].set_xlim(*xlim)
+    elif lim is not None:
+        axes[0].set_xlim(max(-lim, x[0]), min(lim, x[-1]))
+    if ev is not None:
+        fig.legend([h], [h.get_label()], loc="outside lower center", fontsize="small",
+                   frameon=False)
+    fig.suptitle(f"{_title(result)}: fault, space-time", x=0.01, ha="left")
+    return _save(fig, path)
+
+
+def plot_result(result, out_dir, *, events=None, prefix: str = "") -> list[Path]:
+    """Both figures into ``out_dir`` (created): ``<prefix>injection-point.png`` and
+    ``<prefix>space-time.png``; returns their paths."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    return [plot_injection_point(result, out / f"{prefix}injection-point.png", events),
+            plot_space_time(result, out / f"{prefix}space-time.png", events)]

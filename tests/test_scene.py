@@ -1,0 +1,52 @@
+"""Scene loading and validation: clear errors naming the key and the value."""
+import tomllib
+
+import pytest
+
+from conftest import CONFIGS
+from fault_screen import Scene, SceneError
+
+
+def test_defaults_round_trip_through_toml():
+    scene = Scene.from_toml(CONFIGS / "rustrel-2015-calibrated.toml")
+    again = Scene.from_dict(tomllib.loads(scene.to_toml()))
+    assert again == scene
+
+
+@pytest.mark.parametrize("data,needle", [
+    ({"mesh": {"nz": 3}}, "unknown key mesh.nz = 3"),
+    ({"rock": {"poissons_ratio": 0.5}}, "rock.poissons_ratio = 0.5"),
+    ({"rock": {"permeability": -1e-15}}, "rock.permeability = -1e-15"),
+    ({"mesh": {"nx": "ten"}}, "mesh.nx = 'ten' must be an integer"),
+    ({"fault": {"point": [500.0, 10.0]}}, "fault.point"),
+    ({"injection": {"position": 400.0}}, None),  # checked below: off the fault at build time
+    ({"effects": {"poroelastic": False, "leak_off": True}}, "effects.leak_off"),
+    ({"time": {"theta": 0.2}}, "time.theta = 0.2"),
+    ({"boundary": {"top": {"mechanical": "glued"}}}, "boundary.top.mechanical = 'glued'"),
+    ({"zones": [{"band": 5.0, "rock": {"youngs_modulus": -1.0}}]}, "zones[0].rock.youngs_modulus"),
+    ({"injection": {"schedule": [[10.0, 1e-3], [5.0, 0.0]]}}, "times must increase"),
+])
+def test_bad_values_are_refused_with_key_and_value(data, needle):
+    if needle is None:
+        from fault_screen.model import Model
+        with pytest.raises(ValueError, match="off the fault"):
+            Model(Scene.from_dict(data))
+        return
+    with pytest.raises(SceneError) as err:
+        Scene.from_dict(data)
+    assert needle in str(err.value)
+
+
+def test_missing_file_and_bad_toml(tmp_path):
+    with pytest.raises(SceneError, match="not found"):
+        Scene.from_toml(tmp_path / "nope.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[mesh\nnx = 3")
+    with pytest.raises(SceneError, match="not valid TOML"):
+        Scene.from_toml(bad)
+
+
+def test_scenes_are_frozen():
+    scene = Scene()
+    with pytest.raises(Exception):
+        scene.mesh.nx = 3  # type: ignore[misc]
