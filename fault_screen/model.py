@@ -24,7 +24,7 @@ from . import xfem
 from .assembly import TripletBuilder
 from .kernels import basis, contact, fault_flow, rock
 from .mesh import build_mesh
-from .scene import EDGES, RockSpec, Scene
+from .scene import EDGES, RockSpec, Scene, Zone
 
 
 @dataclass
@@ -84,6 +84,8 @@ class Model:
         self.has_c = ef.fault and ef.poroelastic and ef.leak_off
         self.has_pf = ef.fault and ef.fault_flow and not ef.leak_off
         self.has_q = ef.fault and scene.injection.control == "pressure"
+        self.injection_xy = (np.asarray(scene.fault_point, dtype=float)
+                             + scene.injection.position * self.fault.tangent)
         self._materials()
         self._number_unknowns()
         self._tabulate_bulk()
@@ -91,6 +93,8 @@ class Model:
         self._boundary_conditions()
         self._injection_point()
         self._assemble_static()
+        if self.has_u:
+            self.check_initial_equilibrium()
 
     # ------------------------------------------------------------------ materials
     def _materials(self):
@@ -98,7 +102,14 @@ class Model:
         centroids = self.coords[self.elements].mean(axis=1)
         zone_of = np.zeros(self.mesh.n_elements, dtype=np.int64)
         specs = [s.rock]
-        for k, z in enumerate(s.zones, start=1):
+        zones = list(s.zones)
+        if s.effects.damage_zone:
+            dz = s.damage_zone
+            over = {k: v for k, v in (("youngs_modulus", dz.youngs_modulus),
+                                      ("poissons_ratio", dz.poissons_ratio),
+                                      ("permeability", dz.permeability)) if v is not None}
+            zones.insert(0, Zone(name="damage zone", band=dz.width, rock=over))
+        for k, z in enumerate(zones, start=1):
             if z.band is not None:
                 inside = np.abs((centroids - self.fault.point) @ self.fault.normal) <= z.band
             else:
@@ -119,6 +130,40 @@ class Model:
         self.el_alpha = np.array([props[z]["alpha"] for z in zone_of])
         self.el_mobility = np.array([props[z]["mobility"] for z in zone_of])
         self.el_inv_M = np.array([props[z]["inv_M"] for z in zone_of])
+
+    # ------------------------------------------------------------------ in-situ state
+    def initial_state(self, xy: np.ndarray):
+        """In-situ effective stress (n, 3: sxx', syy', sxy', Pa) and pore pressure (n,) at points.
+
+        Uniform without gravity. With gravity, both vary with depth d = g_hat . (x - x_ref):
+        p0 grows by the hydrostatic gradient; the effective stress along gravity by
+        -(rho - alpha rho_f) g per metre (rho = n rho_f + (1 - n) rho_s, intact rock) and across
+        it by lateral_stress_ratio times that, so that div(sigma' - alpha p0 I) + rho g = 0."""
+        s = self.scene
+        ini = s.initial
+        sig = np.broadcast_to(np.array(ini.effective_stress, dtype=float), (len(xy), 3)).copy()
+        p0 = np.full(len(xy), ini.pore_pressure)
+        if not s.effects.gravity:
+            return sig, p0
+        e = np.array(ini.gravity_direction, dtype=float)
+        e /= np.linalg.norm(e)
+        ref = np.array(ini.reference_point if ini.reference_point is not None else self.injection_xy)
+        depth = (xy - ref) @ e
+        rk, fl = s.rock, s.fluid
+        g = ini.gravity
+        dp = ini.pore_pressure_gradient if ini.pore_pressure_gradient is not None else fl.density * g
+        rho = rk.porosity * fl.density + (1 - rk.porosity) * rk.density
+        k_lat = (ini.lateral_stress_ratio if ini.lateral_stress_ratio is not None
+                 else rk.poissons_ratio / (1 - rk.poissons_ratio))
+        vertical = -(rho * g - rk.biot_coefficient * dp)  # effective stress per metre of depth
+        ep = np.array([-e[1], e[0]])
+        grad = vertical * (np.outer(e, e) + k_lat * np.outer(ep, ep))
+        sig[:, 0] += depth * grad[0, 0]
+        sig[:, 1] += depth * grad[1, 1]
+        sig[:, 2] += depth * grad[0, 1]
+        p0 += dp * depth
+        self.body_force_density = rho * g * e  # N/m^3
+        return sig, p0
 
     # ------------------------------------------------------------------ unknowns
     def _number_unknowns(self):
@@ -275,14 +320,15 @@ class Model:
                     pmap[g] = self.blocks.pf.start + f.segment_nodes[f.gp_segment[g]]
         self.fault_pressure_is_trace = trace
         jump = self._a_map(cut_nodes[f.gp_element]) if self.has_u else -np.ones((ng, 8), dtype=np.int64)
-        sig = np.array(s.initial.effective_stress)
-        stress = np.array([[sig[0], sig[2]], [sig[2], sig[1]]])
+        sig, p0 = self.initial_state(xy)
         t, n = f.tangent, f.normal
         # bulk total stress sigma' - alpha p0 I balances the fault's sigma_n + p0 (Biot 1 on the fault)
         alpha_gp = self.el_alpha[self.cut_elements[f.gp_element]]
-        p0 = np.full(ng, s.initial.pore_pressure)
-        sigma_n0 = -(n @ stress @ n) - (1.0 - alpha_gp) * p0
-        tau0 = np.full(ng, t @ stress @ n)
+        snn = sig[:, 0] * n[0] ** 2 + sig[:, 1] * n[1] ** 2 + 2 * sig[:, 2] * n[0] * n[1]
+        stn = (sig[:, 0] * t[0] * n[0] + sig[:, 1] * t[1] * n[1]
+               + sig[:, 2] * (t[0] * n[1] + t[1] * n[0]))
+        sigma_n0 = -snn - (1.0 - alpha_gp) * p0
+        tau0 = stn
         self.fp = FaultPoints(N=N, jump_dofs=jump, Np=Np, dNp_ds=dNp, p_dofs=pmap, weight=f.gp_w,
                               s=f.gp_s, xy=xy, sigma_n0=sigma_n0, tau0=tau0, p0=p0)
 
@@ -388,7 +434,7 @@ class Model:
             self.inj_Np = np.zeros(2)
             self.inj_p_dofs = -np.ones(2, dtype=np.int64)
         self.inj_s = s_inj
-        self.inj_p0 = self.scene.initial.pore_pressure
+        self.inj_p0 = float(self.initial_state(self.injection_xy[None, :])[1][0])
 
     # ------------------------------------------------------------------ static matrices
     def _assemble_static(self):
@@ -451,6 +497,75 @@ class Model:
         if not self.has_q:
             ok = self.inj_p_dofs >= 0
             self.source_vector[self.inj_p_dofs[ok]] = self.inj_Np[ok]
+
+    # ------------------------------------------------------------------ in-situ equilibrium
+    def initial_equilibrium_residual(self) -> tuple[float, float]:
+        """Norm of the out-of-balance force of the in-situ state at the free displacement DOFs
+        (N/m), and the norm of the forces it is made of (body force, stress divergence).
+
+        The solution is written in changes from the in-situ state, which must therefore be in
+        equilibrium by itself: total stress sigma' - alpha p0 I with body force, and the fault
+        carrying the projected in-situ tractions."""
+        r = np.zeros(self.n_dofs)
+        scale = np.zeros(self.n_dofs)
+        b = getattr(self, "body_force_density", np.zeros(2))
+        groups = []
+        if len(self.std_elements):
+            groups.append(("std", self.std_elements, self.std_N, self.std_grad, self.std_N, self.std_w))
+        if len(self.cut_elements):
+            groups.append(("cut", self.cut_elements, self.cut_Nu, self.cut_gu, self.cut_Np[:, :, :4], self.cut_w))
+        for name, els, Nu, gu, Nstd, w in groups:
+            xe = self.coords[self.elements[els]]               # (ne, 4, 2)
+            xq = np.einsum("eqa,eac->eqc", Nstd, xe)          # quadrature points
+            sig, p0 = self.initial_state(xq.reshape(-1, 2))
+            alpha = np.repeat(self.el_alpha[els], xq.shape[1])
+            sxx = (sig[:, 0] - alpha * p0).reshape(xq.shape[:2])
+            syy = (sig[:, 1] - alpha * p0).reshape(xq.shape[:2])
+            sxy = sig[:, 2].reshape(xq.shape[:2])
+            fx = np.einsum("eq,eqb->eb", w * sxx, gu[..., 0]) + np.einsum("eq,eqb->eb", w * sxy, gu[..., 1])
+            fy = np.einsum("eq,eqb->eb", w * sxy, gu[..., 0]) + np.einsum("eq,eqb->eb", w * syy, gu[..., 1])
+            bx = np.einsum("eq,eqb->eb", w, Nu) * b[0]
+            by = np.einsum("eq,eqb->eb", w, Nu) * b[1]
+            local = np.empty((len(els), 2 * gu.shape[2]))
+            local[:, 0::2], local[:, 1::2] = fx - bx, fy - by
+            umap = getattr(self, f"{name}_umap")
+            ok = umap >= 0
+            np.add.at(r, umap[ok], local[ok])
+            np.add.at(scale, umap[ok], np.abs(np.column_stack([bx, by]).reshape(local.shape)[ok])
+                      + np.abs(local[ok]))
+        fp = self.fp
+        if len(fp.s):
+            t, n = self.fault.tangent, self.fault.normal
+            traction = fp.tau0[:, None] * t[None, :] - (fp.sigma_n0 + fp.p0)[:, None] * n[None, :]
+            for g in range(len(fp.s)):
+                for i in range(4):
+                    for c in range(2):
+                        d = fp.jump_dofs[g, 2 * i + c]
+                        if d >= 0:
+                            r[d] += fp.weight[g] * fp.N[g, i] * traction[g, c]
+        # the outer edges carry the in-situ tractions by assumption (the surroundings hold them),
+        # so the check is on the interior nodes and their enriched DOFs
+        inner = np.ones(self.mesh.n_nodes, dtype=bool)
+        for edge in EDGES:
+            inner[self.mesh.edge_nodes(edge)] = False
+        keep = np.zeros(self.n_dofs, dtype=bool)
+        nodes = np.flatnonzero(inner)
+        keep[self.blocks.u.start + 2 * nodes] = keep[self.blocks.u.start + 2 * nodes + 1] = True
+        h = self.heav_index[nodes]
+        h = h[h >= 0]
+        keep[self.blocks.a.start + 2 * h] = keep[self.blocks.a.start + 2 * h + 1] = True
+        keep &= ~self.fixed
+        return float(np.linalg.norm(r[keep])), float(np.linalg.norm(scale[keep]))
+
+    def check_initial_equilibrium(self, rtol: float = 1e-8):
+        from .scene import SceneError
+
+        out, ref = self.initial_equilibrium_residual()
+        if out > rtol * max(ref, 1e-300):
+            raise SceneError(
+                f"the in-situ state is not in equilibrium (out-of-balance {out:.3e} N/m against "
+                f"forces of {ref:.3e} N/m): the stress gradient with depth assumes one Biot "
+                f"coefficient, porosity and density; zones that change them break it")
 
     # ------------------------------------------------------------------ evaluation helpers
     def fault_jump(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -119,6 +119,19 @@ class Zone:
 
 
 @_spec
+class DamageZoneSpec:
+    """Damaged rock on both sides of the fault (effects.damage_zone); unset values: intact rock."""
+    width: float = 50.0
+    """Distance from the fault to the edge of the damage zone, on each side (m)."""
+    youngs_modulus: float | None = None
+    """Young's modulus in the damage zone (Pa)."""
+    poissons_ratio: float | None = None
+    """Poisson's ratio in the damage zone (-)."""
+    permeability: float | None = None
+    """Permeability in the damage zone (m^2)."""
+
+
+@_spec
 class FluidSpec:
     viscosity: float = 8.9e-4
     """Dynamic viscosity (Pa s)."""
@@ -133,7 +146,17 @@ class InitialSpec:
     effective_stress: tuple[float, float, float] = (0.0, 0.0, 0.0)
     """In-situ effective stress sxx', syy', sxy' (Pa, tension positive)."""
     pore_pressure: float = 0.0
-    """Initial pore pressure (Pa)."""
+    """Initial pore pressure at the reference point (Pa)."""
+    reference_point: tuple[float, float] | None = None
+    """Where effective_stress and pore_pressure hold (m); default: the injection point."""
+    gravity: float = 9.81
+    """Gravitational acceleration (m/s^2), with effects.gravity."""
+    gravity_direction: tuple[float, float] = (0.0, -1.0)
+    """Unit vector of gravity in model coordinates (rotate it with the model) (-)."""
+    pore_pressure_gradient: float | None = None
+    """Hydrostatic gradient along gravity (Pa/m); default fluid density * gravity."""
+    lateral_stress_ratio: float | None = None
+    """Effective-stress gradient across gravity over that along it (-); default nu/(1-nu)."""
 
 
 @_spec
@@ -223,6 +246,7 @@ class Scene:
     fault: FaultSpec = FaultSpec()
     rock: RockSpec = RockSpec()
     zones: tuple[Zone, ...] = ()
+    damage_zone: DamageZoneSpec = DamageZoneSpec()
     fluid: FluidSpec = FluidSpec()
     initial: InitialSpec = InitialSpec()
     boundary: BoundarySpec = BoundarySpec()
@@ -360,7 +384,7 @@ def _number(value, key):
     return float(value)
 
 
-for _cls in (Refinement, MeshSpec, FaultSpec, RockSpec, FluidSpec, InitialSpec, EdgeSpec,
+for _cls in (Refinement, MeshSpec, FaultSpec, RockSpec, DamageZoneSpec, FluidSpec, InitialSpec, EdgeSpec,
              BoundarySpec, InjectionSpec, TimeSpec, SolverSpec, EffectsSpec):
     _SECTIONS[_cls.__name__] = _cls
 
@@ -452,6 +476,47 @@ def _validate(s: Scene):
     _check(sv.max_iterations >= 1, "solver.max_iterations", sv.max_iterations, "must be >= 1")
     _check(sv.max_step_cuts >= 0, "solver.max_step_cuts", sv.max_step_cuts, "must be >= 0")
     ef = s.effects
+    for key in ("rate_parameter", "state_parameter", "dilation_angle", "asperity_height_std"):
+        _check(getattr(f, key) >= 0, f"fault.{key}", getattr(f, key), "must be >= 0")
+    for key in ("reference_velocity", "critical_slip_distance", "slip_rate_threshold"):
+        _check(getattr(f, key) > 0, f"fault.{key}", getattr(f, key), "must be > 0")
+    _check(f.dilation_angle < 90, "fault.dilation_angle", f.dilation_angle, "must be below 90 degrees")
+    if f.initial_state is not None:
+        _check(f.initial_state > 0, "fault.initial_state", f.initial_state, "must be > 0 s")
+    if ef.rate_friction:
+        _check(f.rate_parameter > 0, "fault.rate_parameter", f.rate_parameter,
+               "must be > 0 with effects.rate_friction = true (a = 0 is constant friction: "
+               "switch rate_friction off)")
+    _check(not ef.state_evolution or ef.rate_friction, "effects.state_evolution", ef.state_evolution,
+           "state evolution is part of rate-and-state friction: needs effects.rate_friction = true")
+    if ef.state_evolution:
+        _check(f.state_parameter > 0, "fault.state_parameter", f.state_parameter,
+               "must be > 0 with effects.state_evolution = true")
+    if ef.dilation:
+        _check(f.dilation_angle > 0, "fault.dilation_angle", f.dilation_angle,
+               "must be > 0 with effects.dilation = true")
+        _check(ef.mechanics, "effects.dilation", ef.dilation, "needs effects.mechanics = true")
+    if ef.aperture_evolution:
+        _check(ef.fault_flow and ef.mechanics, "effects.aperture_evolution", ef.aperture_evolution,
+               "needs effects.fault_flow = true and effects.mechanics = true (the aperture follows "
+               "the mechanical opening)")
+    if ef.rate_friction:
+        _check(ef.mechanics, "effects.rate_friction", ef.rate_friction, "needs effects.mechanics = true")
+    ini = s.initial
+    d = ini.gravity_direction
+    _check(abs(math.hypot(d[0], d[1]) - 1.0) < 1e-6, "initial.gravity_direction", d, "must be a unit vector")
+    _check(ini.gravity >= 0, "initial.gravity", ini.gravity, "must be >= 0 m/s^2")
+    if ini.reference_point is not None:
+        rx, ry = ini.reference_point
+        _check(x0 <= rx <= x0 + m.lx and y0 <= ry <= y0 + m.ly, "initial.reference_point",
+               ini.reference_point, "must lie in the domain")
+    dz = s.damage_zone
+    _check(dz.width > 0, "damage_zone.width", dz.width, "must be > 0 m")
+    if ef.damage_zone:
+        _check(ef.fault, "effects.damage_zone", ef.damage_zone, "a damage zone needs a fault")
+        over = {k: v for k, v in (("youngs_modulus", dz.youngs_modulus), ("poissons_ratio", dz.poissons_ratio),
+                                  ("permeability", dz.permeability)) if v is not None}
+        _validate_rock(dataclasses.replace(s.rock, **over), "damage_zone")
     if not ef.fault:
         for key in ("fault_flow", "leak_off"):
             _check(not getattr(ef, key), f"effects.{key}", getattr(ef, key),

@@ -54,7 +54,7 @@ def renshaw_aperture(opening_change, aperture0, sigma_h):
     2h = 2h0 + d exp(-ln(1 + (sigma_h/d)^2)/2) = 2h0 + d^2 / sqrt(d^2 + sigma_h^2) for d >= 0.
     Closing (d < 0, contact compressed further) uses the odd extension r(d) of that increment
     through 2h = 2h0 exp(r / 2h0): value and slope match at d = 0 and the aperture stays
-    positive however hard the fault is pressed. Returns (2h, d(2h)/dd)."""
+    positive however hard the fault is pressed (floored at 1e-12 2h0). Returns (2h, d(2h)/dd)."""
     d = opening_change
     q = d * d + sigma_h * sigma_h
     if q == 0.0:
@@ -65,6 +65,8 @@ def renshaw_aperture(opening_change, aperture0, sigma_h):
     if d >= 0.0:
         return aperture0 + r, dr
     e = np.exp(r / aperture0)
+    if e < 1e-12:  # pressed shut: keep a residual aperture so that T > 0 and dT/T stays finite
+        return aperture0 * 1e-12, 0.0
     return aperture0 * e, e * dr
 
 

@@ -1,0 +1,103 @@
+"""An effect that is off costs nothing: no unknowns, no assembled terms, no per-step work."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from conftest import CONFIGS
+from fault_screen import Scene, SceneError
+from fault_screen.model import Model
+from fault_screen.solver import CoulombFriction, NewtonSolver, RateStateFriction
+
+
+@pytest.fixture(scope="module")
+def rustrel():
+    return Scene.from_toml(CONFIGS / "rustrel-2015-calibrated.toml")
+
+
+def with_effects(scene, **switches):
+    return scene.replace(effects=dataclasses.replace(scene.effects, **switches))
+
+
+def test_unknowns_per_configuration(rustrel):
+    full = Model(rustrel)
+    nn = full.mesh.n_nodes
+    n_cut_nodes = int(full.fault.pressure_enriched.sum())
+    n_fault_nodes = len(full.fault.fault_node_s)
+    c = full.dof_counts()
+    # 51 x 52 nodes; the horizontal fault cuts one row of 50 elements: 102 nodes
+    assert nn == 51 * 52 and n_cut_nodes == 102 and n_fault_nodes == 51
+    assert c == {"u": 2 * nn, "a": 2 * n_cut_nodes, "p": nn, "c": n_cut_nodes, "pf": 0, "q": 0}
+
+    no_leak = Model(with_effects(rustrel, leak_off=False)).dof_counts()
+    assert no_leak == {"u": 2 * nn, "a": 2 * n_cut_nodes, "p": nn, "c": 0, "pf": n_fault_nodes, "q": 0}
+
+    impermeable = Model(with_effects(rustrel, poroelastic=False, leak_off=False)).dof_counts()
+    assert impermeable == {"u": 2 * nn, "a": 2 * n_cut_nodes, "p": 0, "c": 0, "pf": n_fault_nodes, "q": 0}
+
+    rigid = Model(with_effects(rustrel, mechanics=False, poroelastic=False, leak_off=False,
+                               rate_friction=False, dilation=False, aperture_evolution=False,
+                               gravity=False)).dof_counts()
+    assert rigid == {"u": 0, "a": 0, "p": 0, "c": 0, "pf": n_fault_nodes, "q": 0}
+
+    silent = dataclasses.replace(rustrel.injection, schedule=((0.0, 0.0),))
+    dry = Model(rustrel.replace(injection=silent, effects=dataclasses.replace(
+        rustrel.effects, leak_off=False, fault_flow=False, aperture_evolution=False))).dof_counts()
+    assert dry == {"u": 2 * nn, "a": 2 * n_cut_nodes, "p": nn, "c": 0, "pf": 0, "q": 0}
+
+    no_fault = Model(rustrel.replace(injection=silent, effects=dataclasses.replace(
+        rustrel.effects, fault=False, leak_off=False, fault_flow=False, rate_friction=False,
+        dilation=False, aperture_evolution=False, damage_zone=False))).dof_counts()
+    assert no_fault == {"u": 2 * nn, "a": 0, "p": nn, "c": 0, "pf": 0, "q": 0}
+
+    pressure_control = Model(rustrel.replace(injection=dataclasses.replace(
+        rustrel.injection, control="pressure", schedule=((0.0, 1e6),)))).dof_counts()
+    assert pressure_control["q"] == 1
+
+
+def test_switched_off_terms_are_not_assembled(rustrel):
+    full = Model(with_effects(rustrel, aperture_evolution=False))
+    no_flow = Model(with_effects(rustrel, fault_flow=False, aperture_evolution=False))
+    # fault conduction and storage exist only with fault flow: fewer stored entries, no cubic law
+    assert no_flow.fault_transmissivity == 0.0 and full.fault_transmissivity > 0.0
+    assert no_flow.Hf.nnz < full.Hf.nnz or np.abs(no_flow.Hf - full.Hf).max() > 0
+    # evolving aperture: conduction leaves the constant matrix and becomes a per-iteration term
+    evolving = Model(rustrel)
+    assert np.abs(evolving.Hf - full.Hf).max() > 0
+    s_full, s_evolving = NewtonSolver(full), NewtonSolver(evolving)
+    assert not s_full.evolving_aperture and s_evolving.evolving_aperture
+    assert len(s_full.N) < len(s_evolving.N)  # only the Heaviside DOFs are nonlinear without it
+
+
+def test_friction_law_is_chosen_once_by_the_scene(rustrel):
+    assert isinstance(NewtonSolver(Model(rustrel)).friction_law, RateStateFriction)
+    coulomb = NewtonSolver(Model(with_effects(rustrel, rate_friction=False)))
+    assert type(coulomb.friction_law) is CoulombFriction
+    # dilation off: no dilatancy coefficient even though the scene names an angle
+    assert NewtonSolver(Model(with_effects(rustrel, dilation=False))).friction_law.tan_dilation == 0.0
+
+
+def test_damage_zone_and_gravity_switches(rustrel):
+    with_dz = Model(rustrel)
+    without = Model(with_effects(rustrel, damage_zone=False))
+    assert len(with_dz.zone_props) == 2 and len(without.zone_props) == 1
+    # the damage zone is the 50 m band: element rows of 250/51 = 4.90 m whose centroids lie within
+    # 50 m of the fault (the cut row and 10 rows on each side), 50 elements a row
+    assert np.count_nonzero(with_dz.zone_of) == 50 * 21
+    flat = Model(with_effects(rustrel, gravity=False))
+    assert np.ptp(flat.fp.p0) == 0.0
+    # with gravity, p0 grows by the hydrostatic gradient along the gravity direction
+    g = np.array(rustrel.initial.gravity_direction)
+    fp = with_dz.fp
+    slope = np.polyfit(fp.xy @ g, fp.p0, 1)[0]
+    assert slope == pytest.approx(rustrel.initial.pore_pressure_gradient, rel=1e-12)
+
+
+@pytest.mark.parametrize("switches,key", [
+    ({"poroelastic": False, "leak_off": True}, "effects.leak_off"),
+    ({"rate_friction": False, "state_evolution": True}, "effects.state_evolution"),
+    ({"fault_flow": False, "leak_off": False, "aperture_evolution": True}, "effects.aperture_evolution"),
+])
+def test_inconsistent_switches_are_refused(rustrel, switches, key):
+    with pytest.raises(SceneError, match=key.replace(".", r"\.")):
+        with_effects(rustrel, **switches)
