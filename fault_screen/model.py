@@ -77,8 +77,12 @@ class Model:
         self.coords = self.mesh.coordinates
         self.elements = self.mesh.elements
         self.has_fault = ef.fault
-        self.fault = (xfem.locate_fault(self.mesh, scene.fault_point, scene.fault.angle)
-                      if ef.fault else xfem.no_fault(self.mesh))
+        try:
+            self.fault = (xfem.locate_fault(self.mesh, scene.fault_point, scene.fault.angle)
+                          if ef.fault else xfem.no_fault(self.mesh))
+        except ValueError as exc:
+            from .scene import SceneError
+            raise SceneError(f"fault.point = {scene.fault_point}, fault.angle = {scene.fault.angle}: {exc}") from None
         self.has_u = ef.mechanics
         self.has_p = ef.poroelastic
         self.has_c = ef.fault and ef.poroelastic and ef.leak_off
@@ -409,7 +413,11 @@ class Model:
             self.fault_pressure_is_trace = False
             return
         s_inj = self.scene.injection.position
-        k, lam = xfem.locate_point_on_fault(f, s_inj)
+        try:
+            k, lam = xfem.locate_point_on_fault(f, s_inj)
+        except ValueError as exc:
+            from .scene import SceneError
+            raise SceneError(f"injection.position = {s_inj!r}: {exc}") from None
         r0, r1 = f.segment_ref[k]
         xi, eta = r0 + lam * (r1 - r0)
         nodes = self.elements[self.cut_elements[k]]

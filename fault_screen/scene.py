@@ -8,10 +8,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
+
+from . import units
 
 EDGES = ("bottom", "right", "top", "left")
 
@@ -310,18 +313,43 @@ def _to_plain(obj):
     return obj
 
 
+#: What each dimensional field measures, so that values may carry units (see ``units.py``):
+#: as a key suffix, ``"youngs_modulus[GPa]" = 29.2``, or in a string, ``youngs_modulus = "29.2 GPa"``.
+QUANTITY = {
+    **dict.fromkeys(["youngs_modulus", "solid_bulk_modulus", "bulk_modulus", "effective_stress",
+                     "pore_pressure", "traction"], "pressure"),
+    **dict.fromkeys(["normal_stiffness", "shear_stiffness", "pore_pressure_gradient"], "stiffness"),
+    **dict.fromkeys(["lx", "ly", "origin", "center", "half_width", "size", "point",
+                     "hydraulic_aperture", "critical_slip_distance", "asperity_height_std", "width",
+                     "band", "box", "position", "reference_point"], "length"),
+    "permeability": "permeability",
+    **dict.fromkeys(["end", "dt", "dt_max", "initial_state"], "time"),
+    "viscosity": "viscosity",
+    **dict.fromkeys(["angle", "dilation_angle"], "angle"),
+}
+_UNIT_KEY = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*\[(.+)\]\s*$")
+
+
 def _build(cls, data, where):
     if not isinstance(data, dict):
         raise SceneError(f"[{where or 'scene'}] must be a table, got {data!r}")
     known = {f.name: f for f in fields(cls)}
-    unknown = sorted(set(data) - set(known))
-    if unknown:
-        raise SceneError(f"unknown key {_key(where, unknown[0])!s} = {data[unknown[0]]!r}; "
-                         f"known keys in [{where or 'scene'}]: {', '.join(sorted(known))}")
-    kwargs = {}
     hints = {f.name: f.type for f in fields(cls)}
-    for name, value in data.items():
-        kwargs[name] = _coerce(hints[name], value, _key(where, name))
+    kwargs = {}
+    for raw, value in data.items():
+        m = _UNIT_KEY.match(raw)
+        name, unit = (m.group(1), m.group(2).strip()) if m else (raw, None)
+        if name not in known:
+            raise SceneError(f"unknown key {_key(where, raw)!s} = {value!r}; "
+                             f"known keys in [{where or 'scene'}]: {', '.join(sorted(known))}")
+        if name in kwargs:
+            raise SceneError(f"{_key(where, name)} is given twice (with and without a unit)")
+        quantity = QUANTITY.get(name)
+        if name == "schedule":
+            quantity = "pressure" if data.get("control") == "pressure" else "flow_rate"
+        if unit is not None and quantity is None:
+            raise SceneError(f"{_key(where, raw)}: {name} takes no unit")
+        kwargs[name] = _coerce(hints[name], value, _key(where, raw), quantity, unit)
     return cls(**kwargs)
 
 
@@ -332,7 +360,7 @@ def _key(where, name):
 _SECTIONS = {}
 
 
-def _coerce(hint, value, key):
+def _coerce(hint, value, key, quantity=None, unit=None):
     hint = str(hint)
     base = hint.replace(" | None", "")
     if base in _SECTIONS:
@@ -350,15 +378,20 @@ def _coerce(hint, value, key):
             raise SceneError(f"{key} = {value!r} must be an integer")
         return value
     if base == "float":
-        return _number(value, key)
+        return _number(value, key, quantity, unit)
     if base == "str":
         if not isinstance(value, str):
             raise SceneError(f"{key} = {value!r} must be a string")
         return value
-    if base == "dict":
+    if base == "dict":  # rock overrides of a zone: same keys (and units) as [rock]
         if not isinstance(value, dict):
             raise SceneError(f"{key} = {value!r} must be a table")
-        return dict(value)
+        out = {}
+        for raw, v in value.items():
+            m = _UNIT_KEY.match(raw)
+            name, u = (m.group(1), m.group(2).strip()) if m else (raw, None)
+            out[name] = _number(v, f"{key}.{raw}", QUANTITY.get(name), u) if name in QUANTITY or u else v
+        return out
     if base.startswith("tuple[tuple[float, float]"):
         if not isinstance(value, list) or not value:
             raise SceneError(f"{key} = {value!r} must be a non-empty array of [time, value] pairs")
@@ -366,22 +399,44 @@ def _coerce(hint, value, key):
         for i, pair in enumerate(value):
             if not isinstance(pair, list) or len(pair) != 2:
                 raise SceneError(f"{key}[{i}] = {pair!r} must be a [time, value] pair")
-            out.append((_number(pair[0], f"{key}[{i}][0]"), _number(pair[1], f"{key}[{i}][1]")))
+            out.append((_number(pair[0], f"{key}[{i}][0]", "time"),
+                        _number(pair[1], f"{key}[{i}][1]", quantity, unit)))
         return tuple(out)
     if base.startswith("tuple[float"):
         n = base.count("float")
         if not isinstance(value, list) or len(value) != n:
             raise SceneError(f"{key} = {value!r} must be an array of {n} numbers")
-        return tuple(_number(v, f"{key}[{i}]") for i, v in enumerate(value))
+        return tuple(_number(v, f"{key}[{i}]", quantity, unit) for i, v in enumerate(value))
     raise SceneError(f"{key}: cannot read {value!r}")  # pragma: no cover - schema error
 
 
-def _number(value, key):
+def _number(value, key, quantity=None, unit=None):
+    """A float in SI (angles in degrees) from a number, or a "number unit" string."""
+    text = value
+    if isinstance(value, str):
+        parts = value.strip().split(None, 1)
+        try:
+            value = float(parts[0])
+        except (ValueError, IndexError):
+            raise SceneError(f"{key} = {text!r} must be a number, optionally with a unit "
+                             f"(\"29.2 GPa\")") from None
+        if len(parts) == 2:
+            if unit is not None:
+                raise SceneError(f"{key} = {text!r}: the unit is already given in the key")
+            if quantity is None:
+                raise SceneError(f"{key} = {text!r}: this value takes no unit")
+            unit = parts[1]
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise SceneError(f"{key} = {value!r} must be a number (SI units)")
+        raise SceneError(f"{key} = {text!r} must be a number (SI units unless a unit is given)")
     if not math.isfinite(value):
-        raise SceneError(f"{key} = {value!r} must be finite")
-    return float(value)
+        raise SceneError(f"{key} = {text!r} must be finite")
+    if unit is None:
+        return float(value)
+    try:
+        si = float(units.to_si(float(value), unit, quantity))
+    except units.UnitError as exc:
+        raise SceneError(f"{key} = {text!r}: {exc}") from None
+    return math.degrees(si) if quantity == "angle" else si
 
 
 for _cls in (Refinement, MeshSpec, FaultSpec, RockSpec, DamageZoneSpec, FluidSpec, InitialSpec, EdgeSpec,

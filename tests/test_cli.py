@@ -424,3 +424,39 @@ def test_progress_bar_on_a_terminal():
     assert "left ~2.3 s" in s.text and "wall 7.0 s" in s.text
     p(3, 1400.0, 1400.0, 9.0)
     assert s.text.endswith("\n") and "100.0%" in s.text
+
+
+def test_scene_show_prints_the_resolved_scene_in_si(tmp_path):
+    import tomllib
+
+    from click.testing import CliRunner
+
+    from fault_screen import Scene
+    from fault_screen.cli import main
+
+    path = tmp_path / "s.toml"
+    path.write_text('[rock]\n"youngs_modulus[GPa]" = 20.0\n')
+    res = CliRunner().invoke(main, ["scene", "show", str(path)])
+    assert res.exit_code == 0, res.output
+    shown = tomllib.loads(res.output)
+    assert shown["rock"]["youngs_modulus"] == 20e9          # converted to SI
+    assert shown["fault"]["friction"] == Scene().fault.friction  # defaults included
+    assert Scene.from_dict(shown) == Scene.from_toml(path)
+
+
+def test_scene_check_reports_unknowns_and_refuses_bad_scenes(tmp_path):
+    from click.testing import CliRunner
+
+    from fault_screen.cli import main
+
+    runner = CliRunner()
+    good = tmp_path / "good.toml"
+    good.write_text("[mesh]\nnx = 10\nny = 11\n")
+    res = runner.invoke(main, ["scene", "check", str(good)])
+    assert res.exit_code == 0 and "unknowns" in res.output
+    # 11 x 12 nodes: u 264, a 2 x 22, p 132, c 22
+    assert "u 264, a 44, p 132, c 22" in res.output
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[injection]\nposition = 500.0\n")
+    res = runner.invoke(main, ["scene", "check", str(bad)])
+    assert res.exit_code == 2 and "injection.position = 500.0" in res.output

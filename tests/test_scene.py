@@ -1,4 +1,5 @@
 """Scene loading and validation: clear errors naming the key and the value."""
+import re
 import tomllib
 
 import pytest
@@ -50,3 +51,35 @@ def test_scenes_are_frozen():
     scene = Scene()
     with pytest.raises(Exception):
         scene.mesh.nx = 3  # type: ignore[misc]
+
+
+def test_values_may_carry_field_units():
+    s = Scene.from_dict({
+        "rock": {"youngs_modulus[GPa]": 29.2, "permeability": "100 mD"},
+        "fault": {"normal_stiffness": "27.7 GPa/m", "angle[rad]": 0.5},
+        "injection": {"schedule[L/min]": [[0, 60], [150, 0]]},
+        "time": {"end": "2 h"},
+        "zones": [{"band": "5 m", "rock": {"youngs_modulus[GPa]": 15.0}}],
+    })
+    assert s.rock.youngs_modulus == 29.2e9
+    assert s.rock.permeability == pytest.approx(9.869233e-14, rel=1e-12)
+    assert s.fault.normal_stiffness == 27.7e9
+    assert s.fault.angle == pytest.approx(28.64788975654116, rel=1e-12)  # stored in degrees
+    assert s.injection.schedule[0][1] == pytest.approx(1e-3, rel=1e-12)  # 60 L/min in m3/s
+    assert s.time.end == 7200.0
+    assert s.zones[0].rock["youngs_modulus"] == 15.0e9
+    # pressure control: the schedule is in pressure units
+    p = Scene.from_dict({"injection": {"control": "pressure", "schedule[MPa]": [[0, 2.5]]}})
+    assert p.injection.schedule[0][1] == 2.5e6
+
+
+@pytest.mark.parametrize("data,needle", [
+    ({"rock": {"youngs_modulus": "29.2 furlongs"}}, "unknown pressure unit 'furlongs'"),
+    ({"rock": {"youngs_modulus": "29.2 L/min"}}, "is a flow_rate unit, not a pressure unit"),
+    ({"rock": {"porosity[%]": 14.0}}, "porosity takes no unit"),
+    ({"rock": {"youngs_modulus[GPa]": "29.2 GPa"}}, "already given in the key"),
+    ({"rock": {"youngs_modulus": 1e9, "youngs_modulus[GPa]": 1.0}}, "given twice"),
+])
+def test_bad_units_are_refused(data, needle):
+    with pytest.raises(SceneError, match=re.escape(needle)):
+        Scene.from_dict(data)

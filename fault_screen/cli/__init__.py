@@ -11,6 +11,7 @@ from ._options import Group, version_option
 from .plot import plot
 from .replay import replay
 from .run import run
+from .scene import scene
 
 __all__ = ["main"]
 
@@ -26,6 +27,7 @@ def main():
     fault-screen run SCENE.toml --plot figs
     fault-screen replay SCENE.toml --log injection.csv --events catalog.xml --plot figs
     fault-screen plot result.h5 --out figs
+    fault-screen scene check SCENE.toml   (scene show SCENE.toml: resolved, in SI)
 
     Exit codes: 0 success, 1 run failed or output not written, 2 bad usage or bad input.
     """
@@ -34,3 +36,4 @@ def main():
 main.add_command(run)
 main.add_command(replay)
 main.add_command(plot)
+main.add_command(scene)
