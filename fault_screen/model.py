@@ -40,6 +40,19 @@ class Blocks:
 
 
 @dataclass
+class ElementGroup:
+    """Elements sharing a quadrature layout, with bases tabulated at their points."""
+    elements: np.ndarray     # (ne,) element ids
+    Nu: np.ndarray           # (ne, nq, nbu) displacement basis
+    grad_u: np.ndarray       # (ne, nq, nbu, 2)
+    Np: np.ndarray           # (ne, nq, nbp) pressure basis (first 4: standard shape functions)
+    grad_p: np.ndarray       # (ne, nq, nbp, 2)
+    w: np.ndarray            # (ne, nq) quadrature weights, m^2
+    umap: np.ndarray | None  # (ne, 2 nbu) displacement DOFs or -1
+    pmap: np.ndarray | None  # (ne, nbp) pressure DOFs or -1
+
+
+@dataclass
 class FaultPoints:
     """Fault Gauss-point data (plain arrays, ordered by s)."""
     N: np.ndarray            # (n_gp, 4) standard shape functions of the cut element (jump basis)
@@ -285,6 +298,20 @@ class Model:
             self.cut_pmap = np.hstack([self._p_map(cut_nodes),
                                        self._c_map(cut_nodes) if self.has_c else none8])
 
+    def element_groups(self) -> list["ElementGroup"]:
+        """The standard (2x2 Gauss) and cut (sub-cell) element groups with their tabulated bases
+        and local-to-global maps (None where the scene has no such unknowns)."""
+        out = []
+        if len(self.std_elements):
+            out.append(ElementGroup(self.std_elements, self.std_N, self.std_grad, self.std_N,
+                                    self.std_grad, self.std_w, getattr(self, "std_umap", None),
+                                    getattr(self, "std_pmap", None)))
+        if len(self.cut_elements):
+            out.append(ElementGroup(self.cut_elements, self.cut_Nu, self.cut_gu, self.cut_Np,
+                                    self.cut_gp, self.cut_w, getattr(self, "cut_umap", None),
+                                    getattr(self, "cut_pmap", None)))
+        return out
+
     # ------------------------------------------------------------------ fault tabulation
     def _tabulate_fault(self):
         f = self.fault
@@ -451,14 +478,8 @@ class Model:
         acts on (x - x_n)/dt) and ``Hf`` (flow terms, theta-weighted)."""
         n = self.n_dofs
         A, C, Hf = TripletBuilder(n), TripletBuilder(n), TripletBuilder(n)
-        groups = []
-        if len(self.std_elements):
-            groups.append(("std", self.std_elements, self.std_N, self.std_grad, self.std_N, self.std_grad, self.std_w))
-        if len(self.cut_elements):
-            groups.append(("cut", self.cut_elements, self.cut_Nu, self.cut_gu, self.cut_Np, self.cut_gp, self.cut_w))
-        for name, els, Nu, gu, Np, gp, w in groups:
-            umap = getattr(self, f"{name}_umap", None)
-            pmap = getattr(self, f"{name}_pmap", None)
+        for g in self.element_groups():
+            els, gu, Np, gp, w, umap, pmap = g.elements, g.grad_u, g.Np, g.grad_p, g.w, g.umap, g.pmap
             if self.has_u:
                 K = _per_element(rock.elastic_stiffness, gu, w, self.el_D[els])
                 A.add(K, umap, umap)
@@ -517,12 +538,9 @@ class Model:
         r = np.zeros(self.n_dofs)
         scale = np.zeros(self.n_dofs)
         b = getattr(self, "body_force_density", np.zeros(2))
-        groups = []
-        if len(self.std_elements):
-            groups.append(("std", self.std_elements, self.std_N, self.std_grad, self.std_N, self.std_w))
-        if len(self.cut_elements):
-            groups.append(("cut", self.cut_elements, self.cut_Nu, self.cut_gu, self.cut_Np[:, :, :4], self.cut_w))
-        for name, els, Nu, gu, Nstd, w in groups:
+        for grp in self.element_groups():
+            els, Nu, gu, w, umap = grp.elements, grp.Nu, grp.grad_u, grp.w, grp.umap
+            Nstd = grp.Np[:, :, :4]  # standard shape functions locate the quadrature points
             xe = self.coords[self.elements[els]]               # (ne, 4, 2)
             xq = np.einsum("eqa,eac->eqc", Nstd, xe)          # quadrature points
             sig, p0 = self.initial_state(xq.reshape(-1, 2))
@@ -536,7 +554,6 @@ class Model:
             by = np.einsum("eq,eqb->eb", w, Nu) * b[1]
             local = np.empty((len(els), 2 * gu.shape[2]))
             local[:, 0::2], local[:, 1::2] = fx - bx, fy - by
-            umap = getattr(self, f"{name}_umap")
             ok = umap >= 0
             np.add.at(r, umap[ok], local[ok])
             np.add.at(scale, umap[ok], np.abs(np.column_stack([bx, by]).reshape(local.shape)[ok])

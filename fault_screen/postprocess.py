@@ -16,21 +16,16 @@ def fluid_volumes(model: Model, x: np.ndarray) -> dict:
     int (alpha eps_v + p/M) dOmega; in the fault, int (opening + storativity * p) ds."""
     m = model
     rock_vol = 0.0
-    groups = []
-    if len(m.std_elements):
-        groups.append(("std", m.std_elements, m.std_N, m.std_grad, m.std_w))
-    if len(m.cut_elements):
-        groups.append(("cut", m.cut_elements, m.cut_Np, m.cut_gu, m.cut_w))
-    for name, els, Np, gu, w in groups:
+    for g in m.element_groups():
         if m.has_u and m.has_p:
-            u = _gather(x, getattr(m, f"{name}_umap"))  # (ne, 2 nb)
+            u = _gather(x, g.umap)  # (ne, 2 nb)
             ux, uy = u[:, 0::2], u[:, 1::2]
-            eps_v = np.einsum("eqb,eb->eq", gu[..., 0], ux) + np.einsum("eqb,eb->eq", gu[..., 1], uy)
-            rock_vol += np.sum(w * m.el_alpha[els][:, None] * eps_v)
+            eps_v = (np.einsum("eqb,eb->eq", g.grad_u[..., 0], ux)
+                     + np.einsum("eqb,eb->eq", g.grad_u[..., 1], uy))
+            rock_vol += np.sum(g.w * m.el_alpha[g.elements][:, None] * eps_v)
         if m.has_p:
-            p = _gather(x, getattr(m, f"{name}_pmap"))
-            pq = np.einsum("eqb,eb->eq", Np, p)
-            rock_vol += np.sum(w * m.el_inv_M[els][:, None] * pq)
+            pq = np.einsum("eqb,eb->eq", g.Np, _gather(x, g.pmap))
+            rock_vol += np.sum(g.w * m.el_inv_M[g.elements][:, None] * pq)
     fault_vol = 0.0
     fp = m.fp
     if m.scene.effects.fault_flow or m.has_c:

@@ -6,8 +6,9 @@ points; ``/fault/xy`` m; ``/fault/weight`` m (Gauss weights: integrals along the
 ``/fault/{pressure, overpressure, shear_traction, effective_normal_stress}`` Pa (effective normal
 stress compression-positive); ``/fault/{slip, opening}`` m (opening positive apart);
 ``/fault/slip_rate`` m/s; ``/fault/friction`` -; ``/fault/contact_state`` 0 stick 1 slip 2 open;
-``/injection/{flow_rate (m^3/s, whole interval), pressure, overpressure (Pa), slip, opening (m),
-volume (m^3, cumulative, whole interval)}``; ``/balance/*`` m^3 per m of fault-plane thickness;
+``/injection/{flow_rate (m^3/s, whole interval), pressure, overpressure (Pa), slip, opening,
+hydraulic_aperture (m), volume (m^3, cumulative, whole interval), fault_inflow_velocity (m/s,
+Eq. 29: flow_rate / (NoF 2h))}``; ``/balance/*`` m^3 per m of fault-plane thickness;
 ``/solver/*``; root attribute ``scene`` holds the resolved scene as TOML.
 The file is written to a temporary name and renamed, so a failed write leaves no partial file.
 """
@@ -85,5 +86,5 @@ class Result:
 
 _UNITS = {"pressure": "Pa", "overpressure": "Pa", "shear_traction": "Pa",
           "effective_normal_stress": "Pa", "slip": "m", "opening": "m", "slip_rate": "m/s",
-          "friction": "1", "hydraulic_aperture": "m", "flow_rate": "m3/s", "volume": "m3", "stored_rock": "m3/m",
+          "friction": "1", "hydraulic_aperture": "m", "fault_inflow_velocity": "m/s", "flow_rate": "m3/s", "volume": "m3", "stored_rock": "m3/m",
           "stored_fault": "m3/m", "leaked": "m3/m", "dt": "s"}

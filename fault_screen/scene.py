@@ -190,6 +190,15 @@ class InjectionSpec:
     """NoF: fractures sharing the interval's flow (Eq. 29); the model fault takes rate/NoF (-)."""
     schedule: tuple[tuple[float, float], ...] = ((0.0, 0.0),)
     """Steps (time s, value): value holds from its time to the next (m^3/s or Pa)."""
+    log: str | None = None
+    """An injection-rate log (CSV, see README) that replaces the schedule under rate control;
+    a relative path is taken from the scene file's folder. Model time 0 = its first stamp."""
+    log_flow_unit: str | None = None
+    """Flow-rate unit of the log when its header names none (e.g. 'L/min')."""
+    log_max_gap: float = 600.0
+    """Longest gap between log samples before it counts as a problem (s)."""
+    log_policy: str = "stop"
+    """What to do with a bad log line: 'stop', 'skip' or 'hold' (see README)."""
 
 
 @_spec
@@ -268,11 +277,15 @@ class Scene:
             raise SceneError(f"scene file not found: {path}") from None
         except tomllib.TOMLDecodeError as exc:
             raise SceneError(f"{path}: not valid TOML: {exc}") from None
-        return cls.from_dict(data)
+        return cls.from_dict(data, base_dir=path.resolve().parent)
 
     @classmethod
-    def from_dict(cls, data: dict) -> "Scene":
+    def from_dict(cls, data: dict, base_dir=None) -> "Scene":
+        """``base_dir``: folder that relative paths in the scene (injection.log) start from."""
         scene = _build(cls, data, "")
+        if scene.injection.log is not None and base_dir is not None:
+            log = Path(base_dir) / scene.injection.log
+            scene = dataclasses.replace(scene, injection=dataclasses.replace(scene.injection, log=str(log)))
         _validate(scene)
         return scene
 
@@ -323,7 +336,7 @@ QUANTITY = {
                      "hydraulic_aperture", "critical_slip_distance", "asperity_height_std", "width",
                      "band", "box", "position", "reference_point"], "length"),
     "permeability": "permeability",
-    **dict.fromkeys(["end", "dt", "dt_max", "initial_state"], "time"),
+    **dict.fromkeys(["end", "dt", "dt_max", "initial_state", "log_max_gap"], "time"),
     "viscosity": "viscosity",
     **dict.fromkeys(["angle", "dilation_angle"], "angle"),
 }
@@ -519,6 +532,12 @@ def _validate(s: Scene):
     if inj.control == "rate":
         _check(all(v >= 0 for _, v in inj.schedule), "injection.schedule", inj.schedule,
                "flow rates must be >= 0 m^3/s")
+    _check(inj.log_policy in ("stop", "skip", "hold"), "injection.log_policy", inj.log_policy,
+           "must be 'stop', 'skip' or 'hold'")
+    _check(inj.log_max_gap > 0, "injection.log_max_gap", inj.log_max_gap, "must be > 0 s")
+    if inj.log is not None:
+        _check(inj.control == "rate", "injection.log", inj.log, "a flow-rate log needs control = 'rate'")
+        _check(Path(inj.log).is_file(), "injection.log", inj.log, "no such file")
     t = s.time
     _check(t.end > 0, "time.end", t.end, "must be > 0 s")
     _check(0 < t.dt <= t.end, "time.dt", t.dt, f"must be in (0, end = {t.end}] s")

@@ -54,6 +54,12 @@ def simulate(scene: Scene, *, progress: Callable | None = None, injected_volume=
     solver = NewtonSolver(model)
     inj = scene.injection
     nof = inj.number_of_fractures
+    if injected_volume is None and inj.log is not None:
+        from .io.injection_log import read_injection_log
+
+        log = read_injection_log(inj.log, flow_unit=inj.log_flow_unit, max_gap=inj.log_max_gap,
+                                 policy=inj.log_policy)
+        injected_volume = log.volume
     volume_fn = injected_volume or (lambda a, b: step_schedule_volume(inj.schedule, a, b))
     ts = scene.time
     dt_max = ts.dt_max if ts.dt_max is not None else ts.dt
@@ -125,6 +131,7 @@ class _Recorder:
         self.m = model
         self.solver = solver
         self.rows = []
+        self.inj_gp = int(np.argmin(np.abs(model.fp.s - model.inj_s))) if len(model.fp.s) else 0
 
     def record(self, t, x, out, hist, slip_rate, flow_rate, volume, iterations, cuts, leaked=0.0, dt=0.0):
         m = self.m
@@ -149,7 +156,8 @@ class _Recorder:
             effective_normal_stress=sn, friction=friction, contact_state=state,
             hydraulic_aperture=aperture,
             inj_flow=flow_rate, inj_overpressure=p_inj, inj_pressure=m.inj_p0 + p_inj, inj_slip=s_inj,
-            inj_opening=o_inj, inj_volume=volume, iterations=iterations, cuts=cuts, dt=dt,
+            inj_opening=o_inj, inj_volume=volume,
+            inj_aperture=float(aperture[self.inj_gp]) if len(aperture) else 0.0, iterations=iterations, cuts=cuts, dt=dt,
             stored_rock=vols["rock"], stored_fault=vols["fault"], leaked=leaked,
         ))
 
@@ -163,7 +171,15 @@ class _Recorder:
             "flow_rate": stack("inj_flow"), "pressure": stack("inj_pressure"),
             "overpressure": stack("inj_overpressure"), "slip": stack("inj_slip"),
             "opening": stack("inj_opening"), "volume": stack("inj_volume"),
+            "hydraulic_aperture": stack("inj_aperture"),
         }
+        # Eq. 29: inflow velocity into the single model fault, Q / (NoF 2h) (m/s); the model's
+        # source is 2h times it, so the aperture cancels in the balance
+        nof = scene.injection.number_of_fractures
+        with np.errstate(divide="ignore", invalid="ignore"):
+            injection["fault_inflow_velocity"] = np.where(
+                injection["hydraulic_aperture"] > 0,
+                injection["flow_rate"] / (nof * injection["hydraulic_aperture"]), 0.0)
         balance = {"stored_rock": stack("stored_rock"), "stored_fault": stack("stored_fault"),
                    "leaked": stack("leaked")}
         solver = {"iterations": stack("iterations"), "step_cuts": stack("cuts"), "dt": stack("dt")}
