@@ -2,7 +2,7 @@
 
 * :func:`plot_injection_point` -- overpressure (MPa), slip and opening (mm) at the injection point
   against time, flow rate (L/min) on a twin axis (the layout of Fig. 9 of Schwartzkopff et al.);
-* :func:`plot_space_time` -- space-time maps (distance along the fault x time) of fault pressure
+* :func:`plot_space_time` -- space-time maps (distance along the fault x time) of fault overpressure
   (MPa), slip and opening (mm) (Fig. 10);
 * :func:`plot_result` -- both, into a directory.
 
@@ -104,9 +104,10 @@ def _rug_time_y(ax, times, mags, label=None):
 
 def _title(result) -> str:
     try:
-        return str(result.scene.title)
+        title = str(result.scene.title)
     except AttributeError:  # pragma: no cover - a result without a scene
         return ""
+    return title if len(title) <= 70 else title[:67] + "..."  # keep the suptitle on the canvas
 
 
 def plot_injection_point(result, path, events=None) -> Path:
@@ -229,7 +230,8 @@ def plot_space_time(result, path, events=None, *, xlim=None) -> Path:
     order = np.argsort(x, kind="stable")
     x = x[order]
     fields = [
-        ("pressure", MPA, "fault pressure (MPa)", "viridis"),
+        # overpressure: the in-situ pore pressure varies with depth and would hide the plume
+        ("overpressure", MPA, "fault overpressure (MPa)", "viridis"),
         ("slip", MM, "slip (mm)", None),
         ("opening", MM, "opening (mm)", "magma"),
     ]
