@@ -18,11 +18,10 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-import scipy.sparse as sp
 
 from . import xfem
 from .assembly import TripletBuilder
-from .kernels import basis, contact, fault_flow, rock
+from .kernels import basis, fault_flow, rock
 from .mesh import build_mesh
 from .scene import EDGES, RockSpec, Scene, Zone
 
@@ -315,7 +314,6 @@ class Model:
     # ------------------------------------------------------------------ fault tabulation
     def _tabulate_fault(self):
         f = self.fault
-        s = self.scene
         ng = len(f.gp_s)
         cut_nodes = self.elements[self.cut_elements]
         sizes = self.mesh.element_sizes

@@ -71,7 +71,6 @@ def simulate(scene: Scene, *, progress: Callable | None = None, injected_volume=
     if observer is not None:
         observer(0.0, x, model)
     t, dt, step = 0.0, ts.dt, 0
-    q_old = 0.0
     leaked = 0.0
     injected_total = 0.0
     while t < ts.end * (1 - 1e-12):

@@ -98,10 +98,11 @@ class StepOutcome:
 class NewtonSolver:
     """Newton on the coupled residual, with the linear bulk condensed onto the fault.
 
-    Only the contact forces are nonlinear, and they act on the Heaviside DOFs alone. The free
-    unknowns are split into those (N, a few hundred) and everything else (B: rock displacement,
-    pressures, fault pressure, injection multiplier), whose Jacobian block is constant for a given
-    time step. B is factorised once per step size and its Schur complement on N is formed once;
+    Only the fault terms are nonlinear: contact and friction act on the Heaviside DOFs alone, and
+    the evolving-aperture conduction (when switched on) on the fault-pressure DOFs and the
+    Heaviside DOFs. The free unknowns are split into those (N, a few hundred) and everything else
+    (B: rock displacement, rock pressure, and the remaining flow unknowns), whose Jacobian block is
+    constant for a given time step. B is factorised once per step size and its Schur complement on N is formed once;
     each Newton iteration then costs two sparse triangular solves and a small dense solve.
     """
 

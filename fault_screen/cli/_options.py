@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import os
-from datetime import datetime, timezone
+from datetime import datetime
 from pathlib import Path
 
 import click
