@@ -8,7 +8,8 @@ stress compression-positive); ``/fault/{slip, opening}`` m (opening positive apa
 ``/fault/slip_rate`` m/s; ``/fault/friction`` -; ``/fault/contact_state`` 0 stick 1 slip 2 open;
 ``/injection/{flow_rate (m^3/s, whole interval), pressure, overpressure (Pa), slip, opening,
 hydraulic_aperture (m), volume (m^3, cumulative, whole interval), fault_inflow_velocity (m/s,
-Eq. 29: flow_rate / (NoF 2h))}``; ``/balance/*`` m^3 per m of fault-plane thickness;
+Eq. 29: flow_rate / (NoF 2h)), slip_rate, shear_traction, effective_normal_stress, friction (at
+the fault Gauss point nearest to the injection point)}``; ``/balance/*`` m^3 per m of fault-plane thickness;
 ``/solver/*``; root attribute ``scene`` holds the resolved scene as TOML.
 The file is written to a temporary name and renamed, so a failed write leaves no partial file.
 """

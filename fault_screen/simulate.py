@@ -172,6 +172,10 @@ class _Recorder:
             "opening": stack("inj_opening"), "volume": stack("inj_volume"),
             "hydraulic_aperture": stack("inj_aperture"),
         }
+        # contact quantities live at the fault's Gauss points: at the injection point, the
+        # nearest one (within a quarter element)
+        for key in ("slip_rate", "shear_traction", "effective_normal_stress", "friction"):
+            injection[key] = fault[key][:, self.inj_gp] if fault[key].shape[1] else np.zeros(len(r))
         # Eq. 29: inflow velocity into the single model fault, Q / (NoF 2h) (m/s); the model's
         # source is 2h times it, so the aperture cancels in the balance
         nof = scene.injection.number_of_fractures

@@ -53,3 +53,10 @@ def test_round_trip(result, tmp_path):
     for k in FAULT_KEYS:
         assert np.array_equal(back.fault[k], result.fault[k])
     assert np.array_equal(back.injection["volume"], result.injection["volume"])
+
+
+def test_injection_point_values_come_from_the_nearest_fault_point(result):
+    k = int(np.argmin(np.abs(result.fault_x)))
+    assert abs(result.fault_x[k]) <= 0.25 * 5.0  # within a quarter of the 5 m elements
+    for key in ("slip_rate", "shear_traction", "effective_normal_stress", "friction"):
+        assert np.array_equal(result.injection[key], result.fault[key][:, k])
