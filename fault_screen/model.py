@@ -23,7 +23,7 @@ from . import xfem
 from .assembly import TripletBuilder
 from .kernels import basis, fault_flow, rock
 from .mesh import build_mesh
-from .scene import EDGES, RockSpec, Scene, Zone
+from .scene import EDGES, RockSpec, Scene, SceneError, Zone
 
 
 @dataclass
@@ -93,7 +93,6 @@ class Model:
             self.fault = (xfem.locate_fault(self.mesh, scene.fault_point, scene.fault.angle)
                           if ef.fault else xfem.no_fault(self.mesh))
         except ValueError as exc:
-            from .scene import SceneError
             raise SceneError(f"fault.point = {scene.fault_point}, fault.angle = {scene.fault.angle}: {exc}") from None
         self.has_u = ef.mechanics
         self.has_p = ef.poroelastic
@@ -441,7 +440,6 @@ class Model:
         try:
             k, lam = xfem.locate_point_on_fault(f, s_inj)
         except ValueError as exc:
-            from .scene import SceneError
             raise SceneError(f"injection.position = {s_inj!r}: {exc}") from None
         r0, r1 = f.segment_ref[k]
         xi, eta = r0 + lam * (r1 - r0)
@@ -581,8 +579,6 @@ class Model:
         return float(np.linalg.norm(r[keep])), float(np.linalg.norm(scale[keep]))
 
     def check_initial_equilibrium(self, rtol: float = 1e-8):
-        from .scene import SceneError
-
         out, ref = self.initial_equilibrium_residual()
         if out > rtol * max(ref, 1e-300):
             raise SceneError(
