@@ -161,25 +161,25 @@ class NewtonSolver:
             point.update(slip=slip, opening=opening, tau=tau, sigma_n=sn, state=state, ds=ds,
                          theta=theta, mu=mu)
         if self.evolving_aperture:
-            f = m.scene.fault
-            r, c, v, aperture = assemble_evolving_conduction(
-                x, fp.N, fp.jump_dofs, fp.Np, fp.dNp_ds, fp.p_dofs, m.fault.normal, fp.weight,
-                f.hydraulic_aperture, f.asperity_height_std, m.scene.fluid.viscosity, f.kappa,
-                self.theta, residual)
+            r, c, v, aperture = self._evolving_conduction(x, self.theta, residual)
             rows.append(r), cols.append(c), vals.append(v)
             point["aperture"] = aperture
         return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals), point
+
+    def _evolving_conduction(self, x, weight, residual):
+        """Fault conduction with the aperture of the opening at x, times ``weight``."""
+        m, f = self.model, self.model.scene.fault
+        fp = m.fp
+        return assemble_evolving_conduction(x, fp.N, fp.jump_dofs, fp.Np, fp.dNp_ds, fp.p_dofs,
+                                            m.fault.normal, fp.weight, f.hydraulic_aperture,
+                                            f.asperity_height_std, m.scene.fluid.viscosity,
+                                            f.kappa, weight, residual)
 
     def old_conduction(self, x_n):
         """(1 - theta) times the evolving-aperture conduction at the start of the step."""
         out = np.zeros(self.model.n_dofs)
         if self.evolving_aperture and self.theta < 1.0:
-            m, f = self.model, self.model.scene.fault
-            fp = m.fp
-            assemble_evolving_conduction(x_n, fp.N, fp.jump_dofs, fp.Np, fp.dNp_ds, fp.p_dofs,
-                                         m.fault.normal, fp.weight, f.hydraulic_aperture,
-                                         f.asperity_height_std, m.scene.fluid.viscosity, f.kappa,
-                                         1.0 - self.theta, out)
+            self._evolving_conduction(x_n, 1.0 - self.theta, out)
         return out
 
     def _prepare(self, dt, x_n, hist):
