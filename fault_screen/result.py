@@ -62,7 +62,7 @@ class Result:
                 for name, arrays in self.extra.items():
                     grp = h5.require_group(name)
                     for k, v in arrays.items():
-                        grp.create_dataset(k, data=v)
+                        grp.create_dataset(k, data=v).attrs["unit"] = _UNITS.get(k, "")
             os.replace(tmp, path)
         finally:
             if tmp.exists():
@@ -89,3 +89,4 @@ _UNITS = {"pressure": "Pa", "overpressure": "Pa", "shear_traction": "Pa",
           "effective_normal_stress": "Pa", "slip": "m", "opening": "m", "slip_rate": "m/s",
           "friction": "1", "hydraulic_aperture": "m", "fault_inflow_velocity": "m/s", "flow_rate": "m3/s", "volume": "m3", "stored_rock": "m3/m",
           "stored_fault": "m3/m", "leaked": "m3/m", "dt": "s"}
+_UNITS.update({"peak_slip_rate": "m/s", "x_peak_slip_rate": "m", "slipping_length": "m", "max_utilisation": "1", "min_coulomb_margin": "Pa", "delta_cff": "Pa", "injection_overpressure": "Pa", "induced_slip": "m", "event_magnitude": "1", "event_distance": "m", "event_rate": "1/h", "level": "0 green, 1 yellow, 2 red", "transitions": "time: s"})
