@@ -177,7 +177,7 @@ class _Parser:
 
     def parse(self):
         if self.peek().kind == "end":
-            raise RuleError("empty condition", "<end>", 1)
+            raise RuleError("empty condition: expected a comparison at column 1", "<end>", 1)
         tree = self.condition()
         tok = self.peek()
         if tok.kind != "end":
