@@ -88,7 +88,8 @@ class FaultSpec:
     asperity_height_std: float = 0.0
     """sigma_h of Renshaw's aperture law (m); used with effects.aperture_evolution."""
     slip_rate_threshold: float = 1e-9
-    """Slip rate above which a point counts as slipping (m/s) for rate friction and alerts."""
+    """Slip rate above which a point counts as slipping (m/s) for rate friction (its contact
+    state); screening thresholds are in [monitor]."""
 
 
 @_spec
