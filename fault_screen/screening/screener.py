@@ -56,7 +56,8 @@ class Transition:
 @dataclass
 class Verdict:
     """The highest level reached, when it was first reached, by which rule, what to do, and the
-    metrics then; ``final_level`` is the level at the last update."""
+    metrics then (an unstable stop names the verdict even when red came earlier);
+    ``final_level`` is the level at the last update."""
     level: int = GREEN
     time: float | None = None
     rule: str | None = None
@@ -148,7 +149,8 @@ class Screener:
         self._pending = [e for e in self._pending if e[0] > time]
         now = [e for e in now if e[0] >= self._start]
         window = self.spec.event_rate_window
-        recent = sum(1 for t in self._known_times if time - window < t <= time)
+        self._known_times = [t for t in self._known_times if t > time - window]  # time only grows
+        recent = sum(1 for t in self._known_times if t <= time)
         values = dict(self.thresholds)
         values.update(metrics)
         values["event_rate"] = recent * 3600.0 / window
