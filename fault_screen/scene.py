@@ -297,7 +297,8 @@ class MonitorSpec:
     """Event magnitude of the red light (ML): Basel 2006 stop level (ML 2.9); Oklahoma suspends at
     ML 3.5; the UK shale-gas protocol (2011) pauses at ML 0.5: set it lower for shallow sites."""
     event_rate_window: float = 3600.0
-    """Trailing window of the event_rate metric (s); event_rate is in events per hour."""
+    """Trailing window of the event_rate metric (s); event_rate is in events per hour, so the
+    default of 1 h counts the events of the last hour as they are."""
     rules: tuple[MonitorRule, ...] = (
         MonitorRule(level="red", name="dynamic slip", when="peak_slip_rate > slip_rate_red",
                     hold=3600.0, action=_DEFAULT_ACTION_RED),
@@ -697,6 +698,8 @@ def _validate_monitor(mon: MonitorSpec):
             raise SceneError(f"{where}.when = {rule.when!r}: {exc}") from None
         name = rule.name or f"rules[{i}]"
         _check(name not in names, f"{where}.name", name, "two rules have this name")
+        _check(0 < len(name.encode()) <= 64, f"{where}.name", name,
+               "must have 1 to 64 bytes (stored in /screening/transitions)")
         names.add(name)
 
 

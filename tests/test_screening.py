@@ -90,6 +90,8 @@ def test_bad_conditions_name_the_token_and_column(text, token, column):
      ["monitor.rules[1] ('x').hold", "must be >= 0 s"]),
     ({"level": "red", "name": "first", "when": "max_utilisation > 0.5"},
      ["monitor.rules[1] ('first').name", "two rules have this name"]),
+    ({"level": "red", "name": "n" * 65, "when": "max_utilisation > 0.5"},
+     ["monitor.rules[1]", ".name", "1 to 64 bytes"]),
 ])
 def test_bad_rules_are_refused_at_scene_load_naming_rule_and_token(rule, words):
     ok = {"level": "yellow", "name": "first", "when": "max_utilisation > utilisation_yellow"}
