@@ -87,9 +87,6 @@ class FaultSpec:
     """Dilation angle (degrees); used with effects.dilation."""
     asperity_height_std: float = 0.0
     """sigma_h of Renshaw's aperture law (m); used with effects.aperture_evolution."""
-    slip_rate_threshold: float = 1e-9
-    """Slip rate above which a point counts as slipping (m/s) for rate friction (its contact
-    state); screening thresholds are in [monitor]."""
 
 
 @_spec
@@ -409,6 +406,14 @@ QUANTITY = {
 _UNIT_KEY = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*\[(.+)\]\s*$")
 
 
+#: keys that moved, with where they went
+MOVED_KEYS = {
+    "fault.slip_rate_threshold": "screening thresholds are set in [monitor] (slip_rate_yellow, "
+                                 "slip_rate_red and the rules); the contact state counts a point as "
+                                 "sliding above 1e-9 m/s (fault_screen.physics.contact.SLIDING_SLIP_RATE)",
+}
+
+
 def _build(cls, data, where):
     if not isinstance(data, dict):
         raise SceneError(f"[{where or 'scene'}] must be a table, got {data!r}")
@@ -418,6 +423,9 @@ def _build(cls, data, where):
     for raw, value in data.items():
         m = _UNIT_KEY.match(raw)
         name, unit = (m.group(1), m.group(2).strip()) if m else (raw, None)
+        if _key(where, name) in MOVED_KEYS:
+            raise SceneError(f"{_key(where, raw)} = {value!r} is no longer read: "
+                             f"{MOVED_KEYS[_key(where, name)]}")
         if name not in known:
             raise SceneError(f"unknown key {_key(where, raw)!s} = {value!r}; "
                              f"known keys in [{where or 'scene'}]: {', '.join(sorted(known))}")
@@ -622,7 +630,7 @@ def _validate(s: Scene):
     ef = s.effects
     for key in ("rate_parameter", "state_parameter", "dilation_angle", "asperity_height_std"):
         _check(getattr(f, key) >= 0, f"fault.{key}", getattr(f, key), "must be >= 0")
-    for key in ("reference_velocity", "critical_slip_distance", "slip_rate_threshold"):
+    for key in ("reference_velocity", "critical_slip_distance"):
         _check(getattr(f, key) > 0, f"fault.{key}", getattr(f, key), "must be > 0")
     _check(f.dilation_angle < 90, "fault.dilation_angle", f.dilation_angle, "must be below 90 degrees")
     if f.initial_state is not None:
