@@ -19,17 +19,13 @@ from .screen import conclude, fail_on_option
 BUNDLED_SCENE = "rustrel-2015-calibrated.toml"
 
 
-def configs_dir() -> Path:
-    import fault_screen
-
-    return Path(fault_screen.__file__).resolve().parents[1] / "configs"
-
-
 def default_scene_path() -> Path:
-    path = configs_dir() / BUNDLED_SCENE
-    if not path.is_file():
-        raise BadInput(f"the bundled scene {path} does not exist (the package was installed "
-                       f"without its configs directory); pass a SCENE file")
+    from ..bundled import bundled_path
+
+    path = bundled_path(BUNDLED_SCENE)
+    if path is None:
+        raise BadInput(f"the bundled scene {BUNDLED_SCENE} is not installed (the package was "
+                       f"installed without its configs); pass a SCENE file")
     return path
 
 
