@@ -427,18 +427,17 @@ def _number(value, key, quantity=None, unit=None):
     """A float in SI (angles in degrees) from a number, or a "number unit" string."""
     text = value
     if isinstance(value, str):
-        parts = value.strip().split(None, 1)
         try:
-            value = float(parts[0])
-        except (ValueError, IndexError):
+            value, written = units.split_value(value)   # "100 mD" and "100mD" alike
+        except ValueError:
             raise SceneError(f"{key} = {text!r} must be a number, optionally with a unit "
                              f"(\"29.2 GPa\")") from None
-        if len(parts) == 2:
+        if written is not None:
             if unit is not None:
                 raise SceneError(f"{key} = {text!r}: the unit is already given in the key")
             if quantity is None:
                 raise SceneError(f"{key} = {text!r}: this value takes no unit")
-            unit = parts[1]
+            unit = written
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise SceneError(f"{key} = {text!r} must be a number (SI units unless a unit is given)")
     if not math.isfinite(value):
