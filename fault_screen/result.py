@@ -62,7 +62,7 @@ class Result:
                 for name, arrays in self.extra.items():
                     grp = h5.require_group(name)
                     for k, v in arrays.items():
-                        grp.create_dataset(k, data=v)
+                        grp.create_dataset(k, data=v).attrs["unit"] = _UNITS.get(k, "")
             os.replace(tmp, path)
         finally:
             if tmp.exists():
@@ -88,4 +88,7 @@ class Result:
 _UNITS = {"pressure": "Pa", "overpressure": "Pa", "shear_traction": "Pa",
           "effective_normal_stress": "Pa", "slip": "m", "opening": "m", "slip_rate": "m/s",
           "friction": "1", "hydraulic_aperture": "m", "fault_inflow_velocity": "m/s", "flow_rate": "m3/s", "volume": "m3", "stored_rock": "m3/m",
-          "stored_fault": "m3/m", "leaked": "m3/m", "dt": "s"}
+          "stored_fault": "m3/m", "leaked": "m3/m", "dt": "s",
+          # groups added by callers (/log, /events)
+          "time": "s", "magnitude": "1", "latitude": "degree", "longitude": "degree", "depth": "m",
+          "x": "m", "y": "m", "z": "m", "distance_to_injection": "m", "distance_to_fault": "m"}

@@ -41,14 +41,10 @@ def test_semicolon_decimal_comma_latin1_units_row_date_and_time_columns(tmp_path
     t0 = datetime(2015, 3, 12, 10, 0, 0)
     for k in range(120):
         stamp = t0 + timedelta(seconds=5 * k)
-        lines.append(f"{stamp:%d.%m.%Y};{stamp:%H:%M:%S};{q[k]:.3f};{20 + k / 10:.1f}".replace(".", ",", 1)
-                     .replace(";", ";", 0))
-    # decimal commas in both value columns, dates stay dotted
-    fixed = []
-    for ln in lines[3:]:
-        d, tm, qv, pv = ln.split(";")
-        fixed.append(";".join([d.replace(",", "."), tm, qv.replace(".", ","), pv.replace(".", ",")]))
-    text = "\r\n".join(lines[:3] + fixed) + "\r\n"
+        # decimal commas in both value columns; the date stays dotted
+        lines.append(f"{stamp:%d.%m.%Y};{stamp:%H:%M:%S};{q[k]:.3f};{20 + k / 10:.1f}".replace(".", ",")
+                     .replace(f"{stamp:%d,%m,%Y}", f"{stamp:%d.%m.%Y}"))
+    text = "\r\n".join(lines) + "\r\n"
     p = put(tmp_path, "puits.csv", text, "latin-1")
     log = read_injection_log(p, tz="Europe/Zurich")
     assert log.total_volume == pytest.approx(trapezoid(5 * np.arange(120), q * LPM), rel=RTOL)
