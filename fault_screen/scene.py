@@ -582,9 +582,11 @@ def _in_range(key: str, value, where: str | None = None, sink: list | None = Non
                 break
 
 
-#: bytes per unknown of a run, measured (benchmarks: peak resident memory over unknowns
-#: at three mesh sizes), and the fixed cost of the interpreter, numpy, scipy and numba.
-BYTES_PER_UNKNOWN = 6.0e3
+#: Memory of a run ~ BASE_MEMORY + BYTES_PER_UNKNOWN_LOG * N log2 N bytes (N unknowns; the
+#: sparse factor's fill grows like N log N).  Fitted to the peak resident memory of one step of
+#: the Rustrel scene on uniform meshes: 244 MB at 20 x 21, 507 MB at 100 x 101 (N = 31k), 1.62 GB
+#: at 200 x 201 (N = 122k); the fit is within 10 % at both larger sizes.
+BYTES_PER_UNKNOWN_LOG = 650.0
 BASE_MEMORY = 250e6
 
 
@@ -616,9 +618,10 @@ def estimate_size(scene: "Scene") -> tuple[int, int, float]:
         ny = _graded_count(m.ly, cy - r.half_width[1], cy + r.half_width[1], r.size, r.growth)
     nodes = (nx + 1) * (ny + 1)
     per_node = 2 * ef.mechanics + 1 * ef.poroelastic
-    cut = (nx + ny) if ef.fault else 0          # a straight line crosses at most nx + ny cells
-    unknowns = per_node * nodes + 4 * cut * (2 * ef.mechanics + 1 + ef.fault_flow)
-    return nx * ny, unknowns, BASE_MEMORY + BYTES_PER_UNKNOWN * unknowns
+    # a straight fault crosses about max(nx, ny) cells; the nodes of those cells are enriched
+    enriched = 2 * (max(nx, ny) + 1) if ef.fault else 0
+    unknowns = per_node * nodes + enriched * (2 * ef.mechanics + ef.leak_off + ef.fault_flow)
+    return nx * ny, unknowns, BASE_MEMORY + BYTES_PER_UNKNOWN_LOG * unknowns * math.log2(max(unknowns, 2))
 
 
 def _check(ok, key, value, why):
