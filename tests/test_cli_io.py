@@ -104,11 +104,11 @@ def test_log_and_event_datasets_carry_units(replayed):
         assert ev["distance_to_injection"].attrs["unit"] == "m" and ev["time"].attrs["unit"] == "s"
         np.testing.assert_array_equal(ev["time"][()], [-7170.0, 10.0, 40.0, 330.0])
         np.testing.assert_array_equal(ev["in_run"][()], [0, 1, 1, 0])
-        np.testing.assert_allclose(ev["distance_to_injection"][()], [20, math.sqrt(200), 0, 10],
+        np.testing.assert_allclose(ev["distance_to_injection"][()], [20, 0, math.sqrt(200), 10],
                                    atol=1e-12)
         np.testing.assert_allclose(ev["distance_to_fault"][()], [20 / math.sqrt(2), 0, 0, 0],
                                    atol=1e-12)
-        assert ev["magnitude_type"][()].tolist() == [b"ML", b"ML", b"Mw", b"Mw"]
+        assert ev["magnitude_type"][()].tolist() == [b"ML", b"Mw", b"ML", b"Mw"]
 
 
 def test_replay_summary_and_figures(replayed):
