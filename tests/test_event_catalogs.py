@@ -124,3 +124,23 @@ def test_bad_csv_catalogs_name_file_row_and_column(tmp_path, text, needle):
     with pytest.raises(EventsError) as ei:
         read_events(p, START)
     assert str(ei.value).startswith(str(p)) and needle in str(ei.value)
+
+
+def test_quakeml_locations_give_distances(tmp_path):
+    from obspy import UTCDateTime
+    from obspy.core.event import Catalog, Event, Magnitude, Origin
+    from obspy.geodetics import gps2dist_azimuth
+
+    ev = Event(origins=[Origin(time=UTCDateTime("2015-03-12T09:00:20Z"), latitude=43.905,
+                               longitude=5.502, depth=400.0)],
+               magnitudes=[Magnitude(mag=-1.2, magnitude_type="Mw")])
+    p = tmp_path / "q.xml"
+    Catalog(events=[ev]).write(str(p), format="QUAKEML")
+    cat = read_events(p, START, site=Site(latitude=43.9, longitude=5.5, depth=280.0,
+                                          strike=0.0, dip=90.0))
+    h = gps2dist_azimuth(43.9, 5.5, 43.905, 5.502)[0]
+    assert cat.time[0] == 20.0 and cat.magnitude[0] == -1.2
+    assert cat.distance_to_injection[0] == pytest.approx(math.hypot(h, 120.0), rel=1e-9)
+    # a vertical north-striking fault: the distance is the eastward offset
+    east = gps2dist_azimuth(43.905, 5.5, 43.905, 5.502)[0]
+    assert cat.distance_to_fault[0] == pytest.approx(east, rel=2e-3)
