@@ -309,3 +309,76 @@ def test_plot_hdf5_that_is_not_a_result(tmp_path):
     assert r.exit_code == 2
     assert errors(r) == [f"Error: {p}: an HDF5 file but not a fault_screen result (no readable "
                          f"scene, /time, /fault or /injection)"]
+
+
+FDSN_NIGHT = """#EventID|Time|Latitude|Longitude|Depth/km|Author|Catalog|Contributor|ContributorID|MagType|Magnitude|MagAuthor|EventLocationName
+a|2015-03-12T22:59:35|43.91|5.51|0.5|X|X|X|1|ML|0.8|X|lab
+b|2015-03-12T23:00:29|43.90|5.50|0.3|X|X|X|2|mb|-0.4|X|lab
+c|2015-03-12T23:00:31|43.90|5.50|0.3|X|X|X|3|ML|1.1|X|lab
+"""
+
+
+def test_plot_counts_fdsn_text_events_in_the_run(replayed):
+    _, d, _, _ = replayed
+    (d / "fdsn.txt").write_text(FDSN_NIGHT)
+    r = invoke("plot", d / "out.h5", "--out", d / "figs4", "--events", d / "fdsn.txt")
+    assert r.exit_code == 0, r.stderr
+    # run: 22:59:30 UTC + 60 s; the third event is 1 s after its end
+    assert "seismic events: 3 read, 2 within the run" in r.output
+    # the scene's [site] is local x/y: a geographic catalogue gets no distances, and says so
+    assert "the catalogue has no local x/y but [site] gives x/y" in r.output
+
+
+def test_figure_shows_measured_pressure_clock_time_log_unit_and_distances(replayed, monkeypatch):
+    import fault_screen.plotting as plotting
+    from fault_screen.cli.plot import stored_events
+
+    _, d, t, _ = replayed
+    res = Result.load(d / "out.h5")
+    res.meta["log_flow_unit"] = "gpm"
+    figs = []
+    monkeypatch.setattr(plotting, "_save", lambda fig, path: figs.append(fig) or Path(path))
+    plotting.plot_injection_point(res, d / "x.png", stored_events(res))
+    (fig,) = figs
+    by_label = {ax.get_ylabel(): ax for ax in fig.axes}
+    meas = by_label["injection pressure (MPa)"]
+    lines = {ln.get_label(): ln for ln in meas.get_lines()}
+    np.testing.assert_allclose(lines["pressure, measured (log) (MPa)"].get_ydata(),
+                               3.0 + np.arange(13) / 100, rtol=1e-12)     # 30.0 bar + k/10 bar
+    np.testing.assert_allclose(lines["pressure, model at the injection point (MPa)"].get_ydata(),
+                               res.injection["pressure"] * 1e-6)
+    assert "flow rate (gpm)" in by_label
+    assert "distance to injection (m)" in by_label                          # colour bar
+    labels = [ax.get_xlabel() for ax in fig.axes] + [c.get_xlabel() for ax in fig.axes
+                                                     for c in ax.child_axes]
+    assert "clock time (UTC+01:00, 2015-03-12)" in labels
+
+
+def test_python_replay_helper(tmp_path):
+    from fault_screen.io import read_injection_log, replay
+
+    text, t, q = night_log()
+    (tmp_path / "n.csv").write_text(text)
+    log = read_injection_log(tmp_path / "n.csv", date="2015-03-12", tz="Europe/Zurich")
+    scene = Scene.from_dict(__import__("tomllib").loads(small_scene_text()))
+    res = replay(scene, log, end=80.0)
+    assert res.time[-1] == pytest.approx(80.0)
+    assert res.injection["volume"][-1] == pytest.approx(trapezoid(t, q * LPM), rel=1e-9)
+    assert res.meta["notes"] == ["end 80 s is after the log's last sample (60 s): the rate is "
+                                 "taken as 0 from 60 s to 80 s (shut-in)"]
+    np.testing.assert_array_equal(res.extra["log"]["time"], t)
+
+
+def test_run_reads_the_scene_log_as_input(tmp_path):
+    text, t, q = night_log()
+    (tmp_path / "n.csv").write_text("elapsed[s],rate[L/min]\n" + "\n".join(
+        f"{a:g},{b}" for a, b in zip(t, q)) + "\n")
+    s = small_scene_text().replace('[injection]\n', '[injection]\nlog = "n.csv"\n')
+    p = scene_with(tmp_path, s)
+    r = invoke("run", p, "--out", tmp_path / "o.h5", "--quiet")
+    assert r.exit_code == 0, r.stderr
+    assert "log: n.csv: UTF-8, comma-separated; time 'elapsed[s]' (elapsed s)" in r.output
+    res = Result.load(tmp_path / "o.h5")
+    assert res.injection["volume"][-1] == pytest.approx(trapezoid(t, q * LPM), rel=1e-9)
+    with h5py.File(tmp_path / "o.h5") as h5:
+        assert h5["log/flow_rate"].attrs["unit"] == "m3/s"

@@ -83,6 +83,9 @@ def plot(result_path, out_dir, events, t0):
     else:
         catalog = stored_events(result)
     if catalog is not None:
+        t_run = (float(result.time[0]), float(result.time[-1]))
+        inside = int(np.count_nonzero((catalog.time >= t_run[0]) & (catalog.time <= t_run[1])))
+        click.echo(f"seismic events: {len(catalog)} read, {inside} within the run")
         for line in events_report(catalog, float(result.time[0]), float(result.time[-1]), start):
             click.echo(line, err=line.startswith("Warning"))
     if out_dir.exists() and not out_dir.is_dir():
