@@ -4,27 +4,15 @@ checked against hand geometry and obspy's geodesic distance."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from datetime import datetime, timezone
 
 import numpy as np
 import pytest
 
 from fault_screen.io.events import EventsError, fault_normal, read_events
+from fault_screen.scene import SiteSpec as Site
 
 START = datetime(2015, 3, 12, 9, 0, tzinfo=timezone.utc)
-
-
-@dataclass
-class Site:
-    latitude: float | None = None
-    longitude: float | None = None
-    depth: float | None = None
-    x: float | None = None
-    y: float | None = None
-    z: float | None = None
-    strike: float | None = None
-    dip: float | None = None
 
 
 LOCAL = """isotime,magnitude,mag_type,x,y,z
