@@ -503,9 +503,9 @@ for _cls in (Refinement, MeshSpec, FaultSpec, RockSpec, DamageZoneSpec, FluidSpe
 #: Every physical parameter's range, in SI (angles in degrees): key -> (unit, physical range,
 #: plausible range).  Outside the physical range a scene is refused (the value cannot describe
 #: rock, fluid or an operation); outside the plausible range it is accepted with a warning
-#: (possible, but usually a unit slip).  Bounds are inclusive; None is open; strict positivity
-#: and the coupled bounds (Biot coefficient above porosity, ...) are checked in ``_validate``.
-#: ``rock.*`` also applies to ``zones[i].rock`` and ``damage_zone``.  Printed in the README.
+#: (possible, but usually a unit slip).  Bounds are inclusive; strict positivity and the
+#: coupled bounds (Biot coefficient above porosity, ...) are checked in ``_validate``.
+#: ``rock.*`` also applies to ``zones[i].rock`` and ``damage_zone``.
 RANGES: dict[str, tuple[str, tuple, tuple]] = {
     "mesh.lx": ("m", (0.0, 1e6), (0.1, 1e5)),
     "mesh.ly": ("m", (0.0, 1e6), (0.1, 1e5)),
@@ -571,7 +571,7 @@ def _in_range(key: str, value, where: str | None = None, sink: list | None = Non
     for v in values:
         if v is None:
             continue
-        if (plo is not None and v < plo) or (phi is not None and v > phi):
+        if not plo <= v <= phi:
             raise SceneError(f"{name} = {value!r}: outside the physical range {_fmt(plo)} to "
                              f"{_fmt(phi)}{u} (plausible: {_fmt(qlo)} to {_fmt(qhi)}{u})")
     if sink is not None:
@@ -629,9 +629,11 @@ def _check(ok, key, value, why):
         raise SceneError(f"{key} = {value!r}: {why}")
 
 
-def _validate_rock(rock: RockSpec, where: str, sink: list | None = None):
-    for fl in fields(RockSpec):
-        _in_range(f"rock.{fl.name}", getattr(rock, fl.name), f"{where}.{fl.name}", sink)
+def _validate_rock(rock: RockSpec, where: str, sink: list | None = None, keys=None):
+    """``keys``: the keys to range-check (default all; a zone checks only its overrides, so a
+    value of [rock] is not reported once more for every zone)."""
+    for name in (keys if keys is not None else [fl.name for fl in fields(RockSpec)]):
+        _in_range(f"rock.{name}", getattr(rock, name), f"{where}.{name}", sink)
     _check(rock.youngs_modulus > 0, f"{where}.youngs_modulus", rock.youngs_modulus, "must be > 0 Pa")
     _check(-1.0 < rock.poissons_ratio < 0.5, f"{where}.poissons_ratio", rock.poissons_ratio,
            "must be in (-1, 0.5)")
@@ -708,7 +710,7 @@ def _validate(s: Scene, sink: list | None = None):
                f"unknown rock key; known: {', '.join(sorted(rock_keys))}")
         for k, v in z.rock.items():
             _number(v, f"{where}.rock.{k}")
-        _validate_rock(dataclasses.replace(s.rock, **z.rock), f"{where}.rock", sink)
+        _validate_rock(dataclasses.replace(s.rock, **z.rock), f"{where}.rock", sink, z.rock)
     fl = s.fluid
     for key in ("viscosity", "bulk_modulus"):
         _check(getattr(fl, key) > 0, f"fluid.{key}", getattr(fl, key), "must be > 0")
@@ -789,7 +791,7 @@ def _validate(s: Scene, sink: list | None = None):
         _check(ef.fault, "effects.damage_zone", ef.damage_zone, "a damage zone needs a fault")
         over = {k: v for k, v in (("youngs_modulus", dz.youngs_modulus), ("poissons_ratio", dz.poissons_ratio),
                                   ("permeability", dz.permeability)) if v is not None}
-        _validate_rock(dataclasses.replace(s.rock, **over), "damage_zone", sink)
+        _validate_rock(dataclasses.replace(s.rock, **over), "damage_zone", sink, over)
     if not ef.fault:
         for key in ("fault_flow", "leak_off"):
             _check(not getattr(ef, key), f"effects.{key}", getattr(ef, key),

@@ -225,7 +225,7 @@ def check_size(scene, label) -> None:
     elements, unknowns, need = estimate_size(scene)
     try:
         have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):   # not POSIX: trust the estimate's cap only
+    except (ValueError, OSError, AttributeError):   # not POSIX: assume a large workstation
         have = 64e9
     if need > 0.8 * have:
         m = scene.mesh

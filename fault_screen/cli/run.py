@@ -12,7 +12,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ._options import FILE, BadInput, reading, run_options, version_option
+from ._options import FILE, BadInput, check_size, reading, run_options, version_option
 from ._progress import Progress, format_duration
 
 BUNDLED_SCENE = "rustrel-2015-calibrated.toml"
@@ -32,7 +32,7 @@ def default_scene_path() -> Path:
     return path
 
 
-def load_scene(path: Path, *, warn: bool = True):
+def load_scene(path: Path):
     """The scene of ``path``; values outside their plausible range are printed as warnings."""
     import warnings
 
@@ -42,7 +42,7 @@ def load_scene(path: Path, *, warn: bool = True):
         warnings.simplefilter("always", SceneWarning)
         scene = Scene.from_toml(path)
     for w in caught:
-        if warn and issubclass(w.category, SceneWarning):
+        if issubclass(w.category, SceneWarning):
             click.echo(f"Warning: {path}: {w.message}", err=True)
     return scene
 
@@ -101,8 +101,6 @@ def run_scene(scene, *, scene_label: str, out: Path | None, plot_dir: Path | Non
               stem: str = "result"):
     """Simulate ``scene`` and write its result (and figures); returns (result, out path)."""
     from ..simulate import simulate
-
-    from ._options import check_size
 
     out = Path(out) if out is not None else Path.cwd() / f"{stem}.h5"
     _check_outputs(out, plot_dir)

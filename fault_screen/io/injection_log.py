@@ -479,6 +479,15 @@ def _unit_for(src, line, col_raw, header_unit, arg_unit, quantity, argname):
         raise InjectionLogError(src, line, col_raw, str(e)) from None
 
 
+def _same_unit(a: str, b: str) -> bool:
+    if a == b:
+        return True
+    try:
+        return _units.factor(a) == _units.factor(b)
+    except _units.UnitError:
+        return False
+
+
 def _bare_unit(cell: str) -> Optional[str]:
     """A unit cell of a units row: ``"[l/min]"``, ``"(bar)"`` or ``"l/min"``."""
     c = cell.strip()
@@ -700,7 +709,7 @@ def read_injection_log(path, *, flow_unit: Optional[str] = None,
                     u = row_units[i]
                     if u is None:
                         return written
-                    if written is not None and written != u:
+                    if written is not None and not _same_unit(written, u):
                         raise InjectionLogError(src, n1, cols[i][2], f"the units row says {u!r} "
                                                 f"but the header says {written!r}")
                     return u
