@@ -99,7 +99,7 @@ import math
 import os
 import re
 import unicodedata
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import date, datetime, timedelta, timezone, tzinfo
 from typing import List, Optional, Sequence, Tuple
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
@@ -581,6 +581,229 @@ def _as_date(value, src, name) -> Optional[date]:
     return d
 
 
+@dataclass
+class _Table:
+    """A log's text split into cells, before any cell is interpreted."""
+
+    src: str
+    encoding: str
+    delim: str
+    hline: int                                    # line of the header
+    header: List[str]
+    cols: List[Tuple[str, Optional[str], str]]    # (normalised name, unit or None, as written)
+    rows: List[Tuple[int, List[str]]]             # (line, cells) of the data rows
+    units_line: Optional[int] = None              # line of a second header row of units
+
+    @classmethod
+    def read(cls, path, src: str) -> "_Table":
+        with open(path, "rb") as fh:
+            text, encoding = _decode(fh.read(), src)
+        lines = [(n, t) for n, t in enumerate(text.splitlines(), start=1)
+                 if t.strip() and not t.strip().startswith("#")]
+        if not lines:
+            raise InjectionLogError(src, max(1, text.count("\n")), None,
+                                    "no header line and no data")
+        hline, htext = lines[0]
+        delim = _delimiter(htext, [t for _, t in lines[1:6]])
+        header = _split(htext, delim)
+        cols = []
+        for h in header:
+            base, unit = _units.parse_header(h)
+            cols.append((_norm(base), unit, h))
+        return cls(src, encoding, delim, hline, header, cols,
+                   [(n, _split(t, delim)) for n, t in lines[1:]])
+
+    def error(self, line, column, text) -> InjectionLogError:
+        return InjectionLogError(self.src, line, column, text)
+
+    def named(self, spec, option) -> int:
+        """Index of the column the user named (header as written or without its unit, or a
+        1-based position)."""
+        txt = str(spec).strip()
+        if txt.isdigit():
+            k = int(txt)
+            if not 1 <= k <= len(self.header):
+                raise self.error(self.hline, None, f"{option} {txt!r}: the header has "
+                                 f"{len(self.header)} columns ({', '.join(self.header)})")
+            return k - 1
+        for i, (b, _, h) in enumerate(self.cols):
+            if txt.lower() in (h.lower(), _units.parse_header(h)[0].strip().lower()) or _norm(txt) == b:
+                return i
+        raise self.error(self.hline, None, f"{option} {txt!r}: no such column; columns: "
+                         f"{', '.join(self.header)}")
+
+    def detected(self, kind, exact, prefixes, option, required, exclude=()) -> Optional[int]:
+        """Index of the one column whose name is one of ``exact`` (else starts with one of
+        ``prefixes``); several candidates or none (when required) are errors naming ``option``."""
+        hits = [i for i, (b, _, _) in enumerate(self.cols) if b in exact and i not in exclude]
+        if not hits:
+            hits = [i for i, (b, _, _) in enumerate(self.cols)
+                    if b.startswith(prefixes) and i not in exclude]
+        if len(hits) > 1:
+            raise self.error(self.hline, None, f"several {kind} columns "
+                             f"({', '.join(self.cols[i][2] for i in hits)}): choose one with {option}")
+        if not hits and required:
+            raise self.error(self.hline, None,
+                             f"no {kind} column in header {self.header!r} (expected one of: "
+                             f"{', '.join(exact[:6] + tuple(p + '...' for p in prefixes[:3]))}; "
+                             f"or name it with {option})")
+        return hits[0] if hits else None
+
+    def take_units_row(self, num: "_Numbers", iq: int) -> List[Optional[str]]:
+        """Units of a second header row (removed from the rows), or [] if there is none: the
+        flow column's cell of the first row is a flow-rate unit, not a number."""
+        if not self.rows:
+            return []
+        n1, r1 = self.rows[0]
+        cell = _bare_unit(r1[iq]) if iq < len(r1) else None
+        if cell is None or num.ok(r1[iq]):
+            return []
+        try:
+            _units.factor(cell, "flow_rate")
+        except _units.UnitError:
+            return []
+        self.units_line = n1
+        self.rows = self.rows[1:]
+        return [_bare_unit(c) for c in r1] + [None] * (len(self.header) - len(r1))
+
+    def drop_partial_last_row(self, value_columns) -> Optional[str]:
+        """Drop a last row with a stamp but no values (a logger stopping); the warning, or None."""
+        if len(self.rows) < 2:
+            return None
+        line, cells = self.rows[-1]
+        if any(i < len(cells) and cells[i] != "" for i in value_columns):
+            return None
+        self.rows = self.rows[:-1]
+        return (_where(self.src, line, None) + "last row has a time stamp but no values "
+                "(a partial row written when the logger stopped); dropped")
+
+
+#: time-column cells of a units row that describe a format, not a unit
+_TIME_FORMAT_HINTS = ("hh_mm_ss", "hh_mm", "iso", "iso_8601", "utc", "local", "date_time",
+                      "datetime", "yyyy_mm_dd_hh_mm_ss")
+
+
+class _Clock:
+    """Reads a log's time cells as seconds since its first stamp, in one of five modes:
+    ``elapsed`` numbers, ``elapsed_clock`` (hh:mm:ss), ``stamp`` (date-times), ``time_of_day``
+    (with the ``date`` argument; midnight roll-overs) and ``date_column`` (times of day with a
+    date column)."""
+
+    def __init__(self, table: _Table, it: int, idate: Optional[int], t_unit: Optional[str],
+                 num: "_Numbers", day0: Optional[date], zone, names: dict, warnings: List[str]):
+        self.table, self.it, self.idate, self.num = table, it, idate, num
+        self.day0, self.zone, self.names, self.warnings = day0, zone, names, warnings
+        self.col = table.cols[it][2]
+        self.t_unit, self.factor = t_unit, 1.0
+        self.t_ref = None        # first instant read (UTC): differences are taken from it
+        self.day_shift = 0       # days added after midnight roll-overs
+        self.rollovers = 0
+        first = next(((n, c[it]) for n, c in table.rows if it < len(c) and c[it] != ""), None)
+        if t_unit is not None:
+            try:
+                self.factor = _units.factor(t_unit, "time")
+            except _units.UnitError as e:
+                raise table.error(table.units_line or table.hline, self.col, str(e)) from None
+            self.mode = "elapsed"
+        elif first is None or num.ok(first[1]):
+            self.mode = "elapsed"
+        elif _clock_seconds(first[1]) is not None:
+            if table.cols[it][0].startswith(_ELAPSED_PREFIXES):
+                self.mode = "elapsed_clock"
+            else:
+                self.mode = "date_column" if idate is not None else "time_of_day"
+        else:
+            self.mode = "stamp"
+        if self.mode == "time_of_day" and day0 is None:
+            raise table.error(first[0], self.col,
+                              f"time of day {first[1]!r} without a date: pass {names['date']} "
+                              f"YYYY-MM-DD (the day of the first row) and {names['tz']} ZONE")
+        if self.mode in ("time_of_day", "date_column") and zone is None:
+            raise table.error(first[0], self.col,
+                              f"local times of day {first[1]!r}: the time zone is unknown; pass "
+                              f"{names['tz']} ZONE (e.g. Europe/Zurich, or UTC)")
+
+    @property
+    def is_clock(self) -> bool:
+        return self.mode in ("stamp", "time_of_day", "date_column")
+
+    def seconds(self, line: int, cells: List[str], last: Optional[float]):
+        """(seconds or None, problem or None, aware datetime or None) of a row; ``last`` is the
+        last kept time (s), which tells a midnight roll-over."""
+        cell = cells[self.it]
+        if cell == "":
+            return None, "empty cell", None
+        if self.mode == "elapsed":
+            v, why = self.num(cell)
+            return (None if v is None else v * self.factor), why, None
+        if self.mode == "elapsed_clock":
+            sec = _clock_seconds(cell)
+            if sec is None:
+                return None, f"not an elapsed time {cell!r} (hh:mm:ss)", None
+            if cell.count(":") != 2:
+                return None, f"elapsed time {cell!r} is ambiguous (mm:ss or hh:mm): write hh:mm:ss", None
+            return sec, None, None
+        dt, why = self._instant(line, cell, cells, last)
+        if dt is None:
+            return None, why, None
+        # differences in UTC: aware datetimes of one zone subtract as wall clocks
+        utc = dt.astimezone(timezone.utc)
+        if self.t_ref is None:
+            self.t_ref = utc
+        return (utc - self.t_ref).total_seconds(), None, dt
+
+    def _instant(self, line, cell, cells, last):
+        if self.mode == "stamp":
+            dt = _parse_stamp(cell)
+            if dt is None:
+                return None, f"not a date-time {cell!r} (ISO 8601, e.g. 2015-03-12T10:00:00+01:00)"
+            if dt.utcoffset() is None:
+                if self.zone is None:
+                    # never held/skipped: the instant itself is unknown
+                    raise self.table.error(
+                        line, self.col, f"timestamp without time zone {cell!r} (add an offset such "
+                        f"as +01:00 or Z, or give the zone with {self.names['tz']} ZONE)")
+                dt = dt.replace(tzinfo=self.zone)
+            return dt, None
+        sec = _clock_seconds(cell)
+        if sec is None or sec >= 86400.0:
+            return None, f"not a time of day {cell!r} (hh:mm:ss)"
+        if self.mode == "date_column":
+            dcell = cells[self.idate]
+            d = _parse_date(dcell)
+            if d is None:
+                return None, (f"not a date {dcell!r} in column {self.table.cols[self.idate][2]} "
+                              f"(YYYY-MM-DD)")
+            return datetime.combine(d, datetime.min.time(), self.zone) + timedelta(seconds=sec), None
+        day = self.day0 + timedelta(days=self.day_shift)
+        dt = datetime.combine(day, datetime.min.time(), self.zone) + timedelta(seconds=sec)
+        if last is not None and self.t_ref is not None and \
+                (dt.astimezone(timezone.utc) - self.t_ref).total_seconds() < last - 43200.0:
+            # back by more than half a day: the clock passed midnight
+            self.day_shift += 1
+            self.rollovers += 1
+            dt += timedelta(days=1)
+            self.warnings.append(_where(self.table.src, line, self.col) +
+                                 f"time of day went back from the previous row to {cell}: taken "
+                                 f"as the next day, {(day + timedelta(days=1)).isoformat()} "
+                                 f"(midnight roll-over)")
+        return dt, None
+
+    def describe(self) -> str:
+        if self.mode == "elapsed":
+            return f"elapsed {_units.canonical(self.t_unit, 'time') if self.t_unit else 's'}"
+        if self.mode == "elapsed_clock":
+            return "elapsed hh:mm:ss"
+        if self.mode == "stamp":
+            return "date-time" + (f", zone {self.zone}" if self.zone is not None else "")
+        if self.mode == "date_column":
+            return f"time of day with date column '{self.table.cols[self.idate][2]}', zone {self.zone}"
+        text = f"time of day on {self.day0.isoformat()}, zone {self.zone}"
+        if self.rollovers:
+            text += f", {self.rollovers} midnight roll-over{'s' * (self.rollovers > 1)}"
+        return text
+
+
 def read_injection_log(path, *, flow_unit: Optional[str] = None,
                        pressure_unit: Optional[str] = None,
                        max_gap: Optional[float] = 600.0,
@@ -616,174 +839,59 @@ def read_injection_log(path, *, flow_unit: Optional[str] = None,
     zone = _zone(tz, src, names["tz"])
     day0 = _as_date(date, src, names["date"])
 
-    with open(path, "rb") as fh:
-        raw = fh.read()
-    text, encoding = _decode(raw, src)
-    lines = [(n, t) for n, t in enumerate(text.splitlines(), start=1)
-             if t.strip() and not t.strip().startswith("#")]
-    if not lines:
-        raise InjectionLogError(src, max(1, text.count("\n")), None, "no header line and no data")
-    hline, htext = lines[0]
-    delim = _delimiter(htext, [t for _, t in lines[1:6]])
-    header = _split(htext, delim)
-    rows = [(n, _split(t, delim)) for n, t in lines[1:]]
-    num = _Numbers(delim)
+    # -- columns and units ----------------------------------------------------------------------
+    tab = _Table.read(path, src)
+    num = _Numbers(tab.delim)
+    it = (tab.named(time_column, names["time_column"]) if time_column is not None else
+          tab.detected("time", _TIME_EXACT, _TIME_PREFIXES, names["time_column"], True))
+    iq = (tab.named(flow_column, names["flow_column"]) if flow_column is not None else
+          tab.detected("flow-rate", _FLOW_EXACT, _FLOW_PREFIXES, names["flow_column"], True, (it,)))
+    ip = (tab.named(pressure_column, names["pressure_column"]) if pressure_column is not None else
+          tab.detected("pressure", _PRESSURE_EXACT, _PRESSURE_PREFIXES, names["pressure_column"],
+                       False, (it, iq)))
+    used_cols = [i for i in (it, iq, ip) if i is not None]
+    if len(set(used_cols)) < len(used_cols):
+        raise tab.error(tab.hline, None, "the time, flow-rate and pressure columns must be "
+                        "different columns")
+    idate = next((i for i, (b, _, _) in enumerate(tab.cols)
+                  if b in _DATE_EXACT and i not in used_cols), None)
+    tcol, qcol = tab.cols[it][2], tab.cols[iq][2]
+    pcol = tab.cols[ip][2] if ip is not None else None
 
-    cols = []   # (normalised name, unit or None, header as written)
-    for h in header:
-        base, unit = _units.parse_header(h)
-        cols.append((_norm(base), unit, h))
-    ncol = len(header)
-
-    def chosen(spec, option):
-        """Index of the column the user named (header or 1-based position)."""
-        txt = str(spec).strip()
-        if txt.isdigit():
-            k = int(txt)
-            if not 1 <= k <= ncol:
-                raise InjectionLogError(src, hline, None,
-                                        f"{option} {str(spec)!r}: the header has {ncol} columns "
-                                        f"({', '.join(header)})")
-            return k - 1
-        for i, (b, _, h) in enumerate(cols):
-            if txt.lower() in (h.lower(), _units.parse_header(h)[0].strip().lower()) or _norm(txt) == b:
-                return i
-        raise InjectionLogError(src, hline, None,
-                                f"{option} {str(spec)!r}: no such column; columns: {', '.join(header)}")
-
-    def auto(kind, exact, prefixes, option, required, exclude=()):
-        hits = [i for i, (b, _, _) in enumerate(cols) if b in exact and i not in exclude]
-        if not hits:
-            hits = [i for i, (b, _, _) in enumerate(cols)
-                    if b.startswith(prefixes) and i not in exclude]
-        if len(hits) > 1:
-            raise InjectionLogError(
-                src, hline, None,
-                f"several {kind} columns ({', '.join(cols[i][2] for i in hits)}): choose one "
-                f"with {option}")
-        if not hits:
-            if required:
-                raise InjectionLogError(
-                    src, hline, None,
-                    f"no {kind} column in header {header!r} (expected one of: "
-                    f"{', '.join(exact[:6] + tuple(p + '...' for p in prefixes[:3]))}; or name "
-                    f"it with {option})")
-            return None
-        return hits[0]
-
-    it = (chosen(time_column, names["time_column"]) if time_column is not None else
-          auto("time", _TIME_EXACT, _TIME_PREFIXES, names["time_column"], True))
-    iq = (chosen(flow_column, names["flow_column"]) if flow_column is not None else
-          auto("flow-rate", _FLOW_EXACT, _FLOW_PREFIXES, names["flow_column"], True, (it,)))
-    ip = (chosen(pressure_column, names["pressure_column"]) if pressure_column is not None else
-          auto("pressure", _PRESSURE_EXACT, _PRESSURE_PREFIXES, names["pressure_column"], False,
-               (it, iq)))
-    idate = None
-    if it is not None:
-        idate = next((i for i, (b, _, _) in enumerate(cols)
-                      if b in _DATE_EXACT and i not in (it, iq, ip)), None)
-    if len({it, iq} | ({ip} if ip is not None else set())) < (3 if ip is not None else 2):
-        raise InjectionLogError(src, hline, None, "the time, flow-rate and pressure columns must "
-                                "be different columns")
-    tcol, qcol = cols[it][2], cols[iq][2]
-    pcol = cols[ip][2] if ip is not None else None
-
-    # -- a second header row holding the units ------------------------------------------------
-    units_line = None
-    t_unit, q_unit, p_unit = cols[it][1], cols[iq][1], cols[ip][1] if ip is not None else None
-    if rows:
-        n1, r1 = rows[0]
-        qcell = _bare_unit(r1[iq]) if iq < len(r1) else None
-        if qcell is not None and not num.ok(r1[iq]):
-            try:
-                _units.factor(qcell, "flow_rate")
-                is_units = True
-            except _units.UnitError:
-                is_units = False
-            if is_units:
-                units_line = n1
-                rows = rows[1:]
-                row_units = [_bare_unit(c) for c in r1] + [None] * (ncol - len(r1))
-
-                def merge(i, written):
-                    u = row_units[i]
-                    if u is None:
-                        return written
-                    if written is not None and not _same_unit(written, u):
-                        raise InjectionLogError(src, n1, cols[i][2], f"the units row says {u!r} "
-                                                f"but the header says {written!r}")
-                    return u
-                q_unit = merge(iq, q_unit)
-                if ip is not None:
-                    p_unit = merge(ip, p_unit)
-                tu = row_units[it]
-                if tu is not None and _norm(tu) not in ("hh_mm_ss", "hh_mm", "iso", "iso_8601",
-                                                        "utc", "local", "date_time", "datetime",
-                                                        "yyyy_mm_dd_hh_mm_ss"):
-                    t_unit = merge(it, t_unit)
-
-    qf, qname = _unit_for(src, units_line or hline, qcol, q_unit, flow_unit, "flow_rate",
+    units = [u for _, u, _ in tab.cols]
+    row_units = tab.take_units_row(num, iq)
+    for i, u in enumerate(row_units):
+        if u is None or (i == it and _norm(u) in _TIME_FORMAT_HINTS):
+            continue
+        if units[i] is not None and not _same_unit(units[i], u):
+            raise tab.error(tab.units_line, tab.cols[i][2],
+                            f"the units row says {u!r} but the header says {units[i]!r}")
+        units[i] = u
+    unit_line = tab.units_line or tab.hline
+    qf, qname = _unit_for(src, unit_line, qcol, units[iq], flow_unit, "flow_rate",
                           names["flow_unit"])
     pf = pname = None
     if ip is not None:
-        pf, pname = _unit_for(src, units_line or hline, pcol, p_unit, pressure_unit, "pressure",
+        pf, pname = _unit_for(src, unit_line, pcol, units[ip], pressure_unit, "pressure",
                               names["pressure_unit"])
 
-    # -- a final partial row (the stamp repeated, values empty) is the logger stopping ----------
     warnings: List[str] = []
-    if rows:
-        n_last, r_last = rows[-1]
-        vals = [r_last[i] if i < len(r_last) else "" for i in (iq, ip) if i is not None]
-        if len(rows) > 1 and all(v == "" for v in vals):
-            rows = rows[:-1]
-            warnings.append(_where(src, n_last, None) + "last row has a time stamp but no values "
-                            "(a partial row written when the logger stopped); dropped")
+    dropped = tab.drop_partial_last_row([i for i in (iq, ip) if i is not None])
+    if dropped:
+        warnings.append(dropped)
+    clock = _Clock(tab, it, idate, units[it], num, day0, zone, names, warnings)
 
-    # -- how times are written ----------------------------------------------------------------
-    first = next((c[it] for _, c in rows if it < len(c) and c[it] != ""), None)
-    tname = cols[it][0]
-    if t_unit is not None:
-        try:
-            tf = _units.factor(t_unit, "time")
-        except _units.UnitError as e:
-            raise InjectionLogError(src, units_line or hline, tcol, str(e)) from None
-        mode = "elapsed"
-    else:
-        tf = 1.0
-        if first is None or num.ok(first):
-            mode = "elapsed"
-        elif _clock_seconds(first) is not None:
-            if tname.startswith(_ELAPSED_PREFIXES):
-                mode = "elapsed_clock"
-            elif idate is not None:
-                mode = "date_column"
-            else:
-                mode = "time_of_day"
-        else:
-            mode = "stamp"
-    if mode == "time_of_day" and day0 is None:
-        line0 = next(n for n, c in rows if it < len(c) and c[it] == first)
-        raise InjectionLogError(src, line0, tcol,
-                                f"time of day {first!r} without a date: pass {names['date']} "
-                                f"YYYY-MM-DD (the day of the first row) and {names['tz']} ZONE")
-    if mode in ("time_of_day", "date_column") and zone is None:
-        line0 = next(n for n, c in rows if it < len(c) and c[it] == first)
-        raise InjectionLogError(src, line0, tcol,
-                                f"local times of day {first!r}: the time zone is unknown; pass "
-                                f"{names['tz']} ZONE (e.g. Europe/Zurich, or UTC)")
-
+    # -- rows -----------------------------------------------------------------------------------
     T: List[float] = []
     Q: List[float] = []
     P: List[float] = []
     L: List[int] = []   # line of each kept sample (inserted samples: line of the next row)
-    t_ref = None        # first parsed instant: reference for differences
-    start = None        # instant of the first kept row
+    start = None        # instant of the first kept row, in the zone it was written in
     last_q: Optional[float] = None
     last_p: Optional[float] = None
-    day_shift = 0       # days added to a time-of-day log after midnight roll-overs
-    rollovers = 0
     q_hi = FLOW_RATE_RANGE[1] / qf
     p_lo, p_hi = (PRESSURE_RANGE[0] / pf, PRESSURE_RANGE[1] / pf) if pf else (None, None)
+    ncol = len(tab.header)
 
     def problem(line, column, text, action=None):
         """Raise under 'stop'; otherwise record what was done and return."""
@@ -791,45 +899,7 @@ def read_injection_log(path, *, flow_unit: Optional[str] = None,
             raise InjectionLogError(src, line, column, text)
         warnings.append(_where(src, line, column) + f"{text}; {action} (policy '{policy}')")
 
-    def instant(line, tcell, cells):
-        """(datetime or None, problem or None) of a row's stamp for the clock-time modes."""
-        nonlocal day_shift, rollovers
-        if mode == "stamp":
-            dt = _parse_stamp(tcell)
-            if dt is None:
-                return None, f"not a date-time {tcell!r} (ISO 8601, e.g. 2015-03-12T10:00:00+01:00)"
-            if dt.utcoffset() is None:
-                if zone is None:
-                    # never held/skipped: the instant itself is unknown
-                    raise InjectionLogError(
-                        src, line, tcol,
-                        f"timestamp without time zone {tcell!r} (add an offset such as +01:00 "
-                        f"or Z, or give the zone with {names['tz']} ZONE)")
-                dt = dt.replace(tzinfo=zone)
-            return dt, None
-        sec = _clock_seconds(tcell)
-        if sec is None or sec >= 86400.0:
-            return None, f"not a time of day {tcell!r} (hh:mm:ss)"
-        if mode == "date_column":
-            dcell = cells[idate]
-            d = _parse_date(dcell)
-            if d is None:
-                return None, f"not a date {dcell!r} in column {cols[idate][2]} (YYYY-MM-DD)"
-            return datetime.combine(d, datetime.min.time(), zone) + timedelta(seconds=sec), None
-        dt = datetime.combine(day0 + timedelta(days=day_shift), datetime.min.time(), zone) \
-            + timedelta(seconds=sec)
-        if T and t_ref is not None and (dt.astimezone(timezone.utc) - t_ref).total_seconds() < T[-1] - 43200.0:
-            # back by more than half a day: the clock passed midnight
-            day_shift += 1
-            rollovers += 1
-            dt += timedelta(days=1)
-            warnings.append(_where(src, line, tcol) + f"time of day went back from the previous "
-                            f"row to {tcell}: taken as the next day, "
-                            f"{(day0 + timedelta(days=day_shift)).isoformat()} (midnight roll-over)")
-        return dt, None
-
-    clock = mode in ("stamp", "time_of_day", "date_column")
-    for line, cells in rows:
+    for line, cells in tab.rows:
         if len(cells) > ncol and any(cells[ncol:]):
             problem(line, None, f"row has {len(cells)} cells but the header has {ncol}",
                     "row dropped")
@@ -838,30 +908,7 @@ def read_injection_log(path, *, flow_unit: Optional[str] = None,
 
         # -- time -----------------------------------------------------------
         tcell = cells[it]
-        t = None
-        why = "empty cell"
-        if clock:
-            if tcell != "":
-                row_dt, why = instant(line, tcell, cells)
-                if row_dt is not None:
-                    # differences in UTC: aware datetimes of one zone subtract as wall clocks
-                    utc = row_dt.astimezone(timezone.utc)
-                    if t_ref is None:
-                        t_ref = utc
-                    t = (utc - t_ref).total_seconds()
-        elif mode == "elapsed_clock":
-            if tcell != "":
-                sec = _clock_seconds(tcell)
-                if sec is None:
-                    why = f"not an elapsed time {tcell!r} (hh:mm:ss)"
-                elif tcell.count(":") != 2:
-                    why = f"elapsed time {tcell!r} is ambiguous (mm:ss or hh:mm): write hh:mm:ss"
-                else:
-                    t = sec
-        else:
-            v, why = num(tcell)
-            if v is not None:
-                t = v * tf
+        t, why, row_dt = clock.seconds(line, cells, T[-1] if T else None)
         if t is None:
             problem(line, tcol, f"bad time stamp: {why}", "row dropped")
             continue
@@ -913,13 +960,12 @@ def read_injection_log(path, *, flow_unit: Optional[str] = None,
         # -- gap --------------------------------------------------------------
         if T and t - T[-1] > max_gap:
             gap = t - T[-1]
-            text_ = (f"gap of {gap:g} s since line {L[-1]} exceeds {names['max_gap']} "
-                     f"{max_gap:g} s")
+            text = f"gap of {gap:g} s since line {L[-1]} exceeds {names['max_gap']} {max_gap:g} s"
             if policy == "hold":
                 t_ins = t - HOLD_EPS
                 if not (T[-1] < t_ins < t):
                     t_ins = float(np.nextafter(t, -math.inf))
-                problem(line, tcol, text_,
+                problem(line, tcol, text,
                         f"rate held at {Q[-1] / qf!r} until {HOLD_EPS:g} s before this stamp")
                 T.append(t_ins)
                 Q.append(Q[-1])
@@ -927,10 +973,10 @@ def read_injection_log(path, *, flow_unit: Optional[str] = None,
                     P.append(P[-1])
                 L.append(line)
             else:
-                problem(line, tcol, text_, "gap bridged by linear interpolation")
+                problem(line, tcol, text, "gap bridged by linear interpolation")
 
-        if not T and clock:
-            start = row_dt       # in the zone it was written in
+        if not T:
+            start = row_dt
         T.append(t)
         Q.append(q)
         if ip is not None:
@@ -940,40 +986,26 @@ def read_injection_log(path, *, flow_unit: Optional[str] = None,
         last_p = p
 
     if len(T) < 2:
-        last_line = rows[-1][0] if rows else (units_line or hline)
+        last_line = tab.rows[-1][0] if tab.rows else unit_line
         raise InjectionLogError(src, last_line, None,
                                 f"too few data rows ({len(T)} usable, need at least 2)")
 
     time = np.asarray(T, dtype=np.float64)
     time = time - time[0]   # s since the first kept stamp
+    log = InjectionLog(time, np.asarray(Q), np.asarray(P) if ip is not None else None,
+                       start, src, tuple(warnings), flow_unit=qname, pressure_unit=pname)
 
-    # -- one line saying what was understood ------------------------------------------------
-    if mode == "elapsed":
-        how = f"elapsed {_units.canonical(t_unit, 'time') if t_unit else 's'}"
-    elif mode == "elapsed_clock":
-        how = "elapsed hh:mm:ss"
-    elif mode == "stamp":
-        how = "date-time" + (f", zone {zone}" if zone is not None else "")
-    elif mode == "time_of_day":
-        how = f"time of day on {day0.isoformat()}, zone {zone}"
-        if rollovers:
-            how += f", {rollovers} midnight roll-over{'s' * (rollovers > 1)}"
-    else:
-        how = f"time of day with date column '{cols[idate][2]}', zone {zone}"
-    dialect = [encoding, f"{_DELIMITERS.get(delim, 'blank')}-separated"]
+    # -- one line saying what was understood ----------------------------------------------------
+    dialect = [tab.encoding, f"{_DELIMITERS.get(tab.delim, 'blank')}-separated"]
     if num.comma_seen:
         dialect.append("decimal comma")
-    if units_line is not None:
-        dialect.append(f"units row (line {units_line})")
-    used = [f"time '{tcol}' ({how})", f"flow '{qcol}' ({qname})"]
-    used.append(f"pressure '{pcol}' ({pname})" if ip is not None else "no pressure column")
-    log_ = InjectionLog(time, np.asarray(Q), np.asarray(P) if ip is not None else None,
-                        start, src, tuple(warnings), flow_unit=qname, pressure_unit=pname)
+    if tab.units_line is not None:
+        dialect.append(f"units row (line {tab.units_line})")
+    used = [f"time '{tcol}' ({clock.describe()})", f"flow '{qcol}' ({qname})",
+            f"pressure '{pcol}' ({pname})" if ip is not None else "no pressure column"]
     summary = (f"{os.path.basename(src)}: {', '.join(dialect)}; {', '.join(used)}; "
-               f"{time.size} samples over {_duration(log_.duration)}, "
-               f"{log_.total_volume:.6g} m3")
-    object.__setattr__(log_, "summary", summary)
-    return log_
+               f"{time.size} samples over {_duration(log.duration)}, {log.total_volume:.6g} m3")
+    return replace(log, summary=summary)
 
 
 def _duration(seconds: float) -> str:
