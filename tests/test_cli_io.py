@@ -382,3 +382,15 @@ def test_run_reads_the_scene_log_as_input(tmp_path):
     assert res.injection["volume"][-1] == pytest.approx(trapezoid(t, q * LPM), rel=1e-9)
     with h5py.File(tmp_path / "o.h5") as h5:
         assert h5["log/flow_rate"].attrs["unit"] == "m3/s"
+
+
+def test_summary_says_distances_need_a_site(replayed, capsys):
+    from fault_screen.cli.run import _summary
+    from fault_screen.io.events import EventCatalog
+
+    _, d, _, _ = replayed
+    res = Result.load(d / "out.h5")
+    _summary(res, d / "out.h5", [], EventCatalog(np.array([5.0, 500.0]), np.array([-1.0, 0.2])))
+    out = capsys.readouterr().out
+    assert "seismic events               2 read, 1 within the run" in out
+    assert "event distances              need a [site] table in the scene" in out

@@ -91,7 +91,7 @@ def test_time_of_day_needs_date_and_zone(tmp_path):
     with pytest.raises(InjectionLogError) as ei:
         read_injection_log(p)
     assert str(ei.value) == ("tod.csv line 2, column Time: time of day '08:50:05' without a date: "
-                             "pass date= YYYY-MM-DD (the day of the first row) and tz= ZONE")
+                             "pass date=YYYY-MM-DD (the day of the first row) and tz=ZONE")
     with pytest.raises(InjectionLogError, match="--date YYYY-MM-DD"):
         read_injection_log(p, option_names=CLI_OPTION_NAMES)
     with pytest.raises(InjectionLogError, match="the time zone is unknown; pass --tz ZONE"):

@@ -394,6 +394,11 @@ _BINARY_SIGNS = {b"PK\x03\x04": " (a zip archive or an Excel .xlsx workbook? exp
                  b"\x89HDF": " (an HDF5 file)"}
 
 
+def _arg(name: str, value: str) -> str:
+    """``flow_unit='gpm'`` for a keyword, ``--flow-unit 'gpm'`` for an option."""
+    return f"{name}{value}" if name.endswith("=") else f"{name} {value}"
+
+
 def _norm(name: str) -> str:
     """Column name as compared: ``"Débit (l/min)" -> "debit"`` once the unit is split off."""
     flat = unicodedata.normalize("NFKD", str(name))
@@ -465,7 +470,7 @@ def _unit_for(src, line, col_raw, header_unit, arg_unit, quantity, argname):
         if not same:
             raise InjectionLogError(
                 src, line, col_raw,
-                f"the file's unit {header_unit!r} conflicts with {argname} {arg_unit!r}")
+                f"the file's unit {header_unit!r} conflicts with {_arg(argname, repr(arg_unit))}")
     unit = header_unit if header_unit is not None else arg_unit
     if unit is None:
         raise InjectionLogError(
@@ -568,7 +573,7 @@ def _zone(tz, src, name):
         return ZoneInfo(str(tz))
     except (ZoneInfoNotFoundError, ValueError):
         raise InjectionLogError(src, None, None,
-                                f"{name} {tz!r}: unknown time zone (use an IANA name such as "
+                                f"{_arg(name, repr(tz))}: unknown time zone (use an IANA name such as "
                                 f"Europe/Zurich, America/Denver or UTC)") from None
 
 
@@ -577,7 +582,7 @@ def _as_date(value, src, name) -> Optional[date]:
         return value
     d = _parse_date(str(value))
     if d is None:
-        raise InjectionLogError(src, None, None, f"{name} {value!r}: not a date (YYYY-MM-DD)")
+        raise InjectionLogError(src, None, None, f"{_arg(name, repr(value))}: not a date (YYYY-MM-DD)")
     return d
 
 
@@ -623,13 +628,13 @@ class _Table:
         if txt.isdigit():
             k = int(txt)
             if not 1 <= k <= len(self.header):
-                raise self.error(self.hline, None, f"{option} {txt!r}: the header has "
+                raise self.error(self.hline, None, f"{_arg(option, repr(txt))}: the header has "
                                  f"{len(self.header)} columns ({', '.join(self.header)})")
             return k - 1
         for i, (b, _, h) in enumerate(self.cols):
             if txt.lower() in (h.lower(), _units.parse_header(h)[0].strip().lower()) or _norm(txt) == b:
                 return i
-        raise self.error(self.hline, None, f"{option} {txt!r}: no such column; columns: "
+        raise self.error(self.hline, None, f"{_arg(option, repr(txt))}: no such column; columns: "
                          f"{', '.join(self.header)}")
 
     def detected(self, kind, exact, prefixes, option, required, exclude=()) -> Optional[int]:
@@ -716,12 +721,12 @@ class _Clock:
             self.mode = "stamp"
         if self.mode == "time_of_day" and day0 is None:
             raise table.error(first[0], self.col,
-                              f"time of day {first[1]!r} without a date: pass {names['date']} "
-                              f"YYYY-MM-DD (the day of the first row) and {names['tz']} ZONE")
+                              f"time of day {first[1]!r} without a date: pass {_arg(names['date'], 'YYYY-MM-DD')} "
+                              f"(the day of the first row) and {_arg(names['tz'], 'ZONE')}")
         if self.mode in ("time_of_day", "date_column") and zone is None:
             raise table.error(first[0], self.col,
                               f"local times of day {first[1]!r}: the time zone is unknown; pass "
-                              f"{names['tz']} ZONE (e.g. Europe/Zurich, or UTC)")
+                              f"{_arg(names['tz'], 'ZONE')} (e.g. Europe/Zurich, or UTC)")
 
     @property
     def is_clock(self) -> bool:
@@ -762,7 +767,7 @@ class _Clock:
                     # never held/skipped: the instant itself is unknown
                     raise self.table.error(
                         line, self.col, f"timestamp without time zone {cell!r} (add an offset such "
-                        f"as +01:00 or Z, or give the zone with {self.names['tz']} ZONE)")
+                        f"as +01:00 or Z, or give the zone with {_arg(self.names['tz'], 'ZONE')})")
                 dt = dt.replace(tzinfo=self.zone)
             return dt, None
         sec = _clock_seconds(cell)
@@ -834,7 +839,7 @@ def read_injection_log(path, *, flow_unit: Optional[str] = None,
         max_gap = math.inf
     max_gap = float(max_gap)
     if not max_gap > 0:
-        raise ValueError(f"{names['max_gap']} must be > 0 s, got {max_gap!r}")
+        raise ValueError(f"{_arg(names['max_gap'], repr(max_gap))}: must be > 0 s")
     src = str(path)
     zone = _zone(tz, src, names["tz"])
     day0 = _as_date(date, src, names["date"])
@@ -960,7 +965,7 @@ def read_injection_log(path, *, flow_unit: Optional[str] = None,
         # -- gap --------------------------------------------------------------
         if T and t - T[-1] > max_gap:
             gap = t - T[-1]
-            text = f"gap of {gap:g} s since line {L[-1]} exceeds {names['max_gap']} {max_gap:g} s"
+            text = f"gap of {gap:g} s since line {L[-1]} exceeds {_arg(names['max_gap'], f'{max_gap:g}')} s"
             if policy == "hold":
                 t_ins = t - HOLD_EPS
                 if not (T[-1] < t_ins < t):
