@@ -155,19 +155,16 @@ def start_time(result):
     return dt if dt.utcoffset() is not None else None
 
 
-def _clock_axis(ax, start, f, which="x"):
-    """A second time axis in clock time (HH:MM, with the date when the run spans days)."""
+def _clock_axis(ax, start, f):
+    """A second x axis on top in clock time (the date added when the run spans days)."""
     from datetime import timedelta
 
     from matplotlib.ticker import FuncFormatter
 
     if start is None:
         return None
-    ident = (lambda v: v, lambda v: v)
-    sec = ax.secondary_xaxis("top", functions=ident) if which == "x" else \
-        ax.secondary_yaxis("right", functions=ident)
-    span = abs(ax.get_xlim()[1] - ax.get_xlim()[0]) / f if which == "x" else \
-        abs(ax.get_ylim()[1] - ax.get_ylim()[0]) / f
+    sec = ax.secondary_xaxis("top", functions=(lambda v: v, lambda v: v))
+    span = abs(ax.get_xlim()[1] - ax.get_xlim()[0]) / f
     fmt = "%d %b %H:%M" if span > 86400 else ("%H:%M:%S" if span < 600 else "%H:%M")
 
     def label(v, _pos):
@@ -175,10 +172,8 @@ def _clock_axis(ax, start, f, which="x"):
             return (start + timedelta(seconds=float(v) / f)).strftime(fmt)
         except (OverflowError, ValueError):
             return ""
-    (sec.xaxis if which == "x" else sec.yaxis).set_major_formatter(FuncFormatter(label))
-    zone = start.tzname() or start.strftime("%z")
-    text = f"clock time ({zone}, {start:%Y-%m-%d})"
-    (sec.set_xlabel if which == "x" else sec.set_ylabel)(text)
+    sec.xaxis.set_major_formatter(FuncFormatter(label))
+    sec.set_xlabel(f"clock time ({start.tzname() or start.strftime('%z')}, {start:%Y-%m-%d})")
     return sec
 
 

@@ -95,8 +95,9 @@ def _show_table(obj, section: str, raw, scene, derived, lines: list) -> None:
         written = _written(raw, name)
         if written is not None:
             k, v = written
-            src = "file" + (f": {k} = {_toml_value(v)}" if (k != name or isinstance(v, str))
-                            and not isinstance(value, str) else "")
+            # show what was written when it carried a unit (in the key or in the value)
+            with_unit = k != name or (isinstance(v, str) and not isinstance(value, str))
+            src = f"file: {k} = {_toml_value(v)}" if with_unit else "file"
         else:
             src = "default"
         if value is None:
@@ -107,10 +108,7 @@ def _show_table(obj, section: str, raw, scene, derived, lines: list) -> None:
             else:
                 lines.append(f"# {name}: not set".ljust(44) + f"# {unit + ', ' if unit else ''}default")
             continue
-        shown = _toml_value(value.tolist() if hasattr(value, "tolist") else
-                            [list(x) if isinstance(x, tuple) else x for x in value]
-                            if isinstance(value, tuple) else value)
-        lines.append(f"{name} = {shown}".ljust(44) + f"# {unit + ', ' if unit else ''}{src}")
+        lines.append(f"{name} = {_toml_value(value)}".ljust(44) + f"# {unit + ', ' if unit else ''}{src}")
     for name, value in tables:
         sub = f"{section}.{name}" if section else name
         lines.append("")
