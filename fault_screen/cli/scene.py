@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from ._options import BadInput, check_size, reading
+from ._options import check_size, reading
 from .run import load_scene, read_scene_log
 
 FILE = click.Path(dir_okay=False, path_type=Path)
@@ -168,5 +168,3 @@ def check(path):
         click.echo(f"  log: {log.summary}")
         for w in log.warnings:
             click.echo(f"Warning: {w}", err=True)
-    if sc.injection.log is not None and sc.injection.control != "rate":
-        raise BadInput(f"{path}: injection.log needs injection.control = 'rate'")
