@@ -145,10 +145,11 @@ class Discretisation:
         self.zone_of = zone_of
         props = [effective_rock(spec, s.fluid.bulk_modulus, s.fluid.viscosity) for spec in specs]
         self.zone_props = props
-        self.el_D = np.array([rock.plane_strain_elasticity(props[z]["E"], props[z]["nu"]) for z in zone_of])
-        self.el_alpha = np.array([props[z]["alpha"] for z in zone_of])
-        self.el_mobility = np.array([props[z]["mobility"] for z in zone_of])
-        self.el_inv_M = np.array([props[z]["inv_M"] for z in zone_of])
+        # per zone, then indexed by element (one elasticity matrix per zone, not per element)
+        self.el_D = np.array([rock.plane_strain_elasticity(p["E"], p["nu"]) for p in props])[zone_of]
+        self.el_alpha = np.array([p["alpha"] for p in props])[zone_of]
+        self.el_mobility = np.array([p["mobility"] for p in props])[zone_of]
+        self.el_inv_M = np.array([p["inv_M"] for p in props])[zone_of]
 
     # ------------------------------------------------------------------ unknowns
     def _number_unknowns(self, declared):
