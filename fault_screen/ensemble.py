@@ -244,64 +244,95 @@ def local_cluster(workers: int):
                         dashboard_address=None, silence_logs=40)
 
 
-def run_ensemble(base: Scene, variants: Sequence[Variant], *, summarise: Callable = default_summary,
-                 workers: int = 1, scheduler: str | None = None, out=None,
-                 progress: Callable[[int, int, int], None] | None = None, warm: bool = False,
-                 meta: dict | None = None) -> list[TaskOutcome]:
-    """Run every variant as a Dask task; return the outcomes in the variants' order.
+class Runner:
+    """Where tasks run: a local cluster of ``workers`` processes (the default), an existing
+    Dask scheduler (``scheduler="tcp://host:port"``), or this process (``workers=0``, no Dask).
+    Use as a context manager; one runner serves many batches (a calibration's Jacobians)."""
 
-    ``workers``: processes of a local cluster (ignored with ``scheduler``); ``workers=0`` runs
-    in this process without Dask (for debugging). ``out``: HDF5 file the outcomes stream into as
-    they finish. ``progress(done, total, failed)`` is called after each finished task.
-    ``summarise`` must be picklable (a module-level function)."""
-    variants = list(variants)
-    if workers < 0:
-        raise ValueError(f"workers = {workers}: must be >= 0")
-    base_dict = base.to_dict()
-    stream = _Stream(out, {"scene": base.title, "tasks": len(variants), **(meta or {})}) if out else None
-    outcomes: list[TaskOutcome | None] = [None] * len(variants)
-    failed = 0
+    def __init__(self, workers: int = 1, scheduler: str | None = None):
+        if workers < 0:
+            raise ValueError(f"workers = {workers}: must be >= 0")
+        self.workers, self.scheduler = workers, scheduler
+        self.client = self.cluster = None
 
-    def done(o: TaskOutcome):
-        nonlocal failed
-        outcomes[o.index] = o
-        failed += not o.ok
-        if stream is not None:
-            stream.write(o)
-        if progress is not None:
-            progress(sum(x is not None for x in outcomes), len(variants), failed)
+    def __enter__(self):
+        if self.scheduler is not None or self.workers > 0:
+            from distributed import Client
 
-    def args(i, v):
-        return (i, v.name, v.scene.to_dict() if v.scene is not None else base_dict, v.overrides,
-                summarise, warm)
-
-    try:
-        if workers == 0 and scheduler is None:
-            for i, v in enumerate(variants):
-                done(run_task(*args(i, v)))
-        else:
-            from distributed import Client, as_completed
-
-            cluster = None if scheduler else local_cluster(workers)
+            if self.scheduler is None:
+                self.cluster = local_cluster(self.workers)
             try:
-                with Client(scheduler or cluster) as client:
-                    futures = [client.submit(run_task, *args(i, v), pure=False, key=f"variant-{i}")
-                               for i, v in enumerate(variants)]
-                    for fut in as_completed(futures):
-                        try:
-                            o = fut.result()
-                        except Exception as exc:  # the worker died: record the task anyway
-                            i = futures.index(fut)
-                            o = TaskOutcome(index=i, name=variants[i].name, params=variants[i].overrides,
-                                            ok=False, error=f"worker lost: {type(exc).__name__}: {exc}")
-                        done(o)
-            finally:
-                if cluster is not None:
-                    cluster.close()
-    finally:
-        if stream is not None:
-            stream.close()
-    return [o for o in outcomes if o is not None]
+                self.client = Client(self.scheduler or self.cluster, timeout="30s")
+            except Exception:
+                self.close()
+                raise
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self):
+        if self.client is not None:
+            self.client.close()
+            self.client = None
+        if self.cluster is not None:
+            self.cluster.close()
+            self.cluster = None
+
+    def run(self, base: Scene, variants: Sequence[Variant], *, summarise: Callable = default_summary,
+            out=None, progress: Callable[[int, int, int], None] | None = None, warm: bool = False,
+            meta: dict | None = None) -> list[TaskOutcome]:
+        """Run every variant; return the outcomes in the variants' order. ``out``: HDF5 file the
+        outcomes stream into as they finish; ``progress(done, total, failed)`` after each one;
+        ``summarise`` must be picklable (a module-level function)."""
+        variants = list(variants)
+        base_dict = base.to_dict()
+        stream = _Stream(out, {"scene": base.title, "tasks": len(variants), **(meta or {})}) if out else None
+        outcomes: list[TaskOutcome | None] = [None] * len(variants)
+        failed = 0
+
+        def done(o: TaskOutcome):
+            nonlocal failed
+            outcomes[o.index] = o
+            failed += not o.ok
+            if stream is not None:
+                stream.write(o)
+            if progress is not None:
+                progress(sum(x is not None for x in outcomes), len(variants), failed)
+
+        def args(i, v):
+            return (i, v.name, v.scene.to_dict() if v.scene is not None else base_dict, v.overrides,
+                    summarise, warm)
+
+        try:
+            if self.client is None:
+                for i, v in enumerate(variants):
+                    done(run_task(*args(i, v)))
+            else:
+                from distributed import as_completed
+
+                futures = [self.client.submit(run_task, *args(i, v), pure=False) for i, v in enumerate(variants)]
+                where = {f.key: i for i, f in enumerate(futures)}
+                for fut in as_completed(futures):
+                    try:
+                        o = fut.result()
+                    except Exception as exc:  # the worker died: record the task anyway
+                        i = where[fut.key]
+                        o = TaskOutcome(index=i, name=variants[i].name, params=variants[i].overrides,
+                                        ok=False, error=f"worker lost: {type(exc).__name__}: {exc}")
+                    done(o)
+        finally:
+            if stream is not None:
+                stream.close()
+        return [o for o in outcomes if o is not None]
+
+
+def run_ensemble(base: Scene, variants: Sequence[Variant], *, workers: int = 1,
+                 scheduler: str | None = None, **kwargs) -> list[TaskOutcome]:
+    """Run every variant as a task on a fresh :class:`Runner` (see ``Runner.run`` for the
+    keyword arguments); ``workers=0`` runs in this process without Dask."""
+    with Runner(workers, scheduler) as runner:
+        return runner.run(base, variants, **kwargs)
 
 
 def throughput(outcomes: Iterable[TaskOutcome], elapsed_s: float) -> float:

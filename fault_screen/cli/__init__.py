@@ -12,6 +12,7 @@ from .plot import plot
 from .replay import replay
 from .run import run
 from .scene import scene
+from .calibrate import calibrate
 
 __all__ = ["main"]
 
@@ -37,3 +38,4 @@ main.add_command(run)
 main.add_command(replay)
 main.add_command(plot)
 main.add_command(scene)
+main.add_command(calibrate)
