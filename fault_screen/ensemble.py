@@ -98,10 +98,30 @@ def default_summary(result) -> dict:
         "peak_fault_slip": float(slip.max()) if slip.size else 0.0,
         "slipping_length": float(np.sum(w[state[-1] == 1])) if state.size else 0.0,
         "peak_slip_rate": float(np.max(np.abs(result.fault["slip_rate"]))) if slip.size else 0.0,
+        "slip_onset": slip_onset(result),
+        **screening_summary(result),
         "steps": int(len(result.time) - 1),
         "newton_iterations": int(np.sum(result.solver["iterations"])),
         "unknowns": int(result.meta.get("dofs", 0)),
     }
+
+
+def slip_onset(result) -> float:
+    """First time the fault slips (contact state 1) at the injection point (s); NaN if never."""
+    state = result.fault["contact_state"]
+    if not state.size:
+        return float("nan")
+    hit = np.flatnonzero(state[:, int(np.argmin(np.abs(result.fault_x)))] == 1)
+    return float(result.time[hit[0]]) if hit.size else float("nan")
+
+
+def screening_summary(result) -> dict:
+    """HOOK(screening): the screening layer (``fault_screen.screening``, being built with the
+    screening issue) will give the time of the first yellow and red level and the peak
+    utilisation; return them here as ``time_first_yellow``, ``time_first_red``,
+    ``max_utilisation`` (s, s, -) and every ensemble, sensitivity and accuracy table picks them
+    up as further columns. Until then: nothing."""
+    return {}
 
 
 @dataclass

@@ -13,6 +13,7 @@ from .replay import replay
 from .run import run
 from .scene import scene
 from .calibrate import calibrate
+from .sensitivity import sensitivity
 
 __all__ = ["main"]
 
@@ -39,3 +40,4 @@ main.add_command(replay)
 main.add_command(plot)
 main.add_command(scene)
 main.add_command(calibrate)
+main.add_command(sensitivity)
