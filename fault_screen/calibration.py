@@ -10,6 +10,7 @@ columns are forward differences, run as one batch of tasks in parallel.
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import tomllib
@@ -64,6 +65,8 @@ class ParameterSet:
     residual_units: dict
     """group -> SI value of one residual unit (1e6 for MPa)."""
     source: str = ""
+    groups: tuple = ("pressure", "shear", "normal")
+    """The observation groups the file declares (all three if it has no [observations])."""
 
     def __iter__(self):
         return iter(self.parameters)
@@ -76,7 +79,7 @@ class ParameterSet:
         bad = [k for k in keys if k not in known]
         if bad:
             raise ParametersError(f"{self.source}: no parameter {bad[0]!r}; known: {', '.join(known)}")
-        return ParameterSet(tuple(known[k] for k in keys), self.weights, self.residual_units, self.source)
+        return dataclasses.replace(self, parameters=tuple(known[k] for k in keys))
 
     def means(self) -> dict:
         return {p.key: p.mean for p in self.parameters}
@@ -93,6 +96,7 @@ def load_parameters(path) -> ParameterSet:
     except tomllib.TOMLDecodeError as exc:
         raise ParametersError(f"{name}: not valid TOML: {exc}") from None
     weights, res_units = {}, {}
+    declared = tuple(data.get("observations") or ()) or ("pressure", "shear", "normal")
     for group, spec in (data.get("observations") or {}).items():
         if group not in ("pressure", "shear", "normal") or not isinstance(spec, dict):
             raise ParametersError(f"{name}: observations.{group}: expected pressure, shear or normal "
@@ -152,7 +156,7 @@ def load_parameters(path) -> ParameterSet:
             raise ParametersError(f"{where}: transform = 'log' needs lower > 0, got {vals['lower']!r}")
         params.append(Parameter(key=key, transform=transform, label=str(e.get("label", "")),
                                 paper_rank=e.get("paper_rank"), **vals))
-    return ParameterSet(tuple(params), weights, res_units, str(path))
+    return ParameterSet(tuple(params), weights, res_units, str(path), declared)
 
 
 def check_keys(scene: Scene, params: ParameterSet) -> None:
@@ -408,3 +412,32 @@ def plot_fit(res: CalibrationResult, path) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return Path(path)
+
+
+# ---- Monte Carlo samples ----------------------------------------------------------------------
+def sample_parameters(params: ParameterSet, n: int, distribution: str = "normal", seed: int = 1) -> list:
+    """``n`` random parameter sets (dicts of SI values).
+
+    normal: each parameter normal around its mean with SD = (upper - lower) / 2 (the paper's
+    bounds are -/+ 1 SD), in log10 for log parameters (log-normal), truncated at -/+ 2 SD and,
+    for a linear parameter whose lower bound is >= 0, at 0; uniform: uniform between the
+    bounds (in log10 for log parameters). Independent parameters."""
+    if distribution not in ("normal", "uniform"):
+        raise ValueError(f"distribution = {distribution!r}: must be 'normal' or 'uniform'")
+    rng = np.random.default_rng(seed)
+    columns = {}
+    for p in params:
+        zl, zu = float(p.to_z(p.lower)), float(p.to_z(p.upper))
+        if distribution == "uniform":
+            z = rng.uniform(zl, zu, n)
+        else:
+            zm, sd = float(p.to_z(p.mean)), 0.5 * (zu - zl)
+            z = np.empty(n)
+            todo = np.ones(n, dtype=bool)
+            while todo.any():  # truncation by rejection: exact truncated normal
+                z[todo] = rng.normal(zm, sd, todo.sum())
+                todo = np.abs(z - zm) > 2 * sd
+                if p.transform == "linear" and p.lower >= 0:
+                    todo |= z < 0
+        columns[p.key] = p.from_z(z)
+    return [{k: float(v[i]) for k, v in columns.items()} for i in range(n)]

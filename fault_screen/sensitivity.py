@@ -36,9 +36,10 @@ def observation_times(scene: Scene) -> np.ndarray:
 
 
 def _weighted(params: ParameterSet, series: dict) -> np.ndarray:
-    """The series scaled as residuals are: group unit, times group weight, one flat vector."""
+    """The series of the parameters file's observation groups, scaled as residuals are (group
+    unit, times group weight), as one flat vector."""
     return np.concatenate([params.weights[g] * np.asarray(series[g]) / params.residual_units[g]
-                           for g in SERIES])
+                           for g in params.groups])
 
 
 def spearman(ranks_a, ranks_b) -> float:
@@ -91,7 +92,7 @@ def local(scene: Scene, params: ParameterSet, runner: Runner, *, times=None, ste
     css = np.array(css)
     rk = ranks(css)
     paper = [p.paper_rank for p in plist]
-    rho = spearman(rk, paper) if all(r is not None for r in paper) and len(plist) > 2 else None
+    rho = spearman(rk, paper) if all(r is not None for r in paper) and len(plist) >= 2 else None
     return LocalSensitivity([p.key for p in plist], [p.name for p in plist], css, rk, paper, rho)
 
 
@@ -135,7 +136,7 @@ def one_at_a_time(scene: Scene, params: ParameterSet, runner: Runner, *, times=N
         change[q] = (rel[0::2], rel[1::2])
     rk = ranks(np.maximum(lo, hi))
     paper = [p.paper_rank for p in plist]
-    rho = spearman(rk, paper) if all(r is not None for r in paper) and len(plist) > 2 else None
+    rho = spearman(rk, paper) if all(r is not None for r in paper) and len(plist) >= 2 else None
     return OneAtATime([p.key for p in plist], [p.name for p in plist], lo, hi, change, rk, paper, rho,
                       {q: outs[0].summary[q] for q in ("peak_overpressure", "injection_slip")})
 
@@ -175,6 +176,9 @@ def morris(scene: Scene, params: ParameterSet, runner: Runner, *, trajectories: 
         Y = np.array([o.summary[q] for o in outs], dtype=float)
         if not np.all(np.isfinite(Y)):
             Y = np.where(np.isfinite(Y), Y, scene.time.end)  # never slipped: onset at the end
+        if np.ptp(Y) == 0:  # the quantity does not move (e.g. no slip anywhere): no effects
+            result[q] = {k: np.zeros(problem["num_vars"]) for k in ("mu_star", "mu_star_conf", "sigma")}
+            continue
         a = morris_analyze.analyze(problem, X, Y, num_levels=levels, seed=seed)
         result[q] = {k: np.asarray(a[k]) for k in ("mu_star", "mu_star_conf", "sigma")}
     return result
@@ -198,6 +202,9 @@ def sobol(scene: Scene, params: ParameterSet, runner: Runner, *, base_samples: i
     for q in SCREENED:
         Y = np.array([o.summary[q] for o in outs], dtype=float)
         Y = np.where(np.isfinite(Y), Y, scene.time.end)
+        if np.ptp(Y) == 0:  # the quantity does not move: no variance to apportion
+            result[q] = {k: np.full(problem["num_vars"], np.nan) for k in ("S1", "S1_conf", "ST", "ST_conf")}
+            continue
         a = sobol_analyze.analyze(problem, Y, calc_second_order=False, seed=seed)
         result[q] = {k: np.asarray(a[k]) for k in ("S1", "S1_conf", "ST", "ST_conf")}
     return result

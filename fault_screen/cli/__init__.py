@@ -14,6 +14,7 @@ from .run import run
 from .scene import scene
 from .calibrate import calibrate
 from .sensitivity import sensitivity
+from .ensemble import ensemble
 
 __all__ = ["main"]
 
@@ -41,3 +42,4 @@ main.add_command(plot)
 main.add_command(scene)
 main.add_command(calibrate)
 main.add_command(sensitivity)
+main.add_command(ensemble)
