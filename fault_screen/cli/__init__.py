@@ -15,6 +15,7 @@ from .scene import scene
 from .calibrate import calibrate
 from .sensitivity import sensitivity
 from .ensemble import ensemble
+from .accuracy import accuracy
 
 __all__ = ["main"]
 
@@ -43,3 +44,4 @@ main.add_command(scene)
 main.add_command(calibrate)
 main.add_command(sensitivity)
 main.add_command(ensemble)
+main.add_command(accuracy)
