@@ -326,6 +326,22 @@ class Scene:
         return dumps_toml(self.to_dict())
 
     # ---- derived quantities --------------------------------------------------------------
+    def flow_summary(self) -> list[str]:
+        """One line per rock region: its permeability and mobility at this scene's viscosity
+        (both printed whichever was given), e.g. for ``scene show``."""
+        mu = self.fluid.viscosity
+        regions = [("rock", self.rock)]
+        if self.effects.damage_zone:
+            regions.append(("damage_zone", self.rock.with_overrides(self.damage_zone.rock_overrides())))
+        regions += [(f"zones[{i}] ({z.name})", self.rock.with_overrides(z.rock)) for i, z in enumerate(self.zones)]
+        lines = []
+        for name, rock in regions:
+            m = rock.mobility_at(mu)
+            given = "mobility" if rock.mobility is not None else "permeability"
+            lines.append(f"{name}: permeability {m * mu:.6g} m2, mobility {m:.6g} m2/(Pa s) "
+                         f"(given as {given}; viscosity {mu:g} Pa s)")
+        return lines
+
     @property
     def fault_point(self) -> tuple[float, float]:
         if self.fault.point is not None:

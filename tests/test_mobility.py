@@ -102,3 +102,10 @@ def test_fluid_budget_shares_of_the_model_fault():
     nothing = fluid_budget(_FakeResult(0.0, 1, 0.0, 0.0, 0.0))
     assert nothing.percent == {} and nothing.unaccounted_percent is None
     assert nothing.summary() == "nothing injected"
+
+
+def test_flow_summary_prints_both_ways():
+    s = small(rock={"mobility": 1e-12}, damage_zone={"permeability": 8.9e-16})
+    rock, dz = s.flow_summary()
+    assert rock.startswith("rock: permeability 8.9e-16 m2, mobility 1e-12 m2/(Pa s) (given as mobility")
+    assert dz.startswith("damage_zone: permeability 8.9e-16 m2, mobility 1e-12 m2/(Pa s) (given as permeability")
