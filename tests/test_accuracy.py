@@ -144,6 +144,8 @@ def test_zero_reference_gives_an_empty_cell(tmp_path):
     (["--target", "-5%"], "must be a positive relative error"),
     (["--quantities", "peak_overpressure"], "unknown peak_overpressure"),
     (["--workers", "-2"], "--workers -2"),
+    (["--set", "mesh.nz=3"], "unknown scene key 'mesh.nz'"),
+    (["--set", "mesh.nx"], "expected KEY=VALUE"),
 ])
 def test_accuracy_bad_options(cli_run, args, message):
     _, _, path = cli_run

@@ -32,7 +32,37 @@ runner_options = _compose(
     click.option("--scheduler", default=None, metavar="tcp://HOST:PORT", callback=_scheduler_callback,
                  help="Use an existing Dask scheduler instead of a local cluster."),
     click.option("--quiet", "-q", is_flag=True, help="No progress display."),
+    click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
+                 help="Change a scene value first, by dotted key in SI (repeatable), e.g. "
+                      "--set mesh.nx=26 --set time.dt=20."),
 )
+
+
+def apply_sets(scene, sets):
+    """The scene with ``--set KEY=VALUE`` changes (numbers, true/false or text)."""
+    from ..ensemble import scene_with
+    from ._options import reading
+
+    changes = {}
+    for item in sets:
+        key, eq, text = item.partition("=")
+        if not eq or not key.strip():
+            raise BadInput(f"--set {item!r}: expected KEY=VALUE, e.g. mesh.nx=26")
+        text = text.strip()
+        value = {"true": True, "false": False}.get(text.lower(), text)
+        if isinstance(value, str):
+            try:
+                value = int(text)
+            except ValueError:
+                try:
+                    value = float(text)
+                except ValueError:
+                    pass
+        changes[key.strip()] = value
+    if not changes:
+        return scene
+    with reading("--set"):
+        return scene_with(scene, changes)
 
 
 def open_runner(workers: int, scheduler: str | None):

@@ -7,7 +7,7 @@ import click
 import numpy as np
 
 from ._options import FILE, BadInput, version_option
-from ._runner import TaskBar, open_runner, runner_options
+from ._runner import apply_sets, TaskBar, open_runner, runner_options
 from .run import load_scene
 
 
@@ -35,7 +35,7 @@ def _target_callback(ctx, param, value):
 @click.option("--no-effects", is_flag=True, help="Skip the rungs with one effect switched off.")
 @runner_options
 @version_option
-def accuracy(scene_path, levels, target, quantities, no_effects, out_dir, workers, scheduler, quiet):
+def accuracy(scene_path, levels, target, quantities, no_effects, out_dir, workers, scheduler, quiet, sets):
     """Run SCENE on a ladder of mesh sizes and time steps (and with each effect off in turn) and
     show each rung's cost (wall time, peak memory, unknowns, steps, Newton iterations) against
     its error in the screened quantities.
@@ -53,7 +53,7 @@ def accuracy(scene_path, levels, target, quantities, no_effects, out_dir, worker
     if levels < 3:
         raise BadInput(f"--levels {levels}: must be >= 3 (Richardson extrapolation needs three rungs)")
     scene_path = Path(scene_path)
-    scene = load_scene(scene_path)
+    scene = apply_sets(load_scene(scene_path), sets)
     known = list(EXACT_QUANTITIES) if exact_family(scene) else list(QUANTITIES)
     qs = None
     if quantities is not None:

@@ -6,7 +6,7 @@ from pathlib import Path
 import click
 
 from ._options import FILE, BadInput, reading, version_option
-from ._runner import open_runner, runner_options
+from ._runner import apply_sets, open_runner, runner_options
 from .run import load_scene
 
 
@@ -35,7 +35,7 @@ def load_parameters_option(path, scene, keys=None):
               help="Most objective evaluations (each one run, plus one Jacobian per iteration).")
 @runner_options
 @version_option
-def calibrate(scene_path, obs_path, params_path, free, max_evaluations, out_dir, workers, scheduler, quiet):
+def calibrate(scene_path, obs_path, params_path, free, max_evaluations, out_dir, workers, scheduler, quiet, sets):
     """Estimate scene parameters from observations by weighted least squares within bounds.
 
     Starts from the parameters' means; each iteration's Jacobian columns (forward differences
@@ -49,7 +49,7 @@ def calibrate(scene_path, obs_path, params_path, free, max_evaluations, out_dir,
     from ..io.observations import read_observations
 
     scene_path = Path(scene_path)
-    scene = load_scene(scene_path)
+    scene = apply_sets(load_scene(scene_path), sets)
     params = load_parameters_option(params_path, scene, free)
     with reading(obs_path):
         obs = read_observations(obs_path)

@@ -9,7 +9,7 @@ import click
 import numpy as np
 
 from ._options import FILE, RunFailed, version_option
-from ._runner import TaskBar, open_runner, runner_options
+from ._runner import apply_sets, TaskBar, open_runner, runner_options
 from .calibrate import load_parameters_option
 from .run import load_scene
 
@@ -30,7 +30,7 @@ SHOWN = {"peak_overpressure": (1e-6, "MPa"), "injection_slip": (1e3, "mm"),
 @click.option("--free", default=None, metavar="KEY,KEY", help="Vary only these parameters [default: all].")
 @runner_options
 @version_option
-def ensemble(scene_path, params_path, samples, distribution, seed, free, out_dir, workers, scheduler, quiet):
+def ensemble(scene_path, params_path, samples, distribution, seed, free, out_dir, workers, scheduler, quiet, sets):
     """Run SCENE with N random parameter sets: the probability that the fault slips at the
     injection point and the distributions of peak overpressure and slip.
 
@@ -42,7 +42,7 @@ def ensemble(scene_path, params_path, samples, distribution, seed, free, out_dir
     from ..ensemble import Variant
 
     scene_path = Path(scene_path)
-    scene = load_scene(scene_path)
+    scene = apply_sets(load_scene(scene_path), sets)
     params = load_parameters_option(params_path, scene, free)
     out = Path(out_dir) if out_dir is not None else Path.cwd() / f"ensemble-{scene_path.stem}"
     out.mkdir(parents=True, exist_ok=True)

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from ._options import FILE, BadInput, version_option
-from ._runner import TaskBar, open_runner, runner_options
+from ._runner import apply_sets, TaskBar, open_runner, runner_options
 from .calibrate import load_parameters_option
 from .run import load_scene
 
@@ -26,7 +26,7 @@ from .run import load_scene
 @click.option("--seed", type=int, default=1, show_default=True, help="Seed of the global samples.")
 @runner_options
 @version_option
-def sensitivity(scene_path, params_path, method, free, samples, seed, out_dir, workers, scheduler, quiet):
+def sensitivity(scene_path, params_path, method, free, samples, seed, out_dir, workers, scheduler, quiet, sets):
     """Rank the parameters of SCENE by their influence.
 
     local and oat run at the parameters' means (the paper's base case) and compare the ranking
@@ -37,7 +37,7 @@ def sensitivity(scene_path, params_path, method, free, samples, seed, out_dir, w
     from .. import sensitivity as sa
 
     scene_path = Path(scene_path)
-    scene = load_scene(scene_path)
+    scene = apply_sets(load_scene(scene_path), sets)
     params = load_parameters_option(params_path, scene, free)
     if method == "sobol" and samples is not None and samples & (samples - 1):
         raise BadInput(f"--samples {samples}: Sobol sampling needs a power of 2 (8, 16, 32, ...)")
