@@ -171,3 +171,15 @@ def test_calibrate_missing_files(cli_files, tmp_path):
     assert r.exit_code == 2 and "none.csv" in r.output
     r = invoke("calibrate", scene, "--parameters", PARAMS)
     assert r.exit_code == 2 and "--observations" in r.output
+
+
+def test_r_squared_is_within_groups():
+    from fault_screen.calibration import r_squared
+
+    obs = np.array([10.0, 11.0, 12.0, 0.1, 0.2, 0.3])      # a pressure group and a displacement group
+    group = np.array([0, 0, 0, 1, 1, 1])
+    means = np.array([11.0, 11.0, 11.0, 0.2, 0.2, 0.2])
+    assert r_squared(obs, obs, group) == 1.0
+    assert r_squared(obs, means, group) == pytest.approx(0.0, abs=1e-12)   # no better than the means
+    # pooled over both groups the offset between them would hide that
+    assert r_squared(obs, means) > 0.99
