@@ -182,4 +182,4 @@ def test_r_squared_is_within_groups():
     assert r_squared(obs, obs, group) == 1.0
     assert r_squared(obs, means, group) == pytest.approx(0.0, abs=1e-12)   # no better than the means
     # pooled over both groups the offset between them would hide that
-    assert r_squared(obs, means) > 0.99
+    assert r_squared(obs, means) > 0.98
