@@ -159,6 +159,12 @@ def _variants(params: ParameterSet, samples_z: np.ndarray):
             for i, row in enumerate(samples_z)]
 
 
+def _screened(outs, q, scene):
+    """One screened quantity over the runs; a fault that never slipped has its onset at the end."""
+    Y = np.array([o.summary[q] for o in outs], dtype=float)
+    return np.where(np.isfinite(Y), Y, scene.time.end)
+
+
 def morris(scene: Scene, params: ParameterSet, runner: Runner, *, trajectories: int = 4, levels: int = 4,
            seed: int = 1, out=None, progress=None) -> dict:
     """Morris elementary effects over the bounds (log parameters sampled in log10):
@@ -173,9 +179,7 @@ def morris(scene: Scene, params: ParameterSet, runner: Runner, *, trajectories: 
     _check(outs, "Morris")
     result = {}
     for q in SCREENED:
-        Y = np.array([o.summary[q] for o in outs], dtype=float)
-        if not np.all(np.isfinite(Y)):
-            Y = np.where(np.isfinite(Y), Y, scene.time.end)  # never slipped: onset at the end
+        Y = _screened(outs, q, scene)
         if np.ptp(Y) == 0:  # the quantity does not move (e.g. no slip anywhere): no effects
             result[q] = {k: np.zeros(problem["num_vars"]) for k in ("mu_star", "mu_star_conf", "sigma")}
             continue
@@ -200,8 +204,7 @@ def sobol(scene: Scene, params: ParameterSet, runner: Runner, *, base_samples: i
     _check(outs, "Sobol")
     result = {}
     for q in SCREENED:
-        Y = np.array([o.summary[q] for o in outs], dtype=float)
-        Y = np.where(np.isfinite(Y), Y, scene.time.end)
+        Y = _screened(outs, q, scene)
         if np.ptp(Y) == 0:  # the quantity does not move: no variance to apportion
             result[q] = {k: np.full(problem["num_vars"], np.nan) for k in ("S1", "S1_conf", "ST", "ST_conf")}
             continue

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..units import UnitError, parse_header, to_si
+from .injection_log import _is_number
 
 #: group -> (accepted column names, quantity, Result.injection key for each name)
 GROUPS = {
@@ -121,10 +122,3 @@ def read_observations(path) -> Observations:
     return Observations(time=np.array(times), values={g: np.array(v) for g, v in values.items()},
                         series={g: picked[g][2] for g in picked}, source=str(path))
 
-
-def _is_number(cell: str) -> bool:
-    try:
-        float(cell)
-        return True
-    except ValueError:
-        return False
