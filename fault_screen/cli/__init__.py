@@ -12,6 +12,7 @@ from .plot import plot
 from .replay import replay
 from .run import run
 from .scene import scene
+from .screen import screen
 from .calibrate import calibrate
 from .sensitivity import sensitivity
 from .ensemble import ensemble
@@ -32,8 +33,10 @@ def main():
     fault-screen replay SCENE.toml --log injection.csv --events catalog.xml --plot figs
     fault-screen plot result.h5 --out figs
     fault-screen scene check SCENE.toml   (scene show SCENE.toml: resolved, in SI)
+    fault-screen screen result.h5 --scene new-thresholds.toml
 
-    Exit codes: 0 success, 1 run failed or output not written, 2 bad usage or bad input.
+    Exit codes: 0 success, 1 run failed or output not written, 2 bad usage or bad input,
+    3 the fault became unstable, 4 the --fail-on screening level was reached.
     """
 
 
@@ -41,6 +44,7 @@ main.add_command(run)
 main.add_command(replay)
 main.add_command(plot)
 main.add_command(scene)
+main.add_command(screen)
 main.add_command(calibrate)
 main.add_command(sensitivity)
 main.add_command(ensemble)

@@ -15,21 +15,18 @@ import numpy as np
 from ..budget import fluid_budget
 from ._options import FILE, BadInput, reading, run_options, version_option
 from ._progress import Progress, format_duration
+from .screen import conclude, fail_on_option
 
 BUNDLED_SCENE = "rustrel-2015-calibrated.toml"
 
 
-def configs_dir() -> Path:
-    import fault_screen
-
-    return Path(fault_screen.__file__).resolve().parents[1] / "configs"
-
-
 def default_scene_path() -> Path:
-    path = configs_dir() / BUNDLED_SCENE
-    if not path.is_file():
-        raise BadInput(f"the bundled scene {path} does not exist (the package was installed "
-                       f"without its configs directory); pass a SCENE file")
+    from ..bundled import bundled_path
+
+    path = bundled_path(BUNDLED_SCENE)
+    if path is None:
+        raise BadInput(f"the bundled scene {BUNDLED_SCENE} is not installed (the package was "
+                       f"installed without its configs); pass a SCENE file")
     return path
 
 
@@ -63,6 +60,7 @@ def run_scene(scene, *, scene_label: str, out: Path | None, plot_dir: Path | Non
               injected_volume=None, meta: dict | None = None, extra: dict | None = None,
               stem: str = "result"):
     """Simulate ``scene`` and write its result (and figures); returns (result, out path)."""
+    from ..screening import screen_result
     from ..simulate import simulate
 
     out = Path(out) if out is not None else Path.cwd() / f"{stem}.h5"
@@ -74,6 +72,11 @@ def run_scene(scene, *, scene_label: str, out: Path | None, plot_dir: Path | Non
         size = "graded mesh" if m.refinement is not None else f"{m.nx} x {m.ny} elements"
         click.echo(f"running {scene_label} ({scene.title}; {size}; "
                    f"0 to {scene.time.end:g} s, dt {scene.time.dt:g} s)")
+    if injected_volume is None and scene.injection.log is not None:
+        from ..api import scene_injected_volume
+
+        with reading(scene.injection.log):
+            injected_volume = scene_injected_volume(scene)
     progress = None if quiet else Progress(sys.stdout)
     try:
         result = simulate(scene, progress=progress, injected_volume=injected_volume)
@@ -90,6 +93,7 @@ def run_scene(scene, *, scene_label: str, out: Path | None, plot_dir: Path | Non
         result.meta["events_file"] = str(events_path)
         result.meta["events_start"] = catalog.start.isoformat() if catalog.start else None
         result.extra["events"] = {"time": catalog.time, "magnitude": catalog.magnitude}
+    screen_result(result, events=catalog)  # /screening/ with the events read
     result.save(out)
 
     figures = []
@@ -128,8 +132,9 @@ def _summary(result, out: Path, figures, catalog) -> None:
 @click.command("run")
 @click.argument("scene_path", type=FILE, required=False, metavar="[SCENE]")
 @run_options
+@fail_on_option
 @version_option
-def run(scene_path, out, plot_dir, events, t0, quiet):
+def run(scene_path, out, plot_dir, events, t0, quiet, fail_on):
     """Run SCENE (TOML) with its own injection schedule and save the result (HDF5).
 
     Without SCENE, runs the bundled Rustrel 2015 calibrated scene
@@ -137,5 +142,6 @@ def run(scene_path, out, plot_dir, events, t0, quiet):
     """
     path = Path(scene_path) if scene_path is not None else default_scene_path()
     scene = load_scene(path)
-    run_scene(scene, scene_label=str(path), out=out, plot_dir=plot_dir, events_path=events,
-              start=t0, quiet=quiet, stem=path.stem, meta={"command": "run"})
+    result, _ = run_scene(scene, scene_label=str(path), out=out, plot_dir=plot_dir, events_path=events,
+                          start=t0, quiet=quiet, stem=path.stem, meta={"command": "run"})
+    conclude(result, fail_on)
