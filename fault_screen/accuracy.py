@@ -25,9 +25,9 @@ QUANTITIES = {
     "injection_slip": "slip at the injection point at the end (m)",
     "slipping_length": "length of fault slipping at the end (m)",
     "peak_slip_rate": "peak slip rate on the fault (m/s)",
-    "max_utilisation": "peak |tau| / (mu sigma_n') on the fault (-)",
-    # HOOK(screening): "time_first_yellow", "time_first_red" once fault_screen.screening lands
-    # (ensemble.screening_summary returns them; add them here with their descriptions).
+    "max_utilisation": "peak |tau| / (mu0 sigma_n') on the fault, from the screening layer (-)",
+    "time_first_yellow": "time the traffic light first turns yellow (s; empty if never)",
+    "time_first_red": "time the traffic light first turns red (s; empty if never)",
 }
 #: quantities of the exact family (along-fault diffusion)
 EXACT_QUANTITIES = {
@@ -88,20 +88,8 @@ def exact_values(scene: Scene) -> dict:
     return {"injection_flow_rate": rate * scene.injection.number_of_fractures}
 
 
-def max_utilisation(result) -> float:
-    """Peak over the fault and the run of |tau| / (mu sigma_n') where the fault is in contact
-    (sigma_n' > 0); 1 on a slipping fault. Stand-in until the screening layer's definition."""
-    tau = np.abs(result.fault["shear_traction"])
-    sn = result.fault["effective_normal_stress"]
-    mu = result.fault["friction"]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = np.where(sn > 0, tau / (mu * sn), np.nan)
-    return float(np.nanmax(u)) if np.isfinite(u).any() else float("nan")
-
-
 def rung_summary(result) -> dict:
     out = default_summary(result)
-    out["max_utilisation"] = max_utilisation(result)
     out["element_size"] = _element_size(result.scene)
     if exact_family(result.scene):
         out.update(exact_summary(result))

@@ -116,12 +116,18 @@ def slip_onset(result) -> float:
 
 
 def screening_summary(result) -> dict:
-    """HOOK(screening): the screening layer (``fault_screen.screening``, being built with the
-    screening issue) will give the time of the first yellow and red level and the peak
-    utilisation; return them here as ``time_first_yellow``, ``time_first_red``,
-    ``max_utilisation`` (s, s, -) and every ensemble, sensitivity and accuracy table picks them
-    up as further columns. Until then: nothing."""
-    return {}
+    """From the screening layer (the scene's ``[monitor]`` rules): time the traffic light first
+    reached yellow and red (s; NaN if never) and the peak utilisation |tau| / (mu0 sigma'_n) (-)."""
+    from .screening import RED, YELLOW, screen_result
+
+    arrays = (result.extra or {}).get("screening")
+    if arrays is None or "level" not in arrays:
+        arrays = screen_result(result, store=False).arrays()
+    level = np.asarray(arrays["level"])
+    first = lambda lv: float(result.time[np.argmax(level >= lv)]) if np.any(level >= lv) else float("nan")
+    util = np.asarray(arrays.get("max_utilisation", [np.nan]), dtype=float)
+    return {"time_first_yellow": first(YELLOW), "time_first_red": first(RED),
+            "max_utilisation": float(np.nanmax(util)) if np.isfinite(util).any() else float("nan")}
 
 
 @dataclass
@@ -173,7 +179,7 @@ def run_task(index: int, name: str, scene_dict: dict, overrides: dict, summarise
     """One variant, run where it is called (in a worker, or in-process). Never raises: a failure
     comes back as ``ok=False`` with the error. ``warm``: run the scene once before timing it
     (wall time without JIT compilation or first-touch costs)."""
-    from .simulate import simulate
+    from .api import simulate  # screens the result with the scene's [monitor] rules
 
     outcome = TaskOutcome(index=index, name=name, params=dict(overrides), ok=False)
     try:

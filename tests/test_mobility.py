@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from fault_screen.budget import fluid_budget
-from fault_screen.model import Model
+from fault_screen.discretisation import discretise
 from fault_screen.scene import Scene, SceneError
 from fault_screen.units import to_si
 
@@ -74,7 +74,7 @@ def test_model_uses_the_given_mobilities():
         "rock": {"mobility": 1e-12}, "effects": {"damage_zone": True},
         "damage_zone": {"width": 1.0, "permeability": 1e-15},
         "zones": [{"box": [0.0, 2.5, 0.0, 2.5], "rock": {"mobility": 7e-13}}]})
-    m = Model(s)
+    m = discretise(s)
     values = {float(v) for v in np.unique(m.el_mobility)}
     expected = {1e-12, 1e-15 / MU, 7e-13}
     assert len(values) == 3
