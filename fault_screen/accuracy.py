@@ -355,9 +355,10 @@ def plot_study(study: Study, path, title: str = "") -> None:
     disc = [r for r in study.rows if r["kind"] in ("space", "time") and not r["failed"]]
     for i, q in enumerate(study.quantities):
         for kind, marker in (("space", "o"), ("time", "s")):
-            pts = sorted([(r["wall_s"], r[f"error_{q}"]) for r in disc
-                          if (r["kind"] == kind or r["rung"] == "base") and np.isfinite(r[f"error_{q}"])
-                          and r[f"error_{q}"] > 0])
+            # in ladder order (coarse to fine), so the curve shows the refinement path
+            pts = [(r["wall_s"], r[f"error_{q}"]) for r in sorted(disc, key=lambda r: -r["factor"])
+                   if (r["kind"] == kind or r["rung"] == "base") and np.isfinite(r[f"error_{q}"])
+                   and r[f"error_{q}"] > 0]
             if pts:
                 ax.plot(*zip(*pts), marker=marker, ls="-" if kind == "space" else "--", color=f"C{i}",
                         label=f"{q} ({kind})", ms=4)
