@@ -267,7 +267,7 @@ def local_cluster(workers: int):
     if "NUMBA_CACHE_DIR" in os.environ:
         env["NUMBA_CACHE_DIR"] = os.environ["NUMBA_CACHE_DIR"]
     return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, env=env,
-                        dashboard_address=None, silence_logs=40)
+                        dashboard_address="127.0.0.1:0", silence_logs=40)  # any free local port
 
 
 class Runner:
