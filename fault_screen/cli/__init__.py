@@ -13,6 +13,10 @@ from .replay import replay
 from .run import run
 from .scene import scene
 from .screen import screen
+from .calibrate import calibrate
+from .sensitivity import sensitivity
+from .ensemble import ensemble
+from .accuracy import accuracy
 
 __all__ = ["main"]
 
@@ -41,3 +45,7 @@ main.add_command(replay)
 main.add_command(plot)
 main.add_command(scene)
 main.add_command(screen)
+main.add_command(calibrate)
+main.add_command(sensitivity)
+main.add_command(ensemble)
+main.add_command(accuracy)
