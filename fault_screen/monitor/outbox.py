@@ -149,14 +149,16 @@ class Outbox:
         return delivered
 
     def next_due(self) -> Optional[float]:
-        keys = list(self.sinks)
-        if not keys:
-            return None
-        q = ",".join("?" * len(keys))
+        """When the next delivery attempt is due (clock time), or None if nothing is pending:
+        the earliest retry time among the first undelivered alerts of each sink."""
+        times = []
         with self._lock:
-            r = self._db.execute(f"SELECT MIN(next_try) FROM alerts WHERE delivered IS NULL AND "
-                                 f"sink IN ({q})", keys).fetchone()
-        return r[0]
+            for key in self.sinks:
+                r = self._db.execute("SELECT next_try FROM alerts WHERE sink = ? AND delivered "
+                                     "IS NULL ORDER BY seq LIMIT 1", (key,)).fetchone()
+                if r is not None:
+                    times.append(r[0])
+        return min(times) if times else None
 
     def start(self) -> None:
         """Deliver in a background thread (alerts go out while the model steps)."""
