@@ -119,11 +119,12 @@ class CatalogFollower:
         if fmt == "EVENTTXT":
             cut = data.rfind(b"\n")
             data = data[:cut + 1] if cut >= 0 else b""
-            if not data.strip() or data.strip().count(b"\n") == 0 and data.startswith(b"#"):
-                self._sig = sig
+            if not data.strip():
                 return []
+        stream = io.StringIO(data.decode("utf-8", "replace")) if fmt == "EVENTTXT" else \
+            io.BytesIO(data)       # obspy's text reader wants text, its XML reader bytes
         try:
-            cat = obspy.read_events(io.BytesIO(data), format=fmt)
+            cat = obspy.read_events(stream, format=fmt)
         except Exception as exc:  # noqa: BLE001 - a file being written; try again later
             self.log.debug("%s: not readable yet (%s)", self.path, exc)
             return []
@@ -188,7 +189,7 @@ class SdsDetector:
                 cft = classic_sta_lta(tr.data.astype(np.float64), nsta, nlta)
                 for i_on, _ in trigger_onset(cft, self.on, self.off):
                     t_on = tr.stats.starttime + i_on / df
-                    if i_on >= nlta and done <= t_on:
+                    if i_on >= nlta - 1 and done <= t_on:   # obspy zeroes the first nlta - 1
                         out.append(float(t_on - self.ref))
                 # the last samples lack their successors' check only for 'off'; onsets stand
                 reached = max(reached, tr.stats.endtime + 1.0 / df)
