@@ -8,7 +8,9 @@ from __future__ import annotations
 import click
 
 from ._options import Group, version_option
+from .monitor import monitor
 from .plot import plot
+from .plugins import plugins
 from .replay import replay
 from .run import run
 from .scene import scene
@@ -37,3 +39,5 @@ main.add_command(run)
 main.add_command(replay)
 main.add_command(plot)
 main.add_command(scene)
+main.add_command(monitor)
+main.add_command(plugins)
