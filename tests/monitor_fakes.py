@@ -112,3 +112,21 @@ class ThresholdScreener:
               "action": "reduce rate" if new == 1 else "stop injection" if new == 2 else ""}
         self.level = new
         return [tr]
+
+
+def run_service(scene_path, follow, state, out, alerts_path, idle_exit=1.0,
+                checkpoint_every=3, poll=0.02):
+    """The monitor service with the fake stepper and screener (for subprocess tests)."""
+    from pathlib import Path
+
+    from fault_screen import Scene
+    from fault_screen.monitor.service import MonitorConfig, MonitorService
+
+    scene = Scene.from_toml(scene_path)
+    cfg = MonitorConfig(follow=str(follow), state=Path(state), out=Path(out),
+                        idle_exit=idle_exit, alerts=[f"jsonl:{alerts_path}"],
+                        poll_interval=poll, checkpoint_every=checkpoint_every)
+    service = MonitorService(scene, cfg, simulation_class=FakeSimulation,
+                             screener=ThresholdScreener())
+    service.install_signal_handlers()
+    return service.run()

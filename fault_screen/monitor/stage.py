@@ -54,6 +54,8 @@ __all__ = ["Stage", "Update", "SampleBuffer", "alert_payload", "alert_id", "LEVE
 
 LEVELS = ("green", "yellow", "red")
 _STATE_ATTR = "fault_screen_monitor"
+#: what an event association reads from a recorded row
+_ROW_KEYS = ("time", "slip_rate", "contact_state", "shear_traction", "effective_normal_stress")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -232,7 +234,7 @@ class Stage:
 
     def __init__(self, scene, *, start: Optional[datetime] = None, simulation=None,
                  screener=None, metrics=None, site: Optional[Site] = None,
-                 event_window: float = 3600.0, label: str = "", history: int = 64):
+                 event_window: float = 3600.0, label: str = "", history: int = 16):
         if getattr(scene.injection, "control", "rate") != "rate":
             raise ValueError(f"injection.control = {scene.injection.control!r}: the monitor "
                              f"drives the flow rate; use a scene with control = 'rate'")
@@ -257,7 +259,6 @@ class Stage:
         self.alerts_raised = 0
         self._rows: deque = deque(maxlen=max(1, int(history)))
         self._geometry = None
-        self._step_times: List[float] = []  # time of each step (kept for equality checks)
 
     # -- identity ---------------------------------------------------------------------------
     @property
@@ -335,8 +336,8 @@ class Stage:
 
     def _screen_step(self, row: dict, upd: Update) -> None:
         t = float(row["time"])
-        self._step_times.append(t)
-        self._rows.append(row)
+        # the last few states, for events reported after the model passed their time
+        self._rows.append({k: row[k] for k in _ROW_KEYS if k in row})
         metrics = dict(self.metrics_fn(row, self.scene)) if self.metrics_fn else {}
         due = [e for e in self.pending_events if e.time <= t]
         if due:
@@ -425,7 +426,6 @@ class Stage:
             "screener": _dump_screener(self.screener),
             "start": self.start.isoformat() if self.start else None,
             "event_window": self.event_window, "label": self.label,
-            "step_times": self._step_times,
             "rows": [_row_json(r) for r in self._rows],
         }
 
@@ -466,6 +466,9 @@ class Stage:
         if simulation_class is None:
             simulation_class = _simulation_class()
         sim = simulation_class.restore(path)
+        if scene is not None and hasattr(scene, "to_toml") and scene.to_toml() != sim.scene.to_toml():
+            raise ValueError(f"{path}: this state was written for another scene; start with "
+                             f"the scene it was written for, or without --state")
         scene = scene if scene is not None else sim.scene
         start = datetime.fromisoformat(state["start"]) if state["start"] else None
         st = cls(scene, start=start, simulation=sim, screener=screener, metrics=metrics,
@@ -479,7 +482,6 @@ class Stage:
         st._event_ids = set(state["event_ids"])
         st.associations, st.transitions = state["associations"], state["transitions"]
         st.alerts_raised = state["alerts_raised"]
-        st._step_times = list(state["step_times"])
         st._rows.extend(_row_from_json(r) for r in state["rows"])
         return st, state.get("extra", {})
 

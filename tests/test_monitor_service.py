@@ -1,0 +1,178 @@
+"""The monitor service end to end (fake stepper and screener from tests/monitor_fakes.py, real
+source and alert plugins through entry points): a log written while it is followed, idle exit,
+and kill -9 at a random moment then resume, with every array compared."""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+import monitor_env
+from fault_screen import Result, Scene
+from fault_screen.io.injection_log import read_injection_log
+from fault_screen.monitor.service import MonitorConfig, MonitorService
+from monitor_fakes import FakeSimulation, ThresholdScreener, run_service
+
+ROOT = Path(__file__).resolve().parents[1]
+STANDIN = ROOT / "configs" / "logs" / "rustrel-2015-standin.csv"
+
+
+@pytest.fixture(scope="module")
+def dist(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("dist")
+    monitor_env.activate(folder)
+    return folder
+
+
+@pytest.fixture(scope="module")
+def scene_file(tmp_path_factory):
+    s = Scene.from_toml(ROOT / "configs" / "rustrel-2015-calibrated.toml")
+    s = s.replace(time=dataclasses.replace(s.time, dt=7.0))
+    path = tmp_path_factory.mktemp("scene") / "scene.toml"
+    path.write_text(s.to_toml())
+    return path
+
+
+def append_lines(path, lines, pause):
+    with open(path, "ab") as fh:
+        for line in lines:
+            fh.write(line)
+            fh.flush()
+            time.sleep(pause)
+
+
+def replay_reference(scene_file):
+    """Step times and volumes of a replay of the complete log with the fake's step sequence."""
+    log = read_injection_log(STANDIN)
+    dt = Scene.from_toml(scene_file).time.dt
+    n = int(math.floor(log.duration / dt))
+    t = np.append(np.arange(n + 1) * dt, log.duration)
+    return t, np.cumsum(np.concatenate(([0.0], log.step_volumes(t))))
+
+
+def test_service_follows_a_log_being_written_and_exits_when_idle(dist, scene_file, tmp_path):
+    live = tmp_path / "live.csv"
+    live.write_bytes(b"")
+    lines = STANDIN.read_bytes().splitlines(keepends=True)
+    writer = threading.Thread(target=append_lines, args=(live, lines, 0.001))
+    writer.start()
+    summary = run_service(scene_file, live, tmp_path / "s.h5", tmp_path / "out.h5",
+                          tmp_path / "alerts.jsonl", idle_exit=0.5)
+    writer.join()
+    assert summary["ended"] == "no new sample for 0.5 s"
+    assert summary["samples"] == 162 and summary["pending_alerts"] == 0
+    res = Result.load(tmp_path / "out.h5")
+    t, vol = replay_reference(scene_file)
+    assert np.array_equal(res.time, t)                       # the replay's steps, last one partial
+    assert np.allclose(res.injection["volume"], vol, rtol=1e-14, atol=0)
+    alerts = [json.loads(x) for x in (tmp_path / "alerts.jsonl").read_text().splitlines()]
+    assert [(a["previous_level"], a["level"]) for a in alerts] == [("green", "yellow"),
+                                                                  ("yellow", "red")]
+    tr = res.extra["monitor_transitions"]
+    assert list(tr["time"]) == [a["model_time"] for a in alerts]
+
+
+def test_kill_9_at_a_random_moment_then_resume_gives_the_same_arrays(dist, scene_file, tmp_path):
+    ref = tmp_path / "ref"
+    ref.mkdir()
+    full = ref / "log.csv"
+    full.write_bytes(STANDIN.read_bytes())
+    run_service(scene_file, full, ref / "s.h5", ref / "out.h5", ref / "alerts.jsonl",
+                idle_exit=0.3)
+    want = Result.load(ref / "out.h5")
+    want_ids = [json.loads(x)["id"] for x in (ref / "alerts.jsonl").read_text().splitlines()]
+
+    run = tmp_path / "run"
+    run.mkdir()
+    live = run / "log.csv"
+    live.write_bytes(b"")
+    code = (f"import monitor_fakes as m; m.run_service({str(scene_file)!r}, {str(live)!r}, "
+            f"{str(run / 's.h5')!r}, {str(run / 'out.h5')!r}, {str(run / 'alerts.jsonl')!r}, "
+            f"idle_exit=60.0)")
+    proc = subprocess.Popen([sys.executable, "-c", code], env=monitor_env.pythonpath(dist),
+                            stderr=subprocess.PIPE)
+    lines = STANDIN.read_bytes().splitlines(keepends=True)
+    rng = np.random.default_rng(int(time.time()))
+    kill_after = int(rng.integers(60, 150))           # lines written before the kill
+    try:
+        append_lines(live, lines[:kill_after], 0.003)
+        deadline = time.monotonic() + 60
+        while not (run / "s.h5").exists() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        time.sleep(float(rng.uniform(0.0, 0.2)))
+        proc.send_signal(signal.SIGKILL)
+    finally:
+        proc.wait(timeout=60)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr.read().decode()[-2000:]
+    assert not (run / "out.h5").exists()
+    with h5py.File(run / "s.h5", "r") as h5:             # a complete checkpoint survived
+        assert "fault_screen_monitor" in h5.attrs
+    append_lines(live, lines[kill_after:], 0.0)
+    run_service(scene_file, live, run / "s.h5", run / "out.h5", run / "alerts.jsonl",
+                idle_exit=0.3)
+    got = Result.load(run / "out.h5")
+    assert np.array_equal(got.time, want.time), kill_after
+    for group in ("fault", "injection"):
+        for key, arr in getattr(want, group).items():
+            assert np.array_equal(getattr(got, group)[key], arr), (group, key, kill_after)
+    for key, arr in want.extra["monitor_transitions"].items():
+        assert np.array_equal(got.extra["monitor_transitions"][key], arr), key
+    got_ids = [json.loads(x)["id"] for x in (run / "alerts.jsonl").read_text().splitlines()]
+    assert set(got_ids) == set(want_ids) and len(want_ids) == 2   # none lost, none re-keyed
+
+
+def test_sigterm_checkpoints_and_writes_the_results_so_far(dist, scene_file, tmp_path):
+    live = tmp_path / "log.csv"
+    lines = STANDIN.read_bytes().splitlines(keepends=True)
+    live.write_bytes(b"".join(lines[:80]))
+    code = (f"import monitor_fakes as m; m.run_service({str(scene_file)!r}, {str(live)!r}, "
+            f"{str(tmp_path / 's.h5')!r}, {str(tmp_path / 'out.h5')!r}, "
+            f"{str(tmp_path / 'a.jsonl')!r}, idle_exit=60.0)")
+    proc = subprocess.Popen([sys.executable, "-c", code], env=monitor_env.pythonpath(dist),
+                            stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 60
+    while not (tmp_path / "s.h5").exists() and time.monotonic() < deadline:
+        time.sleep(0.02)
+    time.sleep(0.3)
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=60) == 0, proc.stderr.read().decode()[-2000:]
+    res = Result.load(tmp_path / "out.h5")
+    log = read_injection_log(STANDIN)
+    t80 = log.time[74]            # 80 lines = 5 comment/header lines + 75 samples
+    assert res.time[-1] == 7.0 * math.floor(t80 / 7.0)      # aligned: no partial step
+    from fault_screen.monitor import Stage
+
+    back, extra = Stage.restore(tmp_path / "s.h5", simulation_class=FakeSimulation)
+    assert back.samples.count == 75 and back.time == res.time[-1]
+    assert extra["decoder"]["last"][0] == t80
+
+
+def test_stdin_source_through_the_service(dist, scene_file, tmp_path):
+    code = (f"import monitor_fakes as m; print(m.run_service({str(scene_file)!r}, '-', "
+            f"{str(tmp_path / 's.h5')!r}, {str(tmp_path / 'out.h5')!r}, "
+            f"{str(tmp_path / 'a.jsonl')!r}, idle_exit=60.0)['ended'])")
+    proc = subprocess.run([sys.executable, "-c", code], env=monitor_env.pythonpath(dist),
+                          input=STANDIN.read_bytes(), capture_output=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr.decode()[-2000:]
+    assert proc.stdout.decode().strip() == "source ended"
+    res = Result.load(tmp_path / "out.h5")
+    t, _ = replay_reference(scene_file)
+    assert np.array_equal(res.time, t)
+
+
+def test_unknown_alert_plugin_names_the_supported_ones(dist, scene_file, tmp_path):
+    cfg = MonitorConfig(follow=str(STANDIN), alerts=["pager:x"], out=tmp_path / "o.h5")
+    with pytest.raises(ValueError, match="supported: command, jsonl, webhook"):
+        MonitorService(Scene.from_toml(scene_file), cfg, simulation_class=FakeSimulation,
+                       screener=ThresholdScreener())
