@@ -115,7 +115,7 @@ class ThresholdScreener:
 
 
 def run_service(scene_path, follow, state, out, alerts_path, idle_exit=1.0,
-                checkpoint_every=3, poll=0.02):
+                checkpoint_every=3, poll=0.02, **options):
     """The monitor service with the fake stepper and screener (for subprocess tests)."""
     from pathlib import Path
 
@@ -125,7 +125,7 @@ def run_service(scene_path, follow, state, out, alerts_path, idle_exit=1.0,
     scene = Scene.from_toml(scene_path)
     cfg = MonitorConfig(follow=str(follow), state=Path(state), out=Path(out),
                         idle_exit=idle_exit, alerts=[f"jsonl:{alerts_path}"],
-                        poll_interval=poll, checkpoint_every=checkpoint_every)
+                        poll_interval=poll, checkpoint_every=checkpoint_every, **options)
     service = MonitorService(scene, cfg, simulation_class=FakeSimulation,
                              screener=ThresholdScreener())
     service.install_signal_handlers()

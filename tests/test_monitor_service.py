@@ -176,3 +176,26 @@ def test_unknown_alert_plugin_names_the_supported_ones(dist, scene_file, tmp_pat
     with pytest.raises(ValueError, match="supported: command, jsonl, webhook"):
         MonitorService(Scene.from_toml(scene_file), cfg, simulation_class=FakeSimulation,
                        screener=ThresholdScreener())
+
+
+def test_catalogue_events_reach_the_rules_and_the_results(dist, scene_file, tmp_path):
+    from fault_screen.monitor import Site
+
+    cat = tmp_path / "cat.txt"            # FDSN text; the log starts 2015-03-12T09:00:00Z
+    cat.write_text("#EventID | Time | Latitude | Longitude | Depth/km | Author | Catalog | "
+                   "Contributor | ContributorID | MagType | Magnitude | MagAuthor | Name\n"
+                   "e1|2015-03-12T09:00:30|43.9|5.5|0.38|L|c|c|1|Mw|0.4|L|R\n"
+                   "e2|2015-03-12T09:00:33|43.9|5.5|0.28|L|c|c|2|Mw|2.3|L|R\n")
+    run_service(scene_file, STANDIN, tmp_path / "s.h5", tmp_path / "out.h5",
+                tmp_path / "a.jsonl", idle_exit=0.3, events=cat,
+                site=Site(43.9, 5.5, 280.0))
+    res = Result.load(tmp_path / "out.h5")
+    ev = res.extra["monitor_events"]
+    assert list(ev["time"]) == [30.0, 33.0] and list(ev["magnitude"]) == [0.4, 2.3]
+    assert list(ev["model_time"]) == [35.0, 35.0]          # the step (28, 35] s holds both
+    assert list(ev["distance_injection"]) == pytest.approx([100.0, 0.0], abs=1e-9)
+    first = json.loads((tmp_path / "a.jsonl").read_text().splitlines()[0])
+    assert (first["level"], first["rule"], first["model_time"]) == \
+        ("red", "event_magnitude >= 2", 35.0)
+    assert first["metrics"]["event_magnitude"] == 2.3
+    assert first["model_datetime"] == "2015-03-12T10:00:35+01:00"

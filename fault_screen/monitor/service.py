@@ -73,19 +73,11 @@ class MonitorService:
         self.on_update = on_update
         self._stop = threading.Event()
         self._stop_reason = ""
-        self.stage: Optional[Stage] = None
-        extra: dict = {}
-        if config.state is not None and Path(config.state).exists():
-            self.stage, extra = Stage.restore(config.state, scene=scene,
-                                              simulation_class=simulation_class,
-                                              screener=screener, metrics=metrics,
-                                              site=config.site)
-            log.info("resumed from %s at model time %.6g s (%d steps, %d samples)",
-                     config.state, self.stage.time, self.stage.steps, self.stage.samples.count)
-        else:
-            sim = simulation_class(scene) if simulation_class is not None else None
-            self.stage = Stage(scene, start=config.t0, simulation=sim, screener=screener,
-                               metrics=metrics, site=config.site, label=config.label)
+        resuming = config.state is not None and Path(config.state).exists()
+        extra = Stage.saved_extra(config.state) if resuming else {}
+        # plugins first: a bad name or option fails before the model is built
+        all_sinks = {spec: plugins.instantiate("alert", spec) for spec in config.alerts}
+        all_sinks.update(sinks or {})
         self.decoder = LogDecoder(config.follow, flow_unit=config.flow_unit,
                                   pressure_unit=config.pressure_unit, max_gap=config.max_gap,
                                   policy=config.policy, resume=extra.get("decoder"),
@@ -94,8 +86,16 @@ class MonitorService:
         self.source = plugins.instantiate("source", name, config.follow, decoder=self.decoder,
                                           poll_interval=config.poll_interval,
                                           log=logging.getLogger(f"fault_screen.sources.{name}"))
-        all_sinks = {spec: plugins.instantiate("alert", spec) for spec in config.alerts}
-        all_sinks.update(sinks or {})
+        if resuming:
+            self.stage, _ = Stage.restore(config.state, scene=scene,
+                                          simulation_class=simulation_class,
+                                          screener=screener, metrics=metrics, site=config.site)
+            log.info("resumed from %s at model time %.6g s (%d steps, %d samples)",
+                     config.state, self.stage.time, self.stage.steps, self.stage.samples.count)
+        else:
+            sim = simulation_class(scene) if simulation_class is not None else None
+            self.stage = Stage(scene, start=config.t0, simulation=sim, screener=screener,
+                               metrics=metrics, site=config.site, label=config.label)
         box = config.outbox
         if box is None:
             base = config.state or config.out or Path("fault-screen-monitor")

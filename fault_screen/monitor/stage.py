@@ -452,17 +452,26 @@ class Stage:
                 tmp.unlink()
         return path
 
-    @classmethod
-    def restore(cls, path, *, scene=None, simulation_class=None, screener=None, metrics=None,
-                site: Optional[Site] = None):
-        """A stage continuing exactly from the checkpoint ``path``; returns ``(stage, extra)``.
-        ``simulation_class`` (default ``fault_screen.Simulation``) provides ``restore(path)``."""
+    @staticmethod
+    def _saved_state(path) -> dict:
         import h5py
 
         with h5py.File(path, "r") as h5:
             if _STATE_ATTR not in h5.attrs:
                 raise ValueError(f"{path}: not a monitor state file (no {_STATE_ATTR} record)")
-            state = json.loads(h5.attrs[_STATE_ATTR])
+            return json.loads(h5.attrs[_STATE_ATTR])
+
+    @classmethod
+    def saved_extra(cls, path) -> dict:
+        """The ``extra`` dict saved with a checkpoint (without restoring the model)."""
+        return cls._saved_state(path).get("extra", {})
+
+    @classmethod
+    def restore(cls, path, *, scene=None, simulation_class=None, screener=None, metrics=None,
+                site: Optional[Site] = None):
+        """A stage continuing exactly from the checkpoint ``path``; returns ``(stage, extra)``.
+        ``simulation_class`` (default ``fault_screen.Simulation``) provides ``restore(path)``."""
+        state = cls._saved_state(path)
         if simulation_class is None:
             simulation_class = _simulation_class()
         sim = simulation_class.restore(path)
