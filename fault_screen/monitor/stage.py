@@ -336,6 +336,10 @@ class Stage:
 
     def _screen_step(self, row: dict, upd: Update) -> None:
         t = float(row["time"])
+        if self._geometry is None:
+            self._geometry = _fault_geometry(self.sim)
+            if hasattr(self.metrics_fn, "bind"):
+                self.metrics_fn.bind(self._geometry, self.scene)
         # the last few states, for events reported after the model passed their time
         self._rows.append({k: row[k] for k in _ROW_KEYS if k in row})
         metrics = dict(self.metrics_fn(row, self.scene)) if self.metrics_fn else {}
@@ -348,7 +352,11 @@ class Stage:
         upd.metrics, upd.state = metrics, row
         if self.screener is None:
             return
-        for tr in self.screener.update(t, metrics, events=[a.to_dict() for a in assoc]) or ():
+        events = {"time": [a.event.time for a in assoc],
+                  "magnitude": [a.event.magnitude for a in assoc],
+                  "distance": [a.distance_injection for a in assoc]} if assoc else None
+        # the screening layer adds its own event metrics to ``metrics`` (same definitions)
+        for tr in self.screener.update(t, metrics, events=events) or ():
             d = _transition_dict(tr)
             if d["time"] is None:
                 d["time"] = t
@@ -363,13 +371,11 @@ class Stage:
             upd.alerts.append(alert)
 
     def _associate(self, ev: SeismicEvent):
-        if self._geometry is None:
-            self._geometry = _fault_geometry(self.sim)
-        xy, inj = self._geometry
+        geo = self._geometry
         # the state at the end of the step containing the event (the current row for a timely
         # event; the oldest kept one for an event older than the kept history)
         row = next((r for r in self._rows if r["time"] >= ev.time), self._rows[0])
-        return associate(ev, row, site=self.site, fault_xy=xy, injection_xy=inj,
+        return associate(ev, row, site=self.site, fault_xy=geo.xy, injection_xy=geo.injection_xy,
                          friction=float(self.scene.fault.friction))
 
     def _event_metrics(self, t: float, assoc) -> dict:
@@ -424,6 +430,7 @@ class Stage:
             "associations": self.associations,
             "transitions": self.transitions, "alerts_raised": self.alerts_raised,
             "screener": _dump_screener(self.screener),
+            "metrics": _dump_screener(self.metrics_fn),
             "start": self.start.isoformat() if self.start else None,
             "event_window": self.event_window, "label": self.label,
             "rows": [_row_json(r) for r in self._rows],
@@ -484,6 +491,8 @@ class Stage:
                  site=site, event_window=state["event_window"], label=state["label"])
         if state["screener"] is not None:
             st.screener = _load_screener(state["screener"])
+        if state.get("metrics") is not None:
+            st.metrics_fn = _load_screener(state["metrics"])
         st.samples = SampleBuffer.from_state(state["samples"])
         st.ignored, st.steps, st.level = state["ignored"], state["steps"], state["level"]
         st.pending_events = [SeismicEvent(**_event_args(e)) for e in state["pending_events"]]
@@ -515,52 +524,82 @@ def _new_rows(sim, n: int) -> List[dict]:
     """The ``n`` rows recorded by the last ``advance``."""
     if n == 1:
         return [dict(sim.last_row)]
-    rows = getattr(sim, "rows_since", None)
-    if rows is not None:
-        return [dict(r) for r in rows(-n)]
+    rows = getattr(getattr(sim, "recorder", None), "rows", None)
+    if rows is not None and len(rows) >= n:
+        return [dict(r) for r in rows[-n:]]
     # fall back on the result (whole arrays): only for catch-ups of several steps
     res = sim.result()
     out = []
     for k in range(len(res.time) - n, len(res.time)):
         row = {"time": float(res.time[k])}
         row.update({key: v[k] for key, v in res.fault.items()})
-        row.update({"injection_" + key: v[k] for key, v in res.injection.items()})
+        row.update({"inj_" + key: v[k] for key, v in res.injection.items()})
         out.append(row)
     return out
 
 
-def _fault_geometry(sim):
-    """(fault point coordinates (n, 2), injection point (x, y)) of the model, in m."""
-    res = sim.result()
+@dataclass(frozen=True)
+class _Geometry:
+    """The model's fault points: along-fault position ``x`` (m, 0 at the injection point),
+    coordinates ``xy`` (n, 2), quadrature ``weights`` (m), and the injection point (x, y)."""
+
+    x: np.ndarray
+    xy: np.ndarray
+    weights: np.ndarray
+    injection_xy: tuple
+
+
+def _fault_geometry(sim) -> _Geometry:
+    res = sim.result()          # once per stage: the geometry does not change
     xy = np.asarray(res.fault_xy, dtype=float).reshape(-1, 2)
-    if xy.size == 0:
-        return xy, (0.0, 0.0)
-    k = int(np.argmin(np.abs(np.asarray(res.fault_x))))
-    return xy, (float(xy[k, 0]), float(xy[k, 1]))
+    x = np.asarray(res.fault_x, dtype=float)
+    inj = (0.0, 0.0)
+    if xy.size:
+        k = int(np.argmin(np.abs(x)))
+        inj = (float(xy[k, 0]), float(xy[k, 1]))
+    return _Geometry(x, xy, np.asarray(res.fault_weights, dtype=float), inj)
 
 
 def _screening(scene, screener, metrics):
-    """The screener and the metrics function: given, or the scene's rules through
-    ``fault_screen.screening`` when that module is present (else no screening)."""
+    """The screener and the metrics function: given, or the scene's ``[monitor]`` rules through
+    ``fault_screen.screening`` when that layer is present (else none, and basic metrics)."""
     if screener is not None or metrics is not None:
         return screener, metrics or _basic_metrics
     try:
-        from .. import screening  # noqa: F401
+        from .. import screening
     except ImportError:
         return None, _basic_metrics
-    return _screening_from_module(scene)
+    return screening.Screener(scene.monitor), _LayerMetrics()
 
 
-def _screening_from_module(scene):
-    from .. import screening
+class _LayerMetrics:
+    """The screening layer's metrics of a stepper row, through its ``MetricsTracker`` (which
+    keeps the reference of ``delta_cff`` and the induced slip so far: part of the state)."""
 
-    spec = getattr(scene, "monitor", None)
-    screener = screening.Screener(spec)
-    step_metrics = getattr(screening, "step_metrics")
+    def __init__(self):
+        self.tracker = None
+        self.point = 0
 
-    def metrics(row, scene_):
-        return step_metrics(row, scene_)
-    return screener, metrics
+    def bind(self, geometry: "_Geometry", scene) -> None:
+        from ..screening import MetricsTracker
+
+        if self.tracker is None:
+            self.tracker = MetricsTracker(geometry.x, geometry.weights, scene.fault.friction)
+            self.point = self.tracker.point
+
+    def __call__(self, row: dict, scene) -> dict:
+        from ..screening.metrics import FAULT_FIELDS
+
+        g = self.point
+        point = {"overpressure": row["inj_overpressure"], "slip": row["inj_slip"],
+                 "shear_traction": _at(row["shear_traction"], g),
+                 "effective_normal_stress": _at(row["effective_normal_stress"], g)}
+        return self.tracker.update({k: row[k] for k in FAULT_FIELDS}, point)
+
+
+def _at(values, k):
+    a = np.asarray(values, dtype=float).reshape(-1)
+    return float(a[k]) if a.size else 0.0
 
 
 def _basic_metrics(row: dict, scene) -> dict:
@@ -587,13 +626,19 @@ def _site_of(scene) -> Optional[Site]:
 
 
 def _dump_screener(screener):
+    """A JSON-able record of a screener or metrics object (its own ``state()``/``from_state``,
+    else a pickle), or None for None or an object that cannot be pickled (e.g. a lambda: the
+    one given at restore is used)."""
     if screener is None:
         return None
     if hasattr(screener, "state") and hasattr(type(screener), "from_state"):
         return {"class": f"{type(screener).__module__}:{type(screener).__qualname__}",
                 "state": screener.state()}
     # pickled: the state file is the monitor's own, never read from elsewhere
-    return {"pickle": base64.b64encode(pickle.dumps(screener)).decode()}
+    try:
+        return {"pickle": base64.b64encode(pickle.dumps(screener)).decode()}
+    except (pickle.PicklingError, AttributeError, TypeError):
+        return None
 
 
 def _load_screener(d):
