@@ -281,8 +281,9 @@ class Stage:
     def feed_samples(self, time, rate, pressure=None) -> Update:
         """Add injection samples (``time`` s of model time, ``rate`` m3/s of the whole interval,
         ``pressure`` Pa or None; scalars or sequences) and advance the model as far as they
-        allow.  Samples at or before the last one are ignored (a restarted source replays its
-        log from the start); a time going backwards inside a batch is refused."""
+        allow.  Samples at or before the last one are ignored and counted in ``ignored`` (a
+        restarted source replays its log from the start); the log's own checks (stamps going
+        backwards, duplicates, gaps) and policies are the source's, as in a replay."""
         t = np.atleast_1d(np.asarray(time, dtype=np.float64))
         q = np.atleast_1d(np.asarray(rate, dtype=np.float64))
         p = None if pressure is None else np.atleast_1d(np.asarray(pressure, dtype=object))
