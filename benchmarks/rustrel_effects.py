@@ -42,20 +42,19 @@ OFF = {
 def run_case(label: str, repeats: int) -> dict:
     import numpy as np
 
-    from fault_screen import Scene, simulate
-    from fault_screen.model import Model
-    from fault_screen.solver import NewtonSolver
+    from fault_screen import Scene, Simulation
 
     scene = Scene.from_toml(SCENE)
     scene = scene.replace(effects=replace(scene.effects, **OFF[label]))
     walls = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        model = Model(scene)
-        result = simulate(scene, model=model)
+        sim = Simulation(scene)
+        sim.advance(scene.time.end)
+        result = sim.result()
         walls.append(time.perf_counter() - t0)
     steps = len(result.time) - 1
-    return dict(label=label, dofs=model.n_dofs, nonlinear=len(NewtonSolver(model).N), steps=steps,
+    return dict(label=label, dofs=sim.disc.n_dofs, nonlinear=len(sim.solver.N), steps=steps,
                 first=walls[0], best=min(walls), newton=float(result.solver["iterations"][1:].mean()),
                 max_newton=int(result.solver["iterations"].max()),
                 peak_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,

@@ -85,18 +85,19 @@ def error_against_reference(name, scene, result, model, states):
 
 
 def run_case(name: str, factor: float) -> dict:
-    from fault_screen import simulate
-    from fault_screen.model import Model
+    from fault_screen import Simulation
 
     scene = scaled_scene(name, factor)
     timings = []
     for _ in range(2):  # cold, warm
         t0 = time.perf_counter()
-        model = Model(scene)
-        states = []
+        sim = Simulation(scene)
+        model = sim.disc
+        states = [(0.0, sim.x.copy())]
         keep = name == "terzaghi"
-        result = simulate(scene, model=model,
-                          observer=(lambda t, x, m: states.append((t, x.copy()))) if keep else None)
+        sim.advance(scene.time.end,
+                    observer=(lambda t, x, disc: states.append((t, x.copy()))) if keep else None)
+        result = sim.result()
         timings.append(time.perf_counter() - t0)
     steps = len(result.time) - 1
     label, err = error_against_reference(name, scene, result, model, states)

@@ -3,6 +3,7 @@ __version__ = "0.1.0"
 
 from .scene import Scene, SceneError  # noqa: E402
 from .result import Result  # noqa: E402
-from .simulate import SimulationError, simulate  # noqa: E402
+from .stepper import Simulation, SimulationError  # noqa: E402
+from .api import simulate  # noqa: E402
 
-__all__ = ["Scene", "SceneError", "Result", "simulate", "SimulationError", "__version__"]
+__all__ = ["Scene", "SceneError", "Result", "Simulation", "simulate", "SimulationError", "__version__"]

@@ -36,16 +36,6 @@ def scatter_matrices(local, row_map, col_map):
     return rows[:k], cols[:k], vals[:k]
 
 
-@kernel
-def scatter_vectors(local, row_map, out):
-    n, nr = local.shape
-    for e in range(n):
-        for a in range(nr):
-            r = row_map[e, a]
-            if r >= 0:
-                out[r] += local[e, a]
-
-
 class TripletBuilder:
     """Collects COO blocks and turns them into one CSR matrix (duplicates summed)."""
 

@@ -1,17 +1,11 @@
 """Results of a run and their HDF5 form.
 
-Layout (SI units; every fault array is shaped (time, x)):
-``/time`` s; ``/fault/x`` m along the fault (0 at the injection point) at the fault's Gauss
-points; ``/fault/xy`` m; ``/fault/weight`` m (Gauss weights: integrals along the fault are sums);
-``/fault/{pressure, overpressure, shear_traction, effective_normal_stress}`` Pa (effective normal
-stress compression-positive); ``/fault/{slip, opening}`` m (opening positive apart);
-``/fault/slip_rate`` m/s; ``/fault/friction`` -; ``/fault/contact_state`` 0 stick 1 slip 2 open;
-``/injection/{flow_rate (m^3/s, whole interval), pressure, overpressure (Pa), slip, opening,
-hydraulic_aperture (m), volume (m^3, cumulative, whole interval), fault_inflow_velocity (m/s,
-Eq. 29: flow_rate / (NoF 2h)), slip_rate, shear_traction, effective_normal_stress, friction (at
-the fault Gauss point nearest to the injection point)}``; ``/balance/*`` m^3 per m of fault-plane thickness;
-``/solver/*``; root attribute ``scene`` holds the resolved scene as TOML.
-The file is written to a temporary name and renamed, so a failed write leaves no partial file.
+Every dataset and its unit is declared in :mod:`fault_screen.outputs` (SI units; fault arrays
+are shaped (time, x) at the fault's Gauss points; ``/balance/*`` per m of fault-plane
+thickness); the root attribute ``scene`` holds the resolved scene as TOML, ``meta`` the run's
+metadata (versions, unknowns, wall times) as JSON. Groups in ``extra`` (e.g. ``/log``, added by
+callers) are written as they come. The file is written to a temporary name and renamed, so a
+failed write leaves no partial file.
 """
 from __future__ import annotations
 
@@ -22,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .outputs import unit
 from .scene import Scene
 
 
@@ -48,17 +43,16 @@ class Result:
             with h5py.File(tmp, "w") as h5:
                 h5.attrs["scene"] = self.scene.to_toml()
                 h5.attrs["meta"] = json.dumps(self.meta, default=float)
-                h5.create_dataset("time", data=self.time).attrs["unit"] = "s"
+                h5.create_dataset("time", data=self.time).attrs["unit"] = unit("", "time")
                 g = h5.create_group("fault")
-                g.create_dataset("x", data=self.fault_x).attrs["unit"] = "m"
-                g.create_dataset("xy", data=self.fault_xy).attrs["unit"] = "m"
-                g.create_dataset("weight", data=self.fault_weights).attrs["unit"] = "m"
+                for k, v in (("x", self.fault_x), ("xy", self.fault_xy), ("weight", self.fault_weights)):
+                    g.create_dataset(k, data=v).attrs["unit"] = unit("fault", k)
                 for k, v in self.fault.items():
-                    g.create_dataset(k, data=v, compression="gzip").attrs["unit"] = _UNITS.get(k, "")
+                    g.create_dataset(k, data=v, compression="gzip").attrs["unit"] = unit("fault", k)
                 for name in ("injection", "balance", "solver"):
                     grp = h5.create_group(name)
                     for k, v in getattr(self, name).items():
-                        grp.create_dataset(k, data=v).attrs["unit"] = _UNITS.get(k, "")
+                        grp.create_dataset(k, data=v).attrs["unit"] = unit(name, k)
                 for name, arrays in self.extra.items():
                     grp = h5.require_group(name)
                     for k, v in arrays.items():
@@ -84,8 +78,3 @@ class Result:
                        injection=read(h5["injection"]), balance=read(h5["balance"]),
                        solver=read(h5["solver"]), meta=json.loads(h5.attrs["meta"]), extra=extra)
 
-
-_UNITS = {"pressure": "Pa", "overpressure": "Pa", "shear_traction": "Pa",
-          "effective_normal_stress": "Pa", "slip": "m", "opening": "m", "slip_rate": "m/s",
-          "friction": "1", "hydraulic_aperture": "m", "fault_inflow_velocity": "m/s", "flow_rate": "m3/s", "volume": "m3", "stored_rock": "m3/m",
-          "stored_fault": "m3/m", "leaked": "m3/m", "dt": "s"}

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .kernels import basis
 from .mesh import StructuredMesh
 
 # Radon's 7-point, degree-5 rule on the reference triangle, barycentric coordinates and weights
@@ -212,7 +213,7 @@ def locate_fault(mesh: StructuredMesh, point, angle_deg: float) -> FaultGeometry
     far_side = np.zeros(mesh.n_nodes)
     for k in range(n_cut):
         xe_nodes = cut_nodes[k]
-        shape = _bilinear(cut_qp[k])  # (nq, 4)
+        shape = np.array([basis.shape(xi, eta) for xi, eta in cut_qp[k]])  # (nq, 4)
         for a in range(4):
             node = xe_nodes[a]
             node_side = 1 if phi[node] > 0 else 0
@@ -246,14 +247,8 @@ def no_fault(mesh: StructuredMesh) -> FaultGeometry:
         pressure_enriched=np.zeros(mesh.n_nodes, dtype=bool))
 
 
-def _bilinear(ref: np.ndarray) -> np.ndarray:
-    xi, eta = ref[..., 0], ref[..., 1]
-    return 0.25 * np.stack([(1 - xi) * (1 - eta), (1 + xi) * (1 - eta),
-                            (1 + xi) * (1 + eta), (1 - xi) * (1 + eta)], axis=-1)
-
-
 def _ref_to_phys(xe: np.ndarray, r: np.ndarray) -> np.ndarray:
-    return _bilinear(r) @ xe
+    return basis.shape(r[0], r[1]) @ xe
 
 
 def locate_point_on_fault(geom: FaultGeometry, s: float) -> tuple[int, float]:

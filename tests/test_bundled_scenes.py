@@ -5,7 +5,7 @@ import pytest
 from conftest import CONFIGS
 from fault_screen import Scene, simulate
 from fault_screen.kernels.contact import SLIP
-from fault_screen.model import Model
+from fault_screen.discretisation import discretise
 
 NAMES = ["rustrel-2015-calibrated", "rustrel-2015-initial", "rustrel-2015-impermeable"]
 
@@ -20,7 +20,8 @@ def test_no_nan_and_in_situ_equilibrium(runs, name):
     r = runs[name]
     for key, arr in list(r.fault.items()) + list(r.injection.items()):
         assert np.all(np.isfinite(arr)), key
-    out, ref = Model(r.scene).initial_equilibrium_residual()
+    disc = discretise(r.scene)
+    out, ref = disc.physics.in_situ.equilibrium_residual(disc)
     assert out < 1e-12 * ref  # gravity, hydrostatic pressure and stress gradient balance
 
 

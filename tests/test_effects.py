@@ -6,8 +6,10 @@ import pytest
 
 from conftest import CONFIGS
 from fault_screen import Scene, SceneError
-from fault_screen.model import Model
-from fault_screen.solver import CoulombFriction, NewtonSolver, RateStateFriction
+from fault_screen.discretisation import discretise as Model
+from fault_screen.physics import (ConstantApertureConduction, CoulombFriction, EvolvingApertureConduction,
+                                  RateStateFriction)
+from fault_screen.solver import NewtonSolver, assemble_constant
 
 
 @pytest.fixture(scope="module")
@@ -59,22 +61,28 @@ def test_switched_off_terms_are_not_assembled(rustrel):
     full = Model(with_effects(rustrel, aperture_evolution=False))
     no_flow = Model(with_effects(rustrel, fault_flow=False, aperture_evolution=False))
     # fault conduction and storage exist only with fault flow: fewer stored entries, no cubic law
-    assert no_flow.fault_transmissivity == 0.0 and full.fault_transmissivity > 0.0
-    assert no_flow.Hf.nnz < full.Hf.nnz or np.abs(no_flow.Hf - full.Hf).max() > 0
+    assert no_flow.physics.find(ConstantApertureConduction) is None
+    assert full.physics.find(ConstantApertureConduction).transmissivity > 0.0
+    Hf_full, Hf_no_flow = assemble_constant(full)[2], assemble_constant(no_flow)[2]
+    assert no_flow.physics.find(ConstantApertureConduction) is None
+    assert Hf_no_flow.nnz < Hf_full.nnz or np.abs(Hf_no_flow - Hf_full).max() > 0
     # evolving aperture: conduction leaves the constant matrix and becomes a per-iteration term
     evolving = Model(rustrel)
-    assert np.abs(evolving.Hf - full.Hf).max() > 0
+    assert isinstance(evolving.physics.find(EvolvingApertureConduction), EvolvingApertureConduction)
+    assert np.abs(assemble_constant(evolving)[2] - Hf_full).max() > 0
     s_full, s_evolving = NewtonSolver(full), NewtonSolver(evolving)
-    assert not s_full.evolving_aperture and s_evolving.evolving_aperture
+    assert len(s_full.nonlinear_terms) == 1 and len(s_evolving.nonlinear_terms) == 2
     assert len(s_full.N) < len(s_evolving.N)  # only the Heaviside DOFs are nonlinear without it
 
 
 def test_friction_law_is_chosen_once_by_the_scene(rustrel):
-    assert isinstance(NewtonSolver(Model(rustrel)).friction_law, RateStateFriction)
-    coulomb = NewtonSolver(Model(with_effects(rustrel, rate_friction=False)))
-    assert type(coulomb.friction_law) is CoulombFriction
+    from fault_screen.kernels.contact import TAN_DILATION
+
+    assert isinstance(Model(rustrel).physics.contact.law, RateStateFriction)
+    coulomb = Model(with_effects(rustrel, rate_friction=False)).physics.contact.law
+    assert type(coulomb) is CoulombFriction
     # dilation off: no dilatancy coefficient even though the scene names an angle
-    assert NewtonSolver(Model(with_effects(rustrel, dilation=False))).friction_law.tan_dilation == 0.0
+    assert Model(with_effects(rustrel, dilation=False)).physics.contact.law.params[TAN_DILATION] == 0.0
 
 
 def test_damage_zone_and_gravity_switches(rustrel):
@@ -85,10 +93,10 @@ def test_damage_zone_and_gravity_switches(rustrel):
     # 50 m of the fault (the cut row and 10 rows on each side), 50 elements a row
     assert np.count_nonzero(with_dz.zone_of) == 50 * 21
     flat = Model(with_effects(rustrel, gravity=False))
-    assert np.ptp(flat.fp.p0) == 0.0
+    assert np.ptp(flat.fault_points.p0) == 0.0
     # with gravity, p0 grows by the hydrostatic gradient along the gravity direction
     g = np.array(rustrel.initial.gravity_direction)
-    fp = with_dz.fp
+    fp = with_dz.fault_points
     slope = np.polyfit(fp.xy @ g, fp.p0, 1)[0]
     assert slope == pytest.approx(rustrel.initial.pore_pressure_gradient, rel=1e-12)
 

@@ -29,9 +29,9 @@ def test_defaults_round_trip_through_toml():
 ])
 def test_bad_values_are_refused_with_key_and_value(data, needle):
     if needle is None:
-        from fault_screen.model import Model
+        from fault_screen.discretisation import discretise
         with pytest.raises(ValueError, match="off the fault"):
-            Model(Scene.from_dict(data))
+            discretise(Scene.from_dict(data))
         return
     with pytest.raises(SceneError) as err:
         Scene.from_dict(data)

@@ -32,11 +32,6 @@ def test_fault_pressure_is_erfc(run, fraction):
     # 2 % of dp (issue tolerance); 1 m elements resolve sqrt(4 alpha t) >= 16 m well
     assert np.max(np.abs(result.fault["overpressure"][i] - p_ref)) / dp < 0.02
     # injected volume = fluid stored in the fault (pure storage: nothing else exists)
-    stored = np.sum(f.storativity * result.fault["overpressure"][i] * _weights(result))
+    stored = np.sum(f.storativity * result.fault["overpressure"][i] * result.fault_weights)
     assert result.injection["volume"][i] == pytest.approx(stored, rel=1e-6)
 
-
-def _weights(result):
-    # Gauss weights are not stored; rebuild from the model for the balance check
-    from fault_screen.model import Model
-    return Model(result.scene).fp.weight

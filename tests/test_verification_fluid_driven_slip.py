@@ -11,8 +11,7 @@ import pytest
 
 import analytical as an
 from conftest import VERIFICATION
-from fault_screen import Scene, simulate
-from fault_screen.model import Model
+from fault_screen import Scene, Simulation
 
 CASES = ["T0.4-horizontal", "T0.4-dip30", "T0.7-horizontal", "T0.7-dip30"]
 
@@ -21,8 +20,9 @@ CASES = ["T0.4-horizontal", "T0.4-dip30", "T0.7-horizontal", "T0.7-dip30"]
 def run(request):
     path = VERIFICATION / f"fluid-driven-slip-{request.param}.toml"
     scene = Scene.from_toml(path)
-    model = Model(scene)
-    result = simulate(scene, model=model)
+    sim = Simulation(scene)
+    sim.advance(scene.time.end)
+    model, result = sim.disc, sim.result()
     T = float(request.param[1:4])
     return scene, model, result, T
 

@@ -1,7 +1,7 @@
 """Fluid volume balance with leak-off: injected = stored in fault + stored in rock + drained.
 
 The stored volumes are integrated from the fields at quadrature points
-(``fault_screen.postprocess``), the drained volume from the reactions at drained nodes, and the
+(the physics terms' ``stored_volume``), the drained volume from the reactions at drained nodes, and the
 injected volume from the schedule: three independent routes that only agree if the assembled
 storage, coupling, conduction and source terms conserve mass.
 """
@@ -10,7 +10,7 @@ import pytest
 
 from conftest import VERIFICATION
 from fault_screen import Scene, simulate
-from fault_screen.simulate import step_schedule_volume
+from fault_screen.schedule import StepSchedule
 
 
 @pytest.fixture(scope="module")
@@ -21,7 +21,7 @@ def run():
 
 def test_injected_volume_is_the_schedule_volume(run):
     scene, r = run
-    expected = np.array([step_schedule_volume(scene.injection.schedule, 0.0, t) for t in r.time])
+    expected = np.array([StepSchedule(scene.injection.schedule).volume(0.0, t) for t in r.time])
     assert np.allclose(r.injection["volume"], expected, rtol=1e-12, atol=0)
 
 

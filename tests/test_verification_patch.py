@@ -12,8 +12,8 @@ import pytest
 
 from fault_screen import Scene
 from fault_screen.kernels.rock import plane_strain_elasticity
-from fault_screen.model import Model
-from fault_screen.solver import ContactState, NewtonSolver
+from fault_screen.discretisation import discretise
+from fault_screen.solver import NewtonSolver
 
 SIGMA = np.array([-5.649e6, -3.351e6, 0.964e6])  # Rustrel in-situ effective stress, Pa
 H = 10.0  # element size, m
@@ -42,22 +42,22 @@ def _projected(model, stress_voigt):
 
 @pytest.mark.parametrize("angle,offset", CASES)
 def test_in_situ_stress_alone(angle, offset):
-    model = Model(scene_for(angle, offset))
+    model = discretise(scene_for(angle, offset))
     solver = NewtonSolver(model)
-    hist = ContactState.initial(model)
-    out = solver.step(np.zeros(model.n_dofs), hist, 1.0, model.load, 0.0, 0.0, 0.0)
+    hist = model.physics.contact.initial_history(model)
+    out = solver.step(np.zeros(model.n_dofs), hist, 1.0, 0.0)
     assert np.all(np.isfinite(out.x))
-    assert np.max(np.abs(out.slip)) < 1e-15
+    assert np.max(np.abs(out.point["slip"])) < 1e-15
     tau, sn = _projected(model, SIGMA)
-    assert np.allclose(out.tau, tau, rtol=1e-12)
-    assert np.allclose(out.sigma_n, sn, rtol=1e-12)
-    assert np.all(out.state == 0)  # stick
+    assert np.allclose(out.point["shear_traction"], tau, rtol=1e-12)
+    assert np.allclose(out.point["effective_normal_stress"], sn, rtol=1e-12)
+    assert np.all(out.point["contact_state"] == 0)  # stick
 
 
 @pytest.mark.parametrize("angle,offset", CASES)
 def test_uniform_stress_change_is_reproduced_exactly(angle, offset):
     scene = scene_for(angle, offset)
-    model = Model(scene)
+    model = discretise(scene)
     f = model.fault
     dsig = np.array([-1.0e6, 0.4e6, 0.3e6])  # a stress change that keeps the fault sticking
     D = plane_strain_elasticity(scene.rock.youngs_modulus, scene.rock.poissons_ratio)
@@ -75,25 +75,25 @@ def test_uniform_stress_change_is_reproduced_exactly(angle, offset):
     exact[a_dofs + 1] = g[1]
     x_n = np.where(model.fixed, exact, 0.0)
     solver = NewtonSolver(model)
-    hist = ContactState.initial(model)
-    out = solver.step(x_n, hist, 1.0, model.load, 0.0, 0.0, 0.0)
+    hist = model.physics.contact.initial_history(model)
+    out = solver.step(x_n, hist, 1.0, 0.0)
     scale = np.max(np.abs(exact))
     # round-off of a direct solve on a scaled system: 1e-8 of the displacement scale
     assert np.max(np.abs(out.x - exact)) < 1e-8 * scale
     tau_ref, sn_ref = _projected(model, SIGMA + dsig)
-    assert np.allclose(out.tau, tau_ref, rtol=1e-7)
-    assert np.allclose(out.sigma_n, sn_ref, rtol=1e-7)
-    assert np.all(out.state == 0)
+    assert np.allclose(out.point["shear_traction"], tau_ref, rtol=1e-7)
+    assert np.allclose(out.point["effective_normal_stress"], sn_ref, rtol=1e-7)
+    assert np.all(out.point["contact_state"] == 0)
 
 
 def _conditions(angle, offset):
-    model = Model(scene_for(angle, offset))
+    model = discretise(scene_for(angle, offset))
     solver = NewtonSolver(model)
-    hist = ContactState.initial(model)
+    hist = model.physics.contact.initial_history(model)
     x0 = np.zeros(model.n_dofs)
     solver._prepare(1.0, x0, hist)
     J = solver.L.toarray()
-    rows, cols, vals, _ = solver.fault_terms(x0, hist, 1.0, np.zeros(model.n_dofs))
+    rows, cols, vals, _ = solver.nonlinear(x0, hist, 1.0, np.zeros(model.n_dofs))
     np.add.at(J, (rows, cols), vals)
     free = model.free
     Jff = J[np.ix_(free, free)]

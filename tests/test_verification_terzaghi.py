@@ -4,17 +4,16 @@ import pytest
 
 import analytical as an
 from conftest import VERIFICATION
-from fault_screen import Scene, simulate
-from fault_screen.model import Model
+from fault_screen import Scene, Simulation
 
 
 @pytest.fixture(scope="module")
 def run():
     scene = Scene.from_toml(VERIFICATION / "terzaghi.toml")
-    model = Model(scene)
-    states = []
-    simulate(scene, model=model, observer=lambda t, x, m: states.append((t, x.copy())))
-    return scene, model, states
+    sim = Simulation(scene)
+    states = [(0.0, sim.x.copy())]
+    sim.advance(scene.time.end, observer=lambda t, x, disc: states.append((t, x.copy())))
+    return scene, sim.disc, states
 
 
 def test_no_fault_means_no_fault_unknowns(run):

@@ -73,6 +73,11 @@ def run_scene(scene, *, scene_label: str, out: Path | None, plot_dir: Path | Non
         size = "graded mesh" if m.refinement is not None else f"{m.nx} x {m.ny} elements"
         click.echo(f"running {scene_label} ({scene.title}; {size}; "
                    f"0 to {scene.time.end:g} s, dt {scene.time.dt:g} s)")
+    if injected_volume is None and scene.injection.log is not None:
+        from ..api import scene_injected_volume
+
+        with reading(scene.injection.log):
+            injected_volume = scene_injected_volume(scene)
     progress = None if quiet else Progress(sys.stdout)
     try:
         result = simulate(scene, progress=progress, injected_volume=injected_volume)

@@ -28,17 +28,14 @@ def show(path):
 def check(path):
     """Validate a scene: keys, values, units, switch combinations and the geometry (fault in the
     domain, injection point on the fault, in-situ equilibrium). Prints what it would simulate."""
-    from ..model import Model
+    from ..discretisation import discretise
 
     sc = load_scene(path)
     with reading(path):
-        model = Model(sc)
-    on = [name for name, value in vars(sc.effects).items() if value]
-    off = [name for name, value in vars(sc.effects).items() if not value]
+        model = discretise(sc)
     counts = ", ".join(f"{k} {v}" for k, v in model.dof_counts().items() if v)
     click.echo(f"{path}: ok -- {sc.title}")
     click.echo(f"  mesh {model.mesh.nx} x {model.mesh.ny} elements, fault cuts "
                f"{len(model.cut_elements)} of them")
     click.echo(f"  unknowns {model.n_dofs} ({counts})")
-    click.echo(f"  effects on: {', '.join(on) or 'none'}")
-    click.echo(f"  effects off: {', '.join(off) or 'none'}")
+    click.echo(f"  physics terms: {', '.join(model.physics.names())}")

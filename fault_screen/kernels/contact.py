@@ -143,46 +143,69 @@ def fault_jumps(x, N, jump_dofs, tangent, normal):
     return slip, opening
 
 
+#: Layout of the friction parameter vector shared by both laws (SI): penalty stiffnesses kN, kT
+#: (Pa/m), tan of the dilation angle, mu0, rate-and-state a, b, V0 (m/s), Dc (m) and the slip rate
+#: above which a point counts as sliding (m/s). Coulomb reads the first four.
+KN, KT, TAN_DILATION, MU0, RATE_A, STATE_B, V_REF, D_C, SLIDING_RATE = range(9)
+#: Layout of the history (n_points, 4): converged total slip (m), shear traction (Pa), cumulative
+#: plastic slip (m, drives dilation), rate-and-state state variable (s).
+H_SLIP, H_TAU, H_DILATANT_SLIP, H_STATE = range(4)
+
+
 @kernel
-def coulomb_law(slip, opening, slip_old, tau_old, dilatant_old, sigma_n0, kN, kT, mu, tan_dilation):
-    """Coulomb return map at every point: arrays (tau, sigma_n, state, ds, tangent (ng, 4))."""
+def coulomb_law(params, slip, opening, history, sigma_n0, dt):
+    """Coulomb return map at every point.
+
+    Both friction laws share this signature. Returns ``traction`` (n, 3: tau, sigma_n, friction
+    coefficient), ``contact_state`` (n,), ``tangent`` (n, 4: dtau/dslip, dtau/dopening,
+    dsigma_n/dslip, dsigma_n/dopening) and the new ``history`` (n, 4) if this state converges."""
     ng = slip.shape[0]
-    tau = np.empty(ng)
-    sigma_n = np.empty(ng)
-    state = np.empty(ng, dtype=np.int64)
-    ds = np.empty(ng)
+    traction = np.empty((ng, 3))
+    contact_state = np.empty(ng, dtype=np.int64)
     tangent = np.empty((ng, 4))
+    new_history = np.empty((ng, 4))
+    mu = params[MU0]
     for g in range(ng):
-        r = coulomb_point(slip[g], opening[g], slip_old[g], tau_old[g], dilatant_old[g],
-                          sigma_n0[g], kN, kT, mu[g], tan_dilation)
-        tau[g], sigma_n[g], state[g], ds[g] = r[0], r[1], r[2], r[3]
+        r = coulomb_point(slip[g], opening[g], history[g, H_SLIP], history[g, H_TAU],
+                          history[g, H_DILATANT_SLIP], sigma_n0[g], params[KN], params[KT], mu,
+                          params[TAN_DILATION])
+        traction[g, 0], traction[g, 1], traction[g, 2] = r[0], r[1], mu
+        contact_state[g] = r[2]
         tangent[g, 0], tangent[g, 1], tangent[g, 2], tangent[g, 3] = r[4], r[5], r[6], r[7]
-    return tau, sigma_n, state, ds, tangent
+        new_history[g, H_SLIP] = slip[g]
+        new_history[g, H_TAU] = r[0]
+        new_history[g, H_DILATANT_SLIP] = history[g, H_DILATANT_SLIP] + r[3]
+        new_history[g, H_STATE] = history[g, H_STATE]
+    return traction, contact_state, tangent, new_history
 
 
 @kernel
-def rate_state_law(slip, opening, slip_old, tau_old, dilatant_old, theta_old, sigma_n0, kN, kT,
-                   tan_dilation, mu0, a, b, V0, Dc, dt, slip_rate_threshold):
-    """Rate-and-state return map at every point: (tau, sigma_n, state, ds, theta, mu, tangent)."""
+def rate_state_law(params, slip, opening, history, sigma_n0, dt):
+    """Rate(-and-state) return map at every point; same signature and returns as coulomb_law
+    (the state variable evolves only when b = params[STATE_B] > 0)."""
     ng = slip.shape[0]
-    tau = np.empty(ng)
-    sigma_n = np.empty(ng)
-    state = np.empty(ng, dtype=np.int64)
-    ds = np.empty(ng)
-    theta = np.empty(ng)
-    mu = np.empty(ng)
+    traction = np.empty((ng, 3))
+    contact_state = np.empty(ng, dtype=np.int64)
     tangent = np.empty((ng, 4))
+    new_history = np.empty((ng, 4))
     for g in range(ng):
-        r = rate_state_point(slip[g], opening[g], slip_old[g], tau_old[g], dilatant_old[g],
-                             theta_old[g], sigma_n0[g], kN, kT, tan_dilation, mu0, a, b, V0, Dc,
-                             dt, slip_rate_threshold)
-        tau[g], sigma_n[g], state[g], ds[g], theta[g], mu[g] = r[0], r[1], r[2], r[3], r[4], r[5]
+        r = rate_state_point(slip[g], opening[g], history[g, H_SLIP], history[g, H_TAU],
+                             history[g, H_DILATANT_SLIP], history[g, H_STATE], sigma_n0[g],
+                             params[KN], params[KT], params[TAN_DILATION], params[MU0],
+                             params[RATE_A], params[STATE_B], params[V_REF], params[D_C], dt,
+                             params[SLIDING_RATE])
+        traction[g, 0], traction[g, 1], traction[g, 2] = r[0], r[1], r[5]
+        contact_state[g] = r[2]
         tangent[g, 0], tangent[g, 1], tangent[g, 2], tangent[g, 3] = r[6], r[7], r[8], r[9]
-    return tau, sigma_n, state, ds, theta, mu, tangent
+        new_history[g, H_SLIP] = slip[g]
+        new_history[g, H_TAU] = r[0]
+        new_history[g, H_DILATANT_SLIP] = history[g, H_DILATANT_SLIP] + r[3]
+        new_history[g, H_STATE] = r[4]
+    return traction, contact_state, tangent, new_history
 
 
 @kernel
-def assemble_contact(N, jump_dofs, tangent_vec, normal_vec, weight, tau, sigma_n, tau0, sigma_n0,
+def assemble_contact(N, jump_dofs, tangent_vec, normal_vec, weight, traction, tau0, sigma_n0,
                      point_tangent, residual):
     """Contact forces of every fault Gauss point added into ``residual``; returns the COO
     triplets of their tangent on the Heaviside DOFs."""
@@ -192,7 +215,7 @@ def assemble_contact(N, jump_dofs, tangent_vec, normal_vec, weight, tau, sigma_n
     vals = np.empty(ng * 64)
     k = 0
     for g in range(ng):
-        r, kl = contact_local(N[g], tangent_vec, normal_vec, tau[g], sigma_n[g], tau0[g],
+        r, kl = contact_local(N[g], tangent_vec, normal_vec, traction[g, 0], traction[g, 1], tau0[g],
                               sigma_n0[g], point_tangent[g, 0], point_tangent[g, 1],
                               point_tangent[g, 2], point_tangent[g, 3], weight[g])
         for a in range(8):

@@ -71,11 +71,11 @@ def renshaw_aperture(opening_change, aperture0, sigma_h):
 
 
 @kernel
-def assemble_evolving_conduction(x, N, jump_dofs, Np, dNp_ds, p_dofs, normal, weight, aperture0,
-                                 sigma_h, viscosity, kappa, theta, residual):
-    """Fault conduction with the aperture of the current opening (Eq. 28) at every fault point:
-    adds theta * int dNp/ds T(2h) dp/ds into ``residual`` and returns the Jacobian triplets on
-    the fault-pressure and Heaviside DOFs, plus the aperture at every point."""
+def assemble_evolving_conduction(x, opening, N, jump_dofs, Np, dNp_ds, p_dofs, normal, weight,
+                                 aperture0, sigma_h, viscosity, kappa, time_weight, residual):
+    """Fault conduction with the aperture of the current ``opening`` (Eq. 28) at every fault
+    point: adds time_weight * int dNp/ds T(2h) dp/ds into ``residual`` and returns the Jacobian
+    triplets on the fault-pressure and Heaviside DOFs, plus the aperture at every point."""
     ng, nbp = Np.shape
     per = nbp * nbp + nbp * 8
     rows = np.empty(ng * per, dtype=np.int64)
@@ -84,15 +84,7 @@ def assemble_evolving_conduction(x, N, jump_dofs, Np, dNp_ds, p_dofs, normal, we
     aperture = np.empty(ng)
     k = 0
     for g in range(ng):
-        gx = 0.0
-        gy = 0.0
-        for i in range(4):
-            if jump_dofs[g, 2 * i] >= 0:
-                gx += N[g, i] * x[jump_dofs[g, 2 * i]]
-            if jump_dofs[g, 2 * i + 1] >= 0:
-                gy += N[g, i] * x[jump_dofs[g, 2 * i + 1]]
-        opening = gx * normal[0] + gy * normal[1]
-        h, dh = renshaw_aperture(opening, aperture0, sigma_h)
+        h, dh = renshaw_aperture(opening[g], aperture0, sigma_h)
         aperture[g] = h
         T = cubic_law_transmissivity(h, viscosity, kappa)
         dT = 3.0 * T / h * dh
@@ -100,7 +92,7 @@ def assemble_evolving_conduction(x, N, jump_dofs, Np, dNp_ds, p_dofs, normal, we
         for a in range(nbp):
             if p_dofs[g, a] >= 0:
                 grad += dNp_ds[g, a] * x[p_dofs[g, a]]
-        w = theta * weight[g]
+        w = time_weight * weight[g]
         for a in range(nbp):
             ra = p_dofs[g, a]
             if ra < 0:

@@ -1,0 +1,455 @@
+"""The discretisation of a scene: mesh, fault geometry, materials, unknowns, tabulated bases,
+fault points, the injection point and the boundary conditions. Built once, then read-only.
+
+Which unknown blocks exist is decided by the physics terms (``physics.terms_for``), never by
+reading the scene's effects here. Unknown vector layout (absent blocks are empty)::
+
+    [ u (2 per node) | a (2 per Heaviside-enriched node) | p (rock, per node)
+      | c (per level-set-enriched node) | pf (per fault node) | q (pressure control) ]
+
+Pressures are overpressures (Pa) from the initial pore pressure; displacements (m) from the
+in-situ state, which is in equilibrium on its own.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from . import xfem
+from .kernels import basis, contact, rock
+from .mesh import build_mesh
+from .physics import Physics
+from .physics.base import BLOCK_ORDER
+from .scene import EDGES, RockSpec, Scene, SceneError
+
+
+@dataclass(frozen=True)
+class Blocks:
+    """Start and size of each unknown block."""
+    u: slice
+    a: slice
+    p: slice
+    c: slice
+    pf: slice
+    q: slice
+    n: int
+
+
+@dataclass(frozen=True)
+class ElementGroup:
+    """Elements sharing a quadrature layout, with bases tabulated at their points."""
+    elements: np.ndarray     # (ne,) element ids
+    Nu: np.ndarray           # (ne, nq, nbu) displacement basis
+    grad_u: np.ndarray       # (ne, nq, nbu, 2)
+    Np: np.ndarray           # (ne, nq, nbp) pressure basis (first 4: standard shape functions)
+    grad_p: np.ndarray       # (ne, nq, nbp, 2)
+    w: np.ndarray            # (ne, nq) quadrature weights, m^2
+    umap: np.ndarray | None  # (ne, 2 nbu) displacement DOFs or -1 (None: no displacement)
+    pmap: np.ndarray | None  # (ne, nbp) pressure DOFs or -1 (None: no rock pressure)
+
+
+@dataclass(frozen=True)
+class FaultPoints:
+    """Fault Gauss-point data (plain arrays, ordered by s)."""
+    N: np.ndarray            # (n_gp, 4) standard shape functions of the cut element (jump basis)
+    jump_dofs: np.ndarray    # (n_gp, 8) Heaviside DOFs (x, y per node) or -1
+    Np: np.ndarray           # (n_gp, nbp) fault-pressure basis
+    dNp_ds: np.ndarray       # (n_gp, nbp)
+    p_dofs: np.ndarray       # (n_gp, nbp) fault-pressure DOFs or -1
+    weight: np.ndarray       # (n_gp,) m
+    s: np.ndarray            # (n_gp,) m along the fault
+    xy: np.ndarray           # (n_gp, 2) m
+    sigma_n0: np.ndarray     # (n_gp,) in-situ effective normal stress on the fault, Pa (compr. +)
+    tau0: np.ndarray         # (n_gp,) in-situ shear stress on the fault, Pa
+    p0: np.ndarray           # (n_gp,) initial pore pressure, Pa
+
+
+@dataclass(frozen=True)
+class InjectionPoint:
+    """Where fluid enters the fault: its bases and DOFs (one point of the fault)."""
+    s: float                 # m along the fault
+    xy: np.ndarray           # (2,) m
+    N: np.ndarray            # (4,) jump basis
+    jump_dofs: np.ndarray    # (8,)
+    Np: np.ndarray           # fault-pressure basis
+    p_dofs: np.ndarray       # fault-pressure DOFs or -1
+    p0: float                # initial pore pressure, Pa
+    nearest_point: int       # index of the nearest fault Gauss point (contact quantities)
+
+
+def effective_rock(spec: RockSpec, fluid_bulk_modulus: float, viscosity: float) -> dict:
+    """Derived rock constants in SI: E, nu, alpha, mobility k/mu, 1/M (Biot modulus), Ks."""
+    E, nu, alpha, n = spec.youngs_modulus, spec.poissons_ratio, spec.biot_coefficient, spec.porosity
+    K = E / (3.0 * (1.0 - 2.0 * nu))
+    Ks = spec.solid_bulk_modulus
+    if Ks is None:
+        Ks = K / (1.0 - alpha) if alpha < 1.0 else np.inf
+    inv_M = (alpha - n) / Ks + n / fluid_bulk_modulus
+    return {"E": E, "nu": nu, "alpha": alpha, "mobility": spec.permeability / viscosity,
+            "inv_M": inv_M, "Ks": Ks}
+
+
+class Discretisation:
+    """Everything about a scene that is fixed for the whole run (read-only once built)."""
+
+    def __init__(self, scene: Scene, physics: Physics):
+        self.scene = scene
+        self.physics = physics
+        m = scene.mesh
+        self.mesh = build_mesh(m.nx, m.ny, m.lx, m.ly, m.origin, m.refinement)
+        self.coords = self.mesh.coordinates
+        self.elements = self.mesh.elements
+        self.has_fault = physics.has_fault
+        try:
+            self.fault = (xfem.locate_fault(self.mesh, scene.fault_point, scene.fault.angle)
+                          if self.has_fault else xfem.no_fault(self.mesh))
+        except ValueError as exc:
+            raise SceneError(f"fault.point = {scene.fault_point}, fault.angle = {scene.fault.angle}: {exc}") from None
+        self.injection_xy = (np.asarray(scene.fault_point, dtype=float)
+                             + scene.injection.position * self.fault.tangent)
+        self.in_situ = physics.in_situ
+        self._materials()
+        self._number_unknowns(physics.blocks)
+        self._tabulate_bulk()
+        self._tabulate_fault()
+        self._boundary_conditions()
+        self._injection_point()
+        self._frozen = True
+
+    def __setattr__(self, name, value):
+        if getattr(self, "_frozen", False):
+            raise AttributeError(f"the discretisation is read-only (tried to set {name!r})")
+        object.__setattr__(self, name, value)
+
+    def has(self, block: str) -> bool:
+        """Does the unknown block exist (``u``, ``a``, ``p``, ``c``, ``pf``, ``q``)?"""
+        return block in self._declared
+
+    # ------------------------------------------------------------------ materials
+    def _materials(self):
+        s = self.scene
+        centroids = self.coords[self.elements].mean(axis=1)
+        zone_of = np.zeros(self.mesh.n_elements, dtype=np.int64)
+        specs = [s.rock]
+        zones = list(self.physics.zones(s)) + list(s.zones)
+        for k, z in enumerate(zones, start=1):
+            if z.band is not None:
+                inside = np.abs((centroids - self.fault.point) @ self.fault.normal) <= z.band
+            else:
+                x0, x1, y0, y1 = z.box
+                inside = ((centroids[:, 0] >= x0) & (centroids[:, 0] <= x1)
+                          & (centroids[:, 1] >= y0) & (centroids[:, 1] <= y1))
+            zone_of[inside] = k
+            specs.append(replace(s.rock, **z.rock))
+        self.zone_of = zone_of
+        props = [effective_rock(spec, s.fluid.bulk_modulus, s.fluid.viscosity) for spec in specs]
+        self.zone_props = props
+        self.el_D = np.array([rock.plane_strain_elasticity(props[z]["E"], props[z]["nu"]) for z in zone_of])
+        self.el_alpha = np.array([props[z]["alpha"] for z in zone_of])
+        self.el_mobility = np.array([props[z]["mobility"] for z in zone_of])
+        self.el_inv_M = np.array([props[z]["inv_M"] for z in zone_of])
+
+    # ------------------------------------------------------------------ unknowns
+    def _number_unknowns(self, declared):
+        nn = self.mesh.n_nodes
+        f = self.fault
+        self._declared = frozenset(declared)
+        self.heav_index = np.full(nn, -1, dtype=np.int64)
+        self.lset_index = np.full(nn, -1, dtype=np.int64)
+        sizes = dict.fromkeys(BLOCK_ORDER, 0)
+        if "u" in declared:
+            sizes["u"] = 2 * nn
+        if "a" in declared:
+            ids = np.flatnonzero(f.heaviside_enriched)
+            self.heav_index[ids] = np.arange(len(ids))
+            sizes["a"] = 2 * len(ids)
+        if "p" in declared:
+            sizes["p"] = nn
+        if "c" in declared:
+            ids = np.flatnonzero(f.pressure_enriched)
+            self.lset_index[ids] = np.arange(len(ids))
+            sizes["c"] = len(ids)
+        if "pf" in declared:
+            sizes["pf"] = len(f.fault_node_s)
+        if "q" in declared:
+            sizes["q"] = 1
+        start = 0
+        sl = {}
+        for key in BLOCK_ORDER:
+            sl[key] = slice(start, start + sizes[key])
+            start += sizes[key]
+        self.blocks = Blocks(n=start, **sl)
+        self.n_dofs = start
+
+    def dof_counts(self) -> dict:
+        b = self.blocks
+        return {k: getattr(b, k).stop - getattr(b, k).start for k in BLOCK_ORDER}
+
+    def _u_map(self, nodes):
+        """(n, 8) standard displacement DOFs of element nodes."""
+        d = np.empty((len(nodes), 8), dtype=np.int64)
+        d[:, 0::2] = self.blocks.u.start + 2 * nodes
+        d[:, 1::2] = self.blocks.u.start + 2 * nodes + 1
+        return d
+
+    def _a_map(self, nodes):
+        h = self.heav_index[nodes]
+        d = np.empty((len(nodes), 8), dtype=np.int64)
+        d[:, 0::2] = np.where(h >= 0, self.blocks.a.start + 2 * h, -1)
+        d[:, 1::2] = np.where(h >= 0, self.blocks.a.start + 2 * h + 1, -1)
+        return d
+
+    def _p_map(self, nodes):
+        return (self.blocks.p.start + nodes).astype(np.int64)
+
+    def _c_map(self, nodes):
+        c = self.lset_index[nodes]
+        return np.where(c >= 0, self.blocks.c.start + c, -1).astype(np.int64)
+
+    # ------------------------------------------------------------------ bulk tabulation
+    def _tabulate_bulk(self):
+        f = self.fault
+        ne = self.mesh.n_elements
+        is_cut = np.zeros(ne, dtype=bool)
+        is_cut[f.cut_elements] = True
+        std_elements = np.flatnonzero(~is_cut)
+        self.cut_elements = f.cut_elements
+        sizes = self.mesh.element_sizes
+        g = xfem.GAUSS2
+        ref = np.array([[x, y] for y in g for x in g])
+        nq = len(ref)
+        hs = sizes[std_elements]
+        N = np.array([basis.shape(xi, eta) for xi, eta in ref])                 # (nq, 4)
+        unit = np.array([basis.shape_gradient(xi, eta, 1.0, 1.0) for xi, eta in ref])  # (nq, 4, 2)
+        grads = unit[None, :, :, :] / hs[:, None, None, :]
+        std_N = np.broadcast_to(N, (len(hs), nq, 4)).copy()
+        std_w = np.broadcast_to(0.25 * hs[:, :1] * hs[:, 1:], (len(hs), nq)).copy()
+
+        # cut elements: 8 displacement functions (4 standard, 4 Heaviside), 8 pressure functions
+        nc, nqc = f.cut_qp.shape[:2]
+        cut_Nu = np.zeros((nc, nqc, 8))
+        cut_gu = np.zeros((nc, nqc, 8, 2))
+        cut_Np = np.zeros((nc, nqc, 8))
+        cut_gp = np.zeros((nc, nqc, 8, 2))
+        for k, e in enumerate(f.cut_elements):
+            nodes = self.elements[e]
+            phi_e = f.node_phi[nodes]
+            node_side = (phi_e > 0).astype(np.float64)
+            hx, hy = sizes[e]
+            for q in range(nqc):
+                xi, eta = f.cut_qp[k, q]
+                Nq = basis.shape(xi, eta)
+                dN = basis.shape_gradient(xi, eta, hx, hy)
+                Nh, dNh = basis.heaviside_basis(Nq, dN, float(f.cut_side[k, q]), node_side)
+                Nl, dNl = basis.level_set_basis(Nq, dN, phi_e)
+                cut_Nu[k, q, :4], cut_Nu[k, q, 4:] = Nq, Nh
+                cut_gu[k, q, :4], cut_gu[k, q, 4:] = dN, dNh
+                cut_Np[k, q, :4], cut_Np[k, q, 4:] = Nq, Nl
+                cut_gp[k, q, :4], cut_gp[k, q, 4:] = dN, dNl
+
+        # local -> global maps
+        std_nodes = self.elements[std_elements]
+        cut_nodes = self.elements[self.cut_elements]
+        std_umap = cut_umap = std_pmap = cut_pmap = None
+        if self.has("u"):
+            std_umap = self._u_map(std_nodes)
+            cut_umap = np.hstack([self._u_map(cut_nodes), self._a_map(cut_nodes)])
+        if self.has("p"):
+            none4 = -np.ones((len(cut_nodes), 4), dtype=np.int64)
+            std_pmap = self._p_map(std_nodes)
+            cut_pmap = np.hstack([self._p_map(cut_nodes),
+                                  self._c_map(cut_nodes) if self.has("c") else none4])
+        groups = []
+        if len(std_elements):
+            groups.append(ElementGroup(std_elements, std_N, grads, std_N, grads, std_w, std_umap, std_pmap))
+        if len(self.cut_elements):
+            groups.append(ElementGroup(self.cut_elements, cut_Nu, cut_gu, cut_Np, cut_gp, f.cut_w,
+                                       cut_umap, cut_pmap))
+        self.element_groups = tuple(groups)
+
+    # ------------------------------------------------------------------ fault tabulation
+    def _tabulate_fault(self):
+        f = self.fault
+        ng = len(f.gp_s)
+        cut_nodes = self.elements[self.cut_elements]
+        sizes = self.mesh.element_sizes
+        N = np.zeros((ng, 4))
+        xy = np.zeros((ng, 2))
+        # the fault pressure is the trace of the rock pressure unless the fault has its own line
+        trace = self.has("c") or (not self.has("pf") and self.has("p"))
+        nbp = 8 if trace else 2
+        Np = np.zeros((ng, nbp))
+        dNp = np.zeros((ng, nbp))
+        pmap = -np.ones((ng, nbp), dtype=np.int64)
+        for g in range(ng):
+            k = f.gp_element[g]
+            e = self.cut_elements[k]
+            xi, eta = f.gp_ref[g]
+            Ng = basis.shape(xi, eta)
+            N[g] = Ng
+            xy[g] = Ng @ self.coords[cut_nodes[k]]
+            if trace:
+                dN = basis.shape_gradient(xi, eta, sizes[e, 0], sizes[e, 1])
+                Nl, dNl = basis.level_set_basis(Ng, dN, f.node_phi[cut_nodes[k]])
+                Np[g, :4], Np[g, 4:] = Ng, Nl
+                dNp[g, :4], dNp[g, 4:] = dN @ f.tangent, dNl @ f.tangent
+                if self.has("p"):
+                    pmap[g, :4] = self._p_map(cut_nodes[k])
+                if self.has("c"):
+                    pmap[g, 4:] = self._c_map(cut_nodes[k])
+            else:
+                lam = f.gp_xi1d[g]
+                s0, s1 = f.segment_s[f.gp_segment[g]]
+                Np[g] = (1.0 - lam, lam)
+                dNp[g] = (-1.0 / (s1 - s0), 1.0 / (s1 - s0))
+                if self.has("pf"):
+                    pmap[g] = self.blocks.pf.start + f.segment_nodes[f.gp_segment[g]]
+        self.fault_pressure_is_trace = trace
+        jump = self._a_map(cut_nodes[f.gp_element]) if self.has("a") else -np.ones((ng, 8), dtype=np.int64)
+        alpha_gp = self.el_alpha[self.cut_elements[f.gp_element]]
+        sigma_n0, tau0, p0 = self.in_situ.fault_tractions(self, xy, alpha_gp)
+        self.fault_points = FaultPoints(N=N, jump_dofs=jump, Np=Np, dNp_ds=dNp, p_dofs=pmap,
+                                        weight=f.gp_w, s=f.gp_s, xy=xy, sigma_n0=sigma_n0,
+                                        tau0=tau0, p0=p0)
+
+    # ------------------------------------------------------------------ boundary conditions
+    def _boundary_conditions(self):
+        s = self.scene
+        fixed = np.zeros(self.n_dofs, dtype=bool)
+        self.load = np.zeros(self.n_dofs)  # applied traction changes (N per m thickness)
+        f = self.fault
+        for edge in EDGES:
+            spec = getattr(s.boundary, edge)
+            nodes = self.mesh.edge_nodes(edge)
+            if self.has("u"):
+                comps = {"pinned": (0, 1), "roller": ((0,) if edge in ("left", "right") else (1,)),
+                         "free": ()}[spec.mechanical]
+                for c in comps:
+                    fixed[self.blocks.u.start + 2 * nodes + c] = True
+                    h = self.heav_index[nodes]
+                    fixed[self.blocks.a.start + 2 * h[h >= 0] + c] = True
+                if any(spec.traction):
+                    self._edge_traction(nodes, np.asarray(spec.traction))
+            if spec.hydraulic == "drained":
+                if self.has("p"):
+                    fixed[self.blocks.p.start + nodes] = True
+                if self.has("c"):
+                    c = self.lset_index[nodes]
+                    fixed[self.blocks.c.start + c[c >= 0]] = True
+                if self.has("pf"):
+                    # a fault end that lies on a drained edge is drained
+                    ends = [(0, f.segment_s[0, 0]), (len(f.fault_node_s) - 1, f.segment_s[-1, 1])]
+                    xmin, xmax, ymin, ymax = self.mesh.bounds
+                    tol = 1e-9 * max(xmax - xmin, ymax - ymin)
+                    for node, s_end in ends:
+                        x, y = f.point + s_end * f.tangent
+                        on = {"left": abs(x - xmin), "right": abs(x - xmax),
+                              "bottom": abs(y - ymin), "top": abs(y - ymax)}[edge] < tol
+                        if on:
+                            fixed[self.blocks.pf.start + node] = True
+        self.fixed = fixed
+        self.free = np.flatnonzero(~fixed)
+
+    def _edge_traction(self, nodes, traction):
+        """Consistent forces of a uniform traction change on a boundary edge, split at the fault
+        so that the Heaviside DOFs of cut edge segments get their share."""
+        f = self.fault
+        xy = self.coords[nodes]
+        gx, gw = np.polynomial.legendre.leggauss(2)
+        for i in range(len(nodes) - 1):
+            a, b = nodes[i], nodes[i + 1]
+            pa, pb = xy[i], xy[i + 1]
+            L = np.linalg.norm(pb - pa)
+            fa, fb = f.node_phi[a], f.node_phi[b]
+            cuts = [0.0, 1.0]
+            if fa * fb < 0:
+                cuts = [0.0, fa / (fa - fb), 1.0]
+            for lo, hi in zip(cuts[:-1], cuts[1:]):
+                for x, w in zip(gx, gw):
+                    lam = lo + 0.5 * (x + 1) * (hi - lo)
+                    ww = 0.5 * w * (hi - lo) * L
+                    Na, Nb = 1 - lam, lam
+                    side = 1.0 if (1 - lam) * fa + lam * fb > 0 else 0.0
+                    for node, Nv in ((a, Na), (b, Nb)):
+                        self.load[self.blocks.u.start + 2 * node: self.blocks.u.start + 2 * node + 2] += ww * Nv * traction
+                        h = self.heav_index[node]
+                        if h >= 0:
+                            shift = side - (1.0 if f.node_phi[node] > 0 else 0.0)
+                            j = self.blocks.a.start + 2 * h
+                            self.load[j:j + 2] += ww * Nv * shift * traction
+
+    # ------------------------------------------------------------------ injection point
+    def _injection_point(self):
+        f = self.fault
+        if not self.has_fault:
+            self.injection = InjectionPoint(s=0.0, xy=self.injection_xy, N=np.zeros(4),
+                                            jump_dofs=-np.ones(8, dtype=np.int64), Np=np.zeros(0),
+                                            p_dofs=np.zeros(0, dtype=np.int64),
+                                            p0=self.scene.initial.pore_pressure, nearest_point=0)
+            return
+        s_inj = self.scene.injection.position
+        try:
+            k, lam = xfem.locate_point_on_fault(f, s_inj)
+        except ValueError as exc:
+            raise SceneError(f"injection.position = {s_inj!r}: {exc}") from None
+        r0, r1 = f.segment_ref[k]
+        xi, eta = r0 + lam * (r1 - r0)
+        nodes = self.elements[self.cut_elements[k]]
+        Ng = basis.shape(xi, eta)
+        jump_dofs = self._a_map(nodes[None, :])[0] if self.has("a") else -np.ones(8, dtype=np.int64)
+        if self.fault_pressure_is_trace:
+            e = self.cut_elements[k]
+            hx, hy = self.mesh.element_sizes[e]
+            Nl, _ = basis.level_set_basis(Ng, basis.shape_gradient(xi, eta, hx, hy), f.node_phi[nodes])
+            Np = np.concatenate([Ng, Nl])
+            pm = -np.ones(8, dtype=np.int64)
+            if self.has("p"):
+                pm[:4] = self._p_map(nodes)
+            if self.has("c"):
+                pm[4:] = self._c_map(nodes)
+        elif self.has("pf"):
+            Np = np.array([1.0 - lam, lam])
+            pm = self.blocks.pf.start + f.segment_nodes[k]
+        else:  # dry fault: no fluid to inject into
+            Np = np.zeros(2)
+            pm = -np.ones(2, dtype=np.int64)
+        # contact quantities live at the fault's Gauss points: at the injection point, the nearest
+        nearest = int(np.argmin(np.abs(self.fault_points.s - s_inj))) if len(self.fault_points.s) else 0
+        self.injection = InjectionPoint(s=s_inj, xy=self.injection_xy, N=Ng, jump_dofs=jump_dofs,
+                                        Np=Np, p_dofs=pm, nearest_point=nearest,
+                                        p0=float(self.in_situ.state(self, self.injection_xy[None, :])[1][0]))
+
+    # ------------------------------------------------------------------ evaluation helpers
+    def fault_jump(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(slip, opening) at the fault Gauss points (m)."""
+        fp = self.fault_points
+        return contact.fault_jumps(x, fp.N, fp.jump_dofs, self.fault.tangent, self.fault.normal)
+
+    def fault_overpressure(self, x: np.ndarray) -> np.ndarray:
+        fp = self.fault_points
+        xv = np.where(fp.p_dofs >= 0, x[np.maximum(fp.p_dofs, 0)], 0.0)
+        return np.sum(fp.Np * xv, axis=1)
+
+    def injection_overpressure(self, x) -> float:
+        inj = self.injection
+        xv = np.where(inj.p_dofs >= 0, x[np.maximum(inj.p_dofs, 0)], 0.0)
+        return float(inj.Np @ xv)
+
+    def injection_jump(self, x) -> tuple[float, float]:
+        """(slip, opening) at the injection point (m)."""
+        inj = self.injection
+        slip, opening = contact.fault_jumps(x, inj.N[None, :], inj.jump_dofs[None, :],
+                                            self.fault.tangent, self.fault.normal)
+        return float(slip[0]), float(opening[0])
+
+
+def discretise(scene: Scene) -> Discretisation:
+    """The terms a scene calls for and their discretisation (the in-situ state checked)."""
+    from .physics import terms_for
+
+    physics = terms_for(scene)
+    disc = Discretisation(scene, physics)
+    if disc.has("u"):
+        physics.in_situ.check_equilibrium(disc)
+    return disc

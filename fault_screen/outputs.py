@@ -1,0 +1,87 @@
+"""The declared output schema: every array a run records, with its shape, unit and meaning.
+
+The HDF5 writer, the README's results table (``python -m fault_screen.outputs``) and the
+figures' axis units all read this table, so a unit lives in one place. Shapes: ``(time, x)``
+along the fault's Gauss points at every output time, ``(time,)`` one value per output time,
+``(x,)`` and ``(x, 2)`` fixed along the fault.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Output:
+    group: str
+    name: str
+    shape: str
+    unit: str
+    description: str
+
+    @property
+    def path(self) -> str:
+        return f"/{self.group}/{self.name}" if self.group else f"/{self.name}"
+
+
+_F, _I, _B, _S = "fault", "injection", "balance", "solver"
+SCHEMA: tuple[Output, ...] = (
+    Output("", "time", "(time,)", "s", "model time of each output (0 = start of injection)"),
+    Output(_F, "x", "(x,)", "m", "along-fault coordinate of the fault Gauss points, 0 at the injection point"),
+    Output(_F, "xy", "(x, 2)", "m", "model coordinates of the fault Gauss points"),
+    Output(_F, "weight", "(x,)", "m", "Gauss weights: integrals along the fault are sums"),
+    Output(_F, "pressure", "(time, x)", "Pa", "fault pore pressure"),
+    Output(_F, "overpressure", "(time, x)", "Pa", "fault pore pressure minus its in-situ value"),
+    Output(_F, "slip", "(time, x)", "m", "tangential jump u+ - u- (along the fault tangent)"),
+    Output(_F, "opening", "(time, x)", "m", "normal jump (positive apart) from the in-situ state"),
+    Output(_F, "slip_rate", "(time, x)", "m/s", "slip change over the step divided by the step"),
+    Output(_F, "shear_traction", "(time, x)", "Pa", "shear stress on the fault (in-situ included)"),
+    Output(_F, "effective_normal_stress", "(time, x)", "Pa",
+           "fault effective normal stress, compression positive (in-situ included)"),
+    Output(_F, "friction", "(time, x)", "1", "friction coefficient in effect"),
+    Output(_F, "contact_state", "(time, x)", "1", "0 stick, 1 slip, 2 open"),
+    Output(_F, "hydraulic_aperture", "(time, x)", "m", "hydraulic aperture 2h"),
+    Output(_I, "flow_rate", "(time,)", "m3/s", "flow rate of the whole interval (all NoF fractures), step average"),
+    Output(_I, "pressure", "(time,)", "Pa", "pore pressure at the injection point"),
+    Output(_I, "overpressure", "(time,)", "Pa", "overpressure at the injection point"),
+    Output(_I, "slip", "(time,)", "m", "slip at the injection point"),
+    Output(_I, "opening", "(time,)", "m", "opening at the injection point"),
+    Output(_I, "volume", "(time,)", "m3", "cumulative injected volume of the whole interval"),
+    Output(_I, "hydraulic_aperture", "(time,)", "m", "hydraulic aperture at the injection point"),
+    Output(_I, "slip_rate", "(time,)", "m/s", "slip rate at the fault point nearest to the injection"),
+    Output(_I, "shear_traction", "(time,)", "Pa", "shear stress at the fault point nearest to the injection"),
+    Output(_I, "effective_normal_stress", "(time,)", "Pa",
+           "effective normal stress at the fault point nearest to the injection"),
+    Output(_I, "friction", "(time,)", "1", "friction at the fault point nearest to the injection"),
+    Output(_I, "fault_inflow_velocity", "(time,)", "m/s", "Eq. 29: flow_rate / (NoF 2h)"),
+    Output(_B, "stored_rock", "(time,)", "m3/m", "fluid stored in the rock since t = 0, per m of thickness"),
+    Output(_B, "stored_fault", "(time,)", "m3/m", "fluid stored in the fault since t = 0, per m of thickness"),
+    Output(_B, "leaked", "(time,)", "m3/m", "fluid that left through drained edges, per m of thickness"),
+    Output(_S, "iterations", "(time,)", "1", "Newton iterations of the step"),
+    Output(_S, "step_cuts", "(time,)", "1", "times the step was halved before it converged"),
+    Output(_S, "dt", "(time,)", "s", "step size"),
+)
+
+#: unit of each named dataset (the same name means the same unit in every group)
+UNITS = {o.name: o.unit for o in SCHEMA}
+
+
+def by_group(group: str) -> list[Output]:
+    return [o for o in SCHEMA if o.group == group]
+
+
+def unit(group: str, name: str) -> str:
+    for o in SCHEMA:
+        if o.group == group and o.name == name:
+            return o.unit
+    return UNITS.get(name, "")
+
+
+def markdown_table() -> str:
+    """The README's results table."""
+    lines = ["| dataset | shape | unit | meaning |", "|---|---|---|---|"]
+    lines += [f"| `{o.path}` | {o.shape} | {o.unit} | {o.description} |" for o in SCHEMA]
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    print(markdown_table())

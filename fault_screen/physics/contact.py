@@ -1,0 +1,83 @@
+"""The fault's walls in contact: penalty contact with friction (paper Eq. 17-27, 32), with
+dilation (Eq. 21) through the cumulative plastic slip.
+
+The friction laws share one signature, ``law(slip, opening, history, sigma_n0, dt) ->
+(traction, contact_state, tangent, new_history)`` (arrays over the fault points; layouts in
+``kernels.contact``): Coulomb (rate-independent) or regularised rate(-and-state) friction.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..kernels import contact as kc
+from .base import Term
+
+
+class FrictionLaw:
+    """Parameters of a friction law as one plain array, and the kernel that applies it."""
+
+    kernel = staticmethod(kc.coulomb_law)
+
+    def __init__(self, scene, *, dilation: bool):
+        f = scene.fault
+        p = np.zeros(9)
+        p[kc.KN], p[kc.KT] = f.normal_stiffness, f.shear_stiffness
+        p[kc.TAN_DILATION] = np.tan(np.radians(f.dilation_angle)) if dilation else 0.0
+        p[kc.MU0] = f.friction
+        p[kc.V_REF], p[kc.D_C] = f.reference_velocity, f.critical_slip_distance
+        p[kc.SLIDING_RATE] = f.slip_rate_threshold
+        self.params = p
+        self.initial_state_variable = (f.initial_state if f.initial_state is not None
+                                       else f.critical_slip_distance / f.reference_velocity)
+
+    def __call__(self, slip, opening, history, sigma_n0, dt):
+        return self.kernel(self.params, slip, opening, history, sigma_n0, dt)
+
+
+class CoulombFriction(FrictionLaw):
+    """Constant friction mu0 (Eq. 17, 24-25)."""
+
+
+class RateStateFriction(FrictionLaw):
+    """mu0 + a ln(V/V0) (Eq. 32), + b ln(V0 theta/Dc) with the aging law (Eq. 18) when
+    ``state_evolution``; regularised near V = 0 (kernels.friction)."""
+
+    kernel = staticmethod(kc.rate_state_law)
+
+    def __init__(self, scene, *, dilation: bool, state_evolution: bool):
+        super().__init__(scene, dilation=dilation)
+        f = scene.fault
+        self.params[kc.RATE_A] = f.rate_parameter
+        self.params[kc.STATE_B] = f.state_parameter if state_evolution else 0.0
+
+
+class Contact(Term):
+    """Penalty contact on the Heaviside DOFs (Eq. 19-27): the change of contact traction from
+    the in-situ state, int N^T [(tau - tau0) t - (sigma_n - sigma_n0) n] ds, N per m; the walls
+    carry the fault's effective stress, its fluid pressure is FaultPressureOnWalls'."""
+    blocks = ("a",)
+
+    def __init__(self, law: FrictionLaw):
+        self.law = law
+
+    def initial_history(self, disc) -> np.ndarray:
+        """Fault at rest: no slip, the in-situ shear traction, no plastic slip, state theta0."""
+        fp = disc.fault_points
+        h = np.zeros((len(fp.s), 4))
+        h[:, kc.H_TAU] = fp.tau0
+        h[:, kc.H_STATE] = self.law.initial_state_variable
+        return h
+
+    def nonlinear_dofs(self, disc):
+        return np.arange(disc.blocks.a.start, disc.blocks.a.stop)
+
+    def residual(self, disc, x, history, dt, time_weight, residual, point):
+        fp = disc.fault_points
+        slip, opening = disc.fault_jump(x)
+        traction, contact_state, tangent, new_history = self.law(slip, opening, history, fp.sigma_n0, dt)
+        rows, cols, vals = kc.assemble_contact(fp.N, fp.jump_dofs, disc.fault.tangent, disc.fault.normal,
+                                               fp.weight, traction, fp.tau0, fp.sigma_n0, tangent, residual)
+        point.update(slip=slip, opening=opening, shear_traction=traction[:, 0],
+                     effective_normal_stress=traction[:, 1], friction=traction[:, 2],
+                     contact_state=contact_state, history=new_history)
+        return rows, cols, vals
