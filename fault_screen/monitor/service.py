@@ -113,10 +113,11 @@ class MonitorService:
         self._stop.set()
 
     def install_signal_handlers(self) -> None:
+        """SIGINT/SIGTERM stop the loop cleanly (checkpoint, results); the previous handlers
+        come back when :meth:`run` returns."""
         def handler(signum, frame):
             self.request_stop(signal.Signals(signum).name)
-        signal.signal(signal.SIGINT, handler)
-        signal.signal(signal.SIGTERM, handler)
+        self._old_handlers = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
 
     # -- pieces -----------------------------------------------------------------------------
     def _start_known(self):
@@ -200,6 +201,8 @@ class MonitorService:
                             "start", left, self.outbox.path)
             self.outbox.close()
             self.source.close()
+            for signum, old in getattr(self, "_old_handlers", {}).items():
+                signal.signal(signum, old)
         st = self.stage
         return {"ended": ended, "steps": st.steps, "time": st.time, "samples": st.samples.count,
                 "level": LEVELS[st.level] if 0 <= st.level < len(LEVELS) else st.level,
