@@ -77,3 +77,15 @@ def test_monitor_refuses_a_pressure_controlled_scene_and_a_foreign_state(tmp_pat
     assert r.exit_code == 2 and "state.h5" in r.output
     r = invoke("monitor", SCENE)
     assert r.exit_code == 2 and "--follow" in r.output
+
+
+def test_events_with_an_elapsed_log_need_t0(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    log = tmp_path / "elapsed.csv"
+    log.write_text("elapsed[s],flow_rate[L/min]\n0,0\n5,10\n")
+    cat = tmp_path / "cat.txt"
+    cat.write_text("#EventID | Time | Latitude | Longitude | Depth/km | Author | Catalog | "
+                   "Contributor | ContributorID | MagType | Magnitude | MagAuthor | Name\n")
+    r = invoke("monitor", SCENE, "--follow", log, "--events", cat, "--idle-exit", "1")
+    assert r.exit_code == 2
+    assert "--events need the date-time of model time 0" in r.output and "--t0" in r.output

@@ -111,7 +111,7 @@ def monitor(scene_path, follow, events, waveforms, state, out, idle_exit, alerts
     """
     from ..io.injection_log import InjectionLogError
     from ..monitor.plugins import PluginError
-    from ..monitor.service import MonitorConfig, MonitorService
+    from ..monitor.service import MonitorConfig, MonitorInputError, MonitorService
 
     logging.basicConfig(level=logging.WARNING if quiet else logging.INFO, stream=sys.stderr,
                         format="%(asctime)s %(levelname)s %(message)s")
@@ -145,7 +145,7 @@ def monitor(scene_path, follow, events, waveforms, state, out, idle_exit, alerts
     service.install_signal_handlers()
     try:
         summary = service.run()
-    except InjectionLogError as exc:
+    except (InjectionLogError, MonitorInputError) as exc:
         raise BadInput(str(exc)) from None
     if not quiet:
         click.echo(f"monitor stopped ({summary['ended']}): {summary['steps']} steps to "

@@ -27,9 +27,13 @@ from .outbox import Outbox
 from .seismicity import CatalogFollower, SdsDetector, Site
 from .stage import LEVELS, Stage
 
-__all__ = ["MonitorConfig", "MonitorService"]
+__all__ = ["MonitorConfig", "MonitorService", "MonitorInputError"]
 
 log = logging.getLogger("fault_screen.monitor")
+
+
+class MonitorInputError(ValueError):
+    """Input the monitor cannot use, found while running (the message names the option)."""
 
 
 @dataclass
@@ -125,6 +129,12 @@ class MonitorService:
         if st.start is None and self.decoder.start is not None and st.steps == 0:
             st.start = self.decoder.start
         if st.start is None:
+            wanted = [o for o, v in (("--events", self.cfg.events),
+                                     ("--waveforms", self.cfg.waveforms)) if v is not None]
+            if wanted and self.decoder.iso is False:
+                raise MonitorInputError(
+                    f"{' and '.join(wanted)} need the date-time of model time 0, and the log "
+                    f"{self.cfg.follow} has elapsed times: give it with --t0")
             return
         if self.cfg.events is not None and self.catalog is None:
             self.catalog = CatalogFollower(self.cfg.events, st.start)
@@ -190,7 +200,7 @@ class MonitorService:
         try:
             try:
                 ended = self._loop(last_data)
-            except InjectionLogError:
+            except (InjectionLogError, MonitorInputError):
                 self.checkpoint()      # the samples before the bad line are kept
                 self._write_result()
                 raise
