@@ -1,14 +1,15 @@
 """The package-level API: what ``import fault_screen`` users call.
 
-It sits above the core (which reads no files) and adds what a user expects of a whole run:
-a scene that names an injection log is driven by that log.
+It sits above the core (which reads no files) and adds what a user expects of a whole run: a
+scene that names an injection log is driven by that log, and the result is screened with the
+scene's ``[monitor]`` rules (``/screening/``). The core alone is
+:func:`fault_screen.simulate.simulate`.
 """
 from __future__ import annotations
 
-from typing import Callable
-
 from .result import Result
 from .scene import Scene
+from .screening import screen_result
 from .simulate import simulate as simulate_core
 
 
@@ -24,10 +25,14 @@ def scene_injected_volume(scene: Scene):
     return log.volume
 
 
-def simulate(scene: Scene, *, progress: Callable | None = None, injected_volume=None,
-             observer: Callable | None = None) -> Result:
-    """Run ``scene`` to its end time (see :func:`fault_screen.simulate.simulate`); a scene with
-    ``injection.log`` is driven by that log unless ``injected_volume`` is given."""
+def simulate(scene: Scene, *, events=None, injected_volume=None, **options) -> Result:
+    """Run ``scene`` to its end time (options as :func:`fault_screen.simulate.simulate`:
+    ``progress``, ``observer``) and screen the result with the scene's ``[monitor]`` rules. A
+    scene with ``injection.log`` is driven by that log unless ``injected_volume`` is given.
+    ``events``: seismic events (``.time`` s of model time, ``.magnitude``, optional
+    ``.distance`` m) the rules may use."""
     if injected_volume is None:
         injected_volume = scene_injected_volume(scene)
-    return simulate_core(scene, progress=progress, injected_volume=injected_volume, observer=observer)
+    result = simulate_core(scene, injected_volume=injected_volume, **options)
+    screen_result(result, events=events)
+    return result

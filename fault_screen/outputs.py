@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from .rules import METRICS
+
 
 @dataclass(frozen=True)
 class Output:
@@ -59,6 +61,19 @@ SCHEMA: tuple[Output, ...] = (
     Output(_S, "iterations", "(time,)", "1", "Newton iterations of the step"),
     Output(_S, "step_cuts", "(time,)", "1", "times the step was halved before it converged"),
     Output(_S, "dt", "(time,)", "s", "step size"),
+)
+
+# the screening layer's metrics (rules.METRICS is their one definition), its traffic light and
+# the replayed log that callers store beside the results
+SCHEMA += tuple(Output("screening", name, "(time,)", unit_, meaning)
+                for name, (unit_, meaning) in METRICS.items())
+SCHEMA += (
+    Output("screening", "level", "(time,)", "0 green, 1 yellow, 2 red", "traffic-light level"),
+    Output("screening", "transitions", "(n,)", "time: s",
+           "level changes: compound (time s, from, to, rule)"),
+    Output("log", "time", "(samples,)", "s", "injection-log sample times used by the run (model time)"),
+    Output("log", "flow_rate", "(samples,)", "m3/s", "logged flow rate of the whole interval"),
+    Output("log", "pressure", "(samples,)", "Pa", "logged (wellhead or downhole) pressure"),
 )
 
 #: unit of each named dataset (the same name means the same unit in every group)

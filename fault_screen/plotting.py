@@ -188,6 +188,8 @@ def plot_injection_point(result, path, events=None) -> Path:
     for ax in (ax_p, ax_d):
         ax.grid(alpha=0.3)
         ax.set_xlim(t[0] * f, t[-1] * f)
+    from .plotting_screening import draw_result_level_band
+    draw_result_level_band(result, (ax_p, ax_d), f)  # the screening traffic light, if screened
     return _save(fig, path)
 
 
@@ -280,5 +282,6 @@ def plot_result(result, out_dir, *, events=None, prefix: str = "") -> list[Path]
     ``<prefix>space-time.png``; returns their paths."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    from .plotting_screening import screening_figures
     return [plot_injection_point(result, out / f"{prefix}injection-point.png", events),
-            plot_space_time(result, out / f"{prefix}space-time.png", events)]
+            plot_space_time(result, out / f"{prefix}space-time.png", events)] + screening_figures(result, out, events, prefix)

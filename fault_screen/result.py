@@ -56,7 +56,7 @@ class Result:
                 for name, arrays in self.extra.items():
                     grp = h5.require_group(name)
                     for k, v in arrays.items():
-                        grp.create_dataset(k, data=v)
+                        grp.create_dataset(k, data=v).attrs["unit"] = unit(name, k)
             os.replace(tmp, path)
         finally:
             if tmp.exists():
@@ -77,4 +77,3 @@ class Result:
             return cls(scene=scene, time=h5["time"][()], fault_x=fx, fault_xy=fxy, fault_weights=fw, fault=fault,
                        injection=read(h5["injection"]), balance=read(h5["balance"]),
                        solver=read(h5["solver"]), meta=json.loads(h5.attrs["meta"]), extra=extra)
-

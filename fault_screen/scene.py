@@ -87,8 +87,6 @@ class FaultSpec:
     """Dilation angle (degrees); used with effects.dilation."""
     asperity_height_std: float = 0.0
     """sigma_h of Renshaw's aperture law (m); used with effects.aperture_evolution."""
-    slip_rate_threshold: float = 1e-9
-    """Slip rate above which a point counts as slipping (m/s) for rate friction and alerts."""
 
 
 @_spec
@@ -252,6 +250,69 @@ class EffectsSpec:
 
 
 @_spec
+class MonitorRule:
+    """One screening rule of ``[[monitor.rules]]``: while ``when`` holds, the level is at least
+    ``level``; it is released ``hold`` seconds after ``when`` last held."""
+    level: str
+    """'yellow' or 'red' (green is the absence of any rule in force)."""
+    when: str
+    """Condition over the screening metrics and the [monitor] thresholds, e.g.
+    ``"max_utilisation > utilisation_yellow"`` (grammar: fault_screen.rules; SI values)."""
+    hold: float = 600.0
+    """Time the rule stays in force after its condition last held (s): a level does not flicker
+    when a metric oscillates about a threshold. Default 10 min, 120 steps of the bundled scenes."""
+    action: str = ""
+    """What the operator should do, shown with the verdict and in alerts."""
+    name: str | None = None
+    """Name in transitions and messages; default ``rules[i]``."""
+
+
+_DEFAULT_ACTION_RED = "stop injection and bleed off; inform the regulator"
+_DEFAULT_ACTION_YELLOW = "reduce the injection rate by half and watch the fault closely"
+
+
+@_spec
+class MonitorSpec:
+    """Screening thresholds and rules (``[monitor]``): the one place for screening thresholds.
+
+    Rules may name every threshold below as well as the metrics (fault_screen.rules.METRICS)."""
+    slip_rate_yellow: float = 1e-6
+    """Peak slip rate that means the fault is sliding (m/s): 1 um/s is ~1000 times tectonic
+    creep (mm to cm a year, ~1e-10 to 1e-9 m/s) and a million times below seismic slip (~1 m/s);
+    the aseismic slip Guglielmi et al. (2015) measured at Rustrel reached a few um/s."""
+    slip_rate_red: float = 1e-3
+    """Peak slip rate that means the slip is becoming dynamic (m/s): 1 mm/s is the usual onset of
+    seismic slip in earthquake-cycle models (e.g. the SCEC SEAS benchmarks, Erickson et al. 2020),
+    beyond which a quasi-static model no longer holds."""
+    utilisation_yellow: float = 0.9
+    """Fraction of the frictional strength mu0 sigma'_n that the shear stress uses (-) at which a
+    point is close to failure: a 10 % margin, the usual reactivation screening margin."""
+    magnitude_yellow: float = 2.0
+    """Event magnitude of the amber light (ML): Alberta AER Subsurface Order No. 2 (Duvernay, 2015)
+    ML 2.0 report and reduce (and ML 4.0 stop); Oklahoma OCC protocol ML 2.5 review, 3.0 pause."""
+    magnitude_red: float = 2.9
+    """Event magnitude of the red light (ML): Basel 2006 stop level (ML 2.9); Oklahoma suspends at
+    ML 3.5; the UK shale-gas protocol (2011) pauses at ML 0.5: set it lower for shallow sites."""
+    event_rate_window: float = 3600.0
+    """Trailing window of the event_rate metric (s); event_rate is in events per hour, so the
+    default of 1 h counts the events of the last hour as they are."""
+    rules: tuple[MonitorRule, ...] = (
+        MonitorRule(level="red", name="dynamic slip", when="peak_slip_rate > slip_rate_red",
+                    hold=3600.0, action=_DEFAULT_ACTION_RED),
+        MonitorRule(level="red", name="large event", when="event_magnitude >= magnitude_red",
+                    hold=3600.0, action=_DEFAULT_ACTION_RED),
+        MonitorRule(level="yellow", name="fault sliding", when="peak_slip_rate > slip_rate_yellow",
+                    action=_DEFAULT_ACTION_YELLOW),
+        MonitorRule(level="yellow", name="near failure", when="max_utilisation > utilisation_yellow",
+                    action=_DEFAULT_ACTION_YELLOW),
+        MonitorRule(level="yellow", name="felt-size event", when="event_magnitude >= magnitude_yellow",
+                    action=_DEFAULT_ACTION_YELLOW),
+    )
+    """Ordered rules; the highest level in force wins, the first rule of that level names it.
+    Default holds: red 1 h (a red light stands until reviewed), yellow 10 min."""
+
+
+@_spec
 class Scene:
     title: str = "untitled"
     mesh: MeshSpec = MeshSpec()
@@ -266,6 +327,7 @@ class Scene:
     time: TimeSpec = TimeSpec()
     solver: SolverSpec = SolverSpec()
     effects: EffectsSpec = EffectsSpec()
+    monitor: MonitorSpec = MonitorSpec()
 
     # ---- loading -------------------------------------------------------------------------
     @classmethod
@@ -337,10 +399,19 @@ QUANTITY = {
                      "band", "box", "position", "reference_point"], "length"),
     "permeability": "permeability",
     **dict.fromkeys(["end", "dt", "dt_max", "initial_state", "log_max_gap"], "time"),
+    **dict.fromkeys(["hold", "event_rate_window"], "time"),
     "viscosity": "viscosity",
     **dict.fromkeys(["angle", "dilation_angle"], "angle"),
 }
 _UNIT_KEY = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*\[(.+)\]\s*$")
+
+
+#: keys that moved, with where they went
+MOVED_KEYS = {
+    "fault.slip_rate_threshold": "screening thresholds are set in [monitor] (slip_rate_yellow, "
+                                 "slip_rate_red and the rules); the contact state counts a point as "
+                                 "sliding above 1e-9 m/s (fault_screen.physics.contact.SLIDING_SLIP_RATE)",
+}
 
 
 def _build(cls, data, where):
@@ -352,6 +423,9 @@ def _build(cls, data, where):
     for raw, value in data.items():
         m = _UNIT_KEY.match(raw)
         name, unit = (m.group(1), m.group(2).strip()) if m else (raw, None)
+        if _key(where, name) in MOVED_KEYS:
+            raise SceneError(f"{_key(where, raw)} = {value!r} is no longer read: "
+                             f"{MOVED_KEYS[_key(where, name)]}")
         if name not in known:
             raise SceneError(f"unknown key {_key(where, raw)!s} = {value!r}; "
                              f"known keys in [{where or 'scene'}]: {', '.join(sorted(known))}")
@@ -382,6 +456,10 @@ def _coerce(hint, value, key, quantity=None, unit=None):
         if not isinstance(value, list):
             raise SceneError(f"{key} must be an array of tables ([[zones]]), got {value!r}")
         return tuple(_build(Zone, v, f"{key}[{i}]") for i, v in enumerate(value))
+    if base == "tuple[MonitorRule, ...]":
+        if not isinstance(value, list):
+            raise SceneError(f"{key} must be an array of tables ([[monitor.rules]]), got {value!r}")
+        return tuple(_build(MonitorRule, v, f"{key}[{i}]") for i, v in enumerate(value))
     if base == "bool":
         if not isinstance(value, bool):
             raise SceneError(f"{key} = {value!r} must be true or false")
@@ -453,7 +531,7 @@ def _number(value, key, quantity=None, unit=None):
 
 
 for _cls in (Refinement, MeshSpec, FaultSpec, RockSpec, DamageZoneSpec, FluidSpec, InitialSpec, EdgeSpec,
-             BoundarySpec, InjectionSpec, TimeSpec, SolverSpec, EffectsSpec):
+             BoundarySpec, InjectionSpec, TimeSpec, SolverSpec, EffectsSpec, MonitorRule, MonitorSpec):
     _SECTIONS[_cls.__name__] = _cls
 
 
@@ -552,7 +630,7 @@ def _validate(s: Scene):
     ef = s.effects
     for key in ("rate_parameter", "state_parameter", "dilation_angle", "asperity_height_std"):
         _check(getattr(f, key) >= 0, f"fault.{key}", getattr(f, key), "must be >= 0")
-    for key in ("reference_velocity", "critical_slip_distance", "slip_rate_threshold"):
+    for key in ("reference_velocity", "critical_slip_distance"):
         _check(getattr(f, key) > 0, f"fault.{key}", getattr(f, key), "must be > 0")
     _check(f.dilation_angle < 90, "fault.dilation_angle", f.dilation_angle, "must be below 90 degrees")
     if f.initial_state is not None:
@@ -607,6 +685,30 @@ def _validate(s: Scene):
     if not ef.mechanics:
         _check(not ef.poroelastic, "effects.poroelastic", ef.poroelastic,
                "Biot rock needs mechanics = true (rigid rock has no pore volume change)")
+    _validate_monitor(s.monitor)
+
+
+def _validate_monitor(mon: MonitorSpec):
+    from .rules import METRICS, RuleError, parse_condition
+
+    for key in ("slip_rate_yellow", "slip_rate_red", "event_rate_window"):
+        _check(getattr(mon, key) > 0, f"monitor.{key}", getattr(mon, key), "must be > 0")
+    _check(0 < mon.utilisation_yellow, "monitor.utilisation_yellow", mon.utilisation_yellow, "must be > 0")
+    known = set(METRICS) | {f.name for f in fields(MonitorSpec) if f.name != "rules"}
+    names = set()
+    for i, rule in enumerate(mon.rules):
+        where = f"monitor.rules[{i}]" + (f" ({rule.name!r})" if rule.name else "")
+        _check(rule.level in ("yellow", "red"), f"{where}.level", rule.level, "must be 'yellow' or 'red'")
+        _check(rule.hold >= 0, f"{where}.hold", rule.hold, "must be >= 0 s")
+        try:
+            parse_condition(rule.when, known)
+        except RuleError as exc:
+            raise SceneError(f"{where}.when = {rule.when!r}: {exc}") from None
+        name = rule.name or f"rules[{i}]"
+        _check(name not in names, f"{where}.name", name, "two rules have this name")
+        _check(0 < len(name.encode()) <= 64, f"{where}.name", name,
+               "must have 1 to 64 bytes (stored in /screening/transitions)")
+        names.add(name)
 
 
 # ---- a small TOML writer for resolved scenes (tables, arrays of tables, scalars, arrays) ----

@@ -95,13 +95,15 @@ class Simulation:
         return lambda t0, t1: float(volume) * (t1 - t0) / span
 
     def advance(self, t_next: float, *, volume=None, pressure=None, align: bool = False,
-                progress: Callable | None = None, observer: Callable | None = None) -> int:
+                max_steps: int | None = None, progress: Callable | None = None,
+                observer: Callable | None = None) -> int:
         """Advance to ``t_next`` (s); returns the number of steps taken.
 
         ``volume``: m^3 injected into the whole interval over [time, t_next] (spread evenly), or
         ``volume(t0, t1)`` -> m^3 over any sub-interval (a log); ``pressure``: overpressure (Pa)
         or ``pressure(t)``; neither: the scene's own schedule. ``align``: stop at the last whole
-        step of the sequence that ends by ``t_next``. ``progress(step, t, t_next, wall)`` after
+        step of the sequence that ends by ``t_next``; ``max_steps``: stop after that many steps
+        (a caller that checkpoints or polls in between). ``progress(step, t, t_next, wall)`` after
         each step; ``observer(t, x, disc)`` sees every accepted state vector."""
         value = self._injection_value(volume, pressure, t_next)
         scene = self.scene
@@ -112,6 +114,8 @@ class Simulation:
         wall0 = _time.perf_counter()
         taken = 0
         while self.time < t_next * (1 - 1e-12):
+            if max_steps is not None and taken >= max_steps:
+                break
             t = self.time
             if align and t + self.dt > t_next * (1 + 1e-12):
                 break

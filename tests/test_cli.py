@@ -96,7 +96,7 @@ def test_run_small_scene_writes_result_figures_and_summary(tmp_path, scene_file)
     # not a terminal: plain progress lines, the last at 100 %
     assert "100%" in r.output and "\r" not in r.output
     pngs = sorted(figs.glob("*.png"))
-    assert [p.name for p in pngs] == ["r-injection-point.png", "r-space-time.png"]
+    assert [p.name for p in pngs] == ["r-injection-point.png", "r-screening.png", "r-space-time.png"]
     assert all(p.read_bytes()[:8] == PNG_MAGIC for p in pngs)
     with h5py.File(out, "r") as h5:
         meta = json.loads(h5.attrs["meta"])
@@ -203,11 +203,11 @@ def test_replay_iso_log_with_events_and_plot(tmp_path, scene_file):
     assert datetime.fromisoformat(res.meta["start"]) == start
     np.testing.assert_allclose(res.extra["events"]["time"], [12.0, 40.5, 300.0], atol=1e-6)
     np.testing.assert_allclose(res.extra["events"]["magnitude"], [-1.2, -0.4, 0.3])
-    assert len(list(figs.glob("*.png"))) == 2
+    assert len(list(figs.glob("*.png"))) == 3
     # the stored start is the reference of `plot --events`
     r = invoke("plot", out, "--out", tmp_path / "again", "--events", quakeml)
     assert r.exit_code == 0, r.output
-    assert len(list((tmp_path / "again").glob("iso-*.png"))) == 2
+    assert len(list((tmp_path / "again").glob("iso-*.png"))) == 3
 
 
 def test_replay_policy_skip_warns_and_end_option(tmp_path, scene_file):
@@ -339,7 +339,7 @@ def test_plot_command_writes_pngs(tmp_path, scene_file):
     r = invoke("plot", out, "--out", tmp_path / "figs", "--events", quakeml, "--t0", t0)
     assert r.exit_code == 0, r.output
     names = sorted(p.name for p in (tmp_path / "figs").glob("*.png"))
-    assert names == ["r-injection-point.png", "r-space-time.png"]
+    assert names == ["r-injection-point.png", "r-screening.png", "r-space-time.png"]
     for n in names:
         data = (tmp_path / "figs" / n).read_bytes()
         assert data[:8] == PNG_MAGIC and len(data) > 10_000

@@ -110,3 +110,9 @@ def test_a_scene_can_take_a_log_instead_of_a_schedule(tmp_path):
         r.injection["flow_rate"][k] / (10 * r.injection["hydraulic_aperture"][k]), rel=1e-12)
     with pytest.raises(SceneError, match="injection.log"):
         Scene.from_dict({"injection": {"log": "missing.csv"}}, base_dir=tmp_path)
+
+
+def test_moved_slip_rate_threshold_key_points_to_the_monitor_table():
+    with pytest.raises(SceneError) as err:
+        Scene.from_dict({"fault": {"slip_rate_threshold": 1e-9}})
+    assert "fault.slip_rate_threshold" in str(err.value) and "[monitor]" in str(err.value)

@@ -14,6 +14,7 @@ from .plugins import plugins
 from .replay import replay
 from .run import run
 from .scene import scene
+from .screen import screen
 
 __all__ = ["main"]
 
@@ -30,8 +31,10 @@ def main():
     fault-screen replay SCENE.toml --log injection.csv --events catalog.xml --plot figs
     fault-screen plot result.h5 --out figs
     fault-screen scene check SCENE.toml   (scene show SCENE.toml: resolved, in SI)
+    fault-screen screen result.h5 --scene new-thresholds.toml
 
-    Exit codes: 0 success, 1 run failed or output not written, 2 bad usage or bad input.
+    Exit codes: 0 success, 1 run failed or output not written, 2 bad usage or bad input,
+    3 the fault became unstable, 4 the --fail-on screening level was reached.
     """
 
 
@@ -39,5 +42,6 @@ main.add_command(run)
 main.add_command(replay)
 main.add_command(plot)
 main.add_command(scene)
+main.add_command(screen)
 main.add_command(monitor)
 main.add_command(plugins)

@@ -7,7 +7,9 @@ Exit codes (the only place they are decided):
   or an unexpected internal error;
 * 2 -- bad usage or bad input: unknown option (click), bad scene (:class:`~fault_screen.SceneError`),
   bad injection log (:class:`~fault_screen.io.injection_log.InjectionLogError`), unknown unit,
-  missing or unreadable input file, bad event catalogue.
+  missing or unreadable input file, bad event catalogue;
+* 3 -- the fault became unstable (the run stopped early; results kept), before any other code;
+* 4 -- ``--fail-on LEVEL`` and the screening reached LEVEL (see :mod:`fault_screen.cli.screen`).
 
 Every error is printed as one line ``Error: ...`` on stderr, without a traceback (set the
 environment variable ``FAULT_SCREEN_TRACEBACK=1`` to get one for unexpected errors).

@@ -19,7 +19,8 @@ from .run import load_events
 @version_option
 def plot(result_path, out_dir, events, t0):
     """Draw the figures of a saved RESULT.h5: the injection point against time
-    (<stem>-injection-point.png) and space-time maps along the fault (<stem>-space-time.png).
+    (<stem>-injection-point.png), space-time maps along the fault (<stem>-space-time.png) and,
+    for a screened result, the screening metrics and levels (<stem>-screening.png).
 
     Events from --events are placed relative to --t0, else to the start stored in the result
     (the log's first stamp of a replay), else to the first event.  Without --events, events

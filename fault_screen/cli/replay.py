@@ -9,15 +9,17 @@ import numpy as np
 
 from ._options import FILE, BadInput, log_options, reading, run_options, version_option
 from .run import load_scene, run_scene
+from .screen import conclude, fail_on_option
 
 
 @click.command("replay")
 @click.argument("scene_path", type=FILE, metavar="SCENE")
 @log_options
 @run_options
+@fail_on_option
 @version_option
 def replay(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, end, out, plot_dir,
-           events, t0, quiet):
+           events, t0, quiet, fail_on):
     """Run SCENE (TOML) with the flow rate of the injection log LOG instead of its schedule.
 
     Model time 0 is the log's first stamp; the run ends at the log's last stamp unless --end
@@ -65,6 +67,7 @@ def replay(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, end,
         "log_warnings": list(log.warnings),
         "log_volume": log.volume(0.0, t_end),
     }
-    run_scene(scene, scene_label=str(scene_path), out=out, plot_dir=plot_dir, events_path=events,
-              start=start, quiet=quiet, injected_volume=lambda a, b: log.volume(a, b),
-              meta=meta, extra={"log": used}, stem=scene_path.stem)
+    result, _ = run_scene(scene, scene_label=str(scene_path), out=out, plot_dir=plot_dir, events_path=events,
+                          start=start, quiet=quiet, injected_volume=lambda a, b: log.volume(a, b),
+                          meta=meta, extra={"log": used}, stem=scene_path.stem)
+    conclude(result, fail_on)

@@ -14,21 +14,18 @@ import numpy as np
 
 from ._options import FILE, BadInput, reading, run_options, version_option
 from ._progress import Progress, format_duration
+from .screen import conclude, fail_on_option
 
 BUNDLED_SCENE = "rustrel-2015-calibrated.toml"
 
 
-def configs_dir() -> Path:
-    import fault_screen
-
-    return Path(fault_screen.__file__).resolve().parents[1] / "configs"
-
-
 def default_scene_path() -> Path:
-    path = configs_dir() / BUNDLED_SCENE
-    if not path.is_file():
-        raise BadInput(f"the bundled scene {path} does not exist (the package was installed "
-                       f"without its configs directory); pass a SCENE file")
+    from ..bundled import bundled_path
+
+    path = bundled_path(BUNDLED_SCENE)
+    if path is None:
+        raise BadInput(f"the bundled scene {BUNDLED_SCENE} is not installed (the package was "
+                       f"installed without its configs); pass a SCENE file")
     return path
 
 
@@ -62,6 +59,7 @@ def run_scene(scene, *, scene_label: str, out: Path | None, plot_dir: Path | Non
               injected_volume=None, meta: dict | None = None, extra: dict | None = None,
               stem: str = "result"):
     """Simulate ``scene`` and write its result (and figures); returns (result, out path)."""
+    from ..screening import screen_result
     from ..simulate import simulate
 
     out = Path(out) if out is not None else Path.cwd() / f"{stem}.h5"
@@ -94,6 +92,7 @@ def run_scene(scene, *, scene_label: str, out: Path | None, plot_dir: Path | Non
         result.meta["events_file"] = str(events_path)
         result.meta["events_start"] = catalog.start.isoformat() if catalog.start else None
         result.extra["events"] = {"time": catalog.time, "magnitude": catalog.magnitude}
+    screen_result(result, events=catalog)  # /screening/ with the events read
     result.save(out)
 
     figures = []
@@ -131,8 +130,9 @@ def _summary(result, out: Path, figures, catalog) -> None:
 @click.command("run")
 @click.argument("scene_path", type=FILE, required=False, metavar="[SCENE]")
 @run_options
+@fail_on_option
 @version_option
-def run(scene_path, out, plot_dir, events, t0, quiet):
+def run(scene_path, out, plot_dir, events, t0, quiet, fail_on):
     """Run SCENE (TOML) with its own injection schedule and save the result (HDF5).
 
     Without SCENE, runs the bundled Rustrel 2015 calibrated scene
@@ -140,5 +140,6 @@ def run(scene_path, out, plot_dir, events, t0, quiet):
     """
     path = Path(scene_path) if scene_path is not None else default_scene_path()
     scene = load_scene(path)
-    run_scene(scene, scene_label=str(path), out=out, plot_dir=plot_dir, events_path=events,
-              start=t0, quiet=quiet, stem=path.stem, meta={"command": "run"})
+    result, _ = run_scene(scene, scene_label=str(path), out=out, plot_dir=plot_dir, events_path=events,
+                          start=t0, quiet=quiet, stem=path.stem, meta={"command": "run"})
+    conclude(result, fail_on)

@@ -13,6 +13,13 @@ from ..kernels import contact as kc
 from .base import Term
 
 
+#: Slip rate above which a point of a rate-friction fault counts as sliding (its contact state),
+#: m/s: the order of tectonic loading rates (~1e-9 m/s, ~3 cm/yr), far above the creep of a
+#: fault at rest under the regularised law (~1e-12 m/s in the bundled scenes). Screening
+#: thresholds are the scene's [monitor] table, not this.
+SLIDING_SLIP_RATE = 1e-9
+
+
 class FrictionLaw:
     """Parameters of a friction law as one plain array, and the kernel that applies it."""
 
@@ -25,7 +32,7 @@ class FrictionLaw:
         p[kc.TAN_DILATION] = np.tan(np.radians(f.dilation_angle)) if dilation else 0.0
         p[kc.MU0] = f.friction
         p[kc.V_REF], p[kc.D_C] = f.reference_velocity, f.critical_slip_distance
-        p[kc.SLIDING_RATE] = f.slip_rate_threshold
+        p[kc.SLIDING_RATE] = SLIDING_SLIP_RATE
         self.params = p
         self.initial_state_variable = (f.initial_state if f.initial_state is not None
                                        else f.critical_slip_distance / f.reference_velocity)

@@ -1,0 +1,113 @@
+"""Screening: from a simulated fault to an operator's verdict, every output time.
+
+Sits above the core (the core never imports it).  Metrics per output time
+(:mod:`~fault_screen.screening.metrics`), rules and traffic light
+(:mod:`~fault_screen.screening.screener`), and :func:`screen_result`, which evaluates a whole
+result and stores the HDF5 group ``/screening/``:
+
+``/screening/{peak_slip_rate, x_peak_slip_rate, slipping_length, max_utilisation,
+min_coulomb_margin, delta_cff, injection_overpressure, induced_slip, event_magnitude,
+event_distance, event_rate}`` one value per output time (unit attribute each, table
+:data:`fault_screen.rules.METRICS`); ``/screening/level`` (0 green, 1 yellow, 2 red);
+``/screening/transitions`` compound (time s, from, to, rule).
+
+The live monitor drives the same pieces step by step::
+
+    tracker, screener = MetricsTracker(fault_x, fault_weights, scene.fault.friction), Screener(scene.monitor)
+    for each new output row:  screener.update(t, tracker.update(fault_row, injection_row), events=new_events)
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..rules import METRICS
+from .metrics import MetricsTracker, fault_metrics, result_metrics
+from .screener import (GREEN, LEVEL_NAMES, RED, UNSTABLE_RULE, YELLOW, Events, Screener, Transition,
+                       Verdict, thresholds_of)
+
+__all__ = ["screen_result", "Screening", "Screener", "MetricsTracker", "Transition", "Verdict", "Events",
+           "fault_metrics", "result_metrics", "thresholds_of", "stopped_unstable", "GREEN", "YELLOW",
+           "RED", "LEVEL_NAMES", "UNSTABLE_RULE", "TRANSITION_DTYPE", "METRICS", "read_transitions"]
+
+#: the compound type of ``/screening/transitions``
+TRANSITION_DTYPE = np.dtype([("time", "f8"), ("from", "i1"), ("to", "i1"), ("rule", "S64")])
+
+
+def stopped_unstable(result) -> float | None:
+    """Time (s) at which the run stopped on an unstable fault (``meta["stopped"]``), else None."""
+    stopped = (getattr(result, "meta", None) or {}).get("stopped") or {}
+    if stopped.get("reason") != "unstable":
+        return None
+    t = stopped.get("time")
+    return float(t) if t is not None else float(result.time[-1])
+
+
+class Screening:
+    """What :func:`screen_result` found: metrics and level per output time, transitions, verdict."""
+
+    def __init__(self, time, metrics: dict, level, transitions: list[Transition], verdict: Verdict, spec):
+        self.time = time
+        self.metrics = metrics
+        self.level = level
+        self.transitions = transitions
+        self.verdict = verdict
+        self.spec = spec
+
+    def arrays(self) -> dict:
+        """The ``/screening/`` group as arrays (what :attr:`Result.extra` holds)."""
+        out = {k: np.asarray(v, dtype=float) for k, v in self.metrics.items()}
+        out["level"] = np.asarray(self.level, dtype=np.int8)
+        tr = np.zeros(len(self.transitions), dtype=TRANSITION_DTYPE)
+        for i, t in enumerate(self.transitions):
+            tr[i] = (t.time, t.from_level, t.to_level, t.rule.encode("utf-8")[:64])
+        out["transitions"] = tr
+        return out
+
+
+def _stored_events(result):
+    ev = (getattr(result, "extra", None) or {}).get("events")
+    if not ev or "time" not in ev:
+        return None
+    return Events(ev["time"], ev["magnitude"], ev.get("distance"))
+
+
+def screen_result(result, spec=None, events=None, *, store: bool = True) -> Screening:
+    """Screen a whole :class:`~fault_screen.Result` with ``spec`` (default: its scene's
+    ``[monitor]``) and ``events`` (default: the events stored in the result, if any); store the
+    ``/screening/`` group in ``result.extra`` unless ``store`` is false.
+
+    Equal, level for level, to streaming the rows through :class:`MetricsTracker` and
+    :class:`Screener` with each event given by its origin time."""
+    spec = spec if spec is not None else result.scene.monitor
+    events = Events.coerce(events) if events is not None else _stored_events(result)
+    metrics = result_metrics(result)
+    t_stop = stopped_unstable(result)
+    times = np.asarray(result.time, dtype=float)
+    i_stop = None
+    if t_stop is not None and times.size:
+        i_stop = min(int(np.searchsorted(times, t_stop - 1e-9 * max(1.0, abs(t_stop)))), times.size - 1)
+    screener = Screener(spec)
+    screener.add_events(events)
+    rows = {k: [] for k in ("event_magnitude", "event_distance", "event_rate")}
+    level = np.zeros(times.size, dtype=np.int8)
+    for i, t in enumerate(times):
+        row = {k: float(v[i]) for k, v in metrics.items()}
+        screener.update(t, row, unstable=(i_stop is not None and i >= i_stop))
+        for k in rows:
+            rows[k].append(row[k])
+        level[i] = screener.level
+    metrics.update({k: np.asarray(v, dtype=float) for k, v in rows.items()})
+    out = Screening(times, metrics, level, screener.transitions, screener.verdict, spec)
+    if store:
+        result.extra["screening"] = out.arrays()
+    return out
+
+
+def read_transitions(arrays: dict) -> list[tuple[float, int, int, str]]:
+    """The transitions of a stored ``/screening/`` group as (time, from, to, rule) tuples."""
+    tr = arrays.get("transitions")
+    if tr is None:
+        return []
+    return [(float(r["time"]), int(r["from"]), int(r["to"]),
+             r["rule"].decode("utf-8") if isinstance(r["rule"], bytes) else str(r["rule"])) for r in tr]
+

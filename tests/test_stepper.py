@@ -1,0 +1,111 @@
+"""The stepper: a run advanced in chunks, or checkpointed and restored at any step, gives exactly
+the arrays of an uninterrupted run (bit for bit: the same operations on the same numbers)."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from conftest import CONFIGS, VERIFICATION
+from fault_screen import Scene, Simulation
+from fault_screen.simulate import simulate
+
+
+def _arrays(result) -> dict:
+    out = {"time": result.time}
+    for group in ("fault", "injection", "balance", "solver"):
+        out.update({f"{group}/{k}": v for k, v in getattr(result, group).items()})
+    return out
+
+
+def _assert_identical(a, b):
+    a, b = _arrays(a), _arrays(b)
+    assert a.keys() == b.keys()
+    for k in a:
+        assert a[k].shape == b[k].shape, k
+        assert np.array_equal(a[k], b[k]), f"{k}: largest difference {np.max(np.abs(a[k] - b[k])):.3e}"
+
+
+def hard_rustrel():
+    """Impermeable Rustrel on a coarse mesh with every history-carrying effect on: rate-and-state
+    friction with the aging law, dilation, an aperture that follows the opening; growing steps.
+    It slips from ~200 s, so the checkpoints below fall before, at and after slip onset."""
+    s = Scene.from_toml(CONFIGS / "rustrel-2015-impermeable.toml")
+    return s.replace(
+        mesh=dataclasses.replace(s.mesh, nx=20, ny=21),
+        fault=dataclasses.replace(s.fault, state_parameter=0.02, critical_slip_distance=1e-5),
+        effects=dataclasses.replace(s.effects, rate_friction=True, state_evolution=True,
+                                    aperture_evolution=True, dilation=True),
+        time=dataclasses.replace(s.time, end=400.0, dt=2.0, growth=1.08, dt_max=12.0))
+
+
+def pressure_controlled():
+    s = Scene.from_toml(VERIFICATION / "fluid-driven-slip-T0.4-horizontal.toml")
+    return s.replace(mesh=dataclasses.replace(s.mesh, nx=40, ny=41),
+                     time=dataclasses.replace(s.time, end=0.05))
+
+
+@pytest.fixture(scope="module", params=["rate, rate-and-state, evolving aperture", "pressure control"])
+def case(request):
+    scene = hard_rustrel() if request.param.startswith("rate") else pressure_controlled()
+    reference = simulate(scene)
+    assert np.max(np.abs(reference.fault["slip"])) > 0  # the case does slip
+    return scene, reference
+
+
+def test_chunks_aligned_to_data_give_the_uninterrupted_run(case):
+    scene, reference = case
+    sim = Simulation(scene)
+    for t_data in np.linspace(0.0, scene.time.end, 7)[1:-1] + 0.37 * scene.time.dt:
+        sim.advance(t_data, align=True)
+        assert sim.time <= t_data  # never ahead of the data
+    sim.advance(scene.time.end)
+    _assert_identical(sim.result(), reference)
+
+
+@pytest.mark.parametrize("fraction", [0.0, 0.4, 0.8])
+def test_checkpoint_and_restore_continue_bit_identically(case, fraction, tmp_path):
+    """Checkpoints after the first step, and at 40 % and 80 % of the run."""
+    scene, reference = case
+    steps = max(1, int(fraction * (len(reference.time) - 1)))
+    sim = Simulation(scene)
+    sim.advance(scene.time.end, max_steps=steps)
+    assert sim.steps == steps
+    path = sim.checkpoint(tmp_path / "state.h5")
+    del sim
+    restored = Simulation.restore(path)
+    assert restored.steps == steps
+    restored.advance(scene.time.end)
+    _assert_identical(restored.result(), reference)
+
+
+def test_a_step_ending_on_a_chunk_boundary_keeps_the_step_sequence():
+    """Rustrel's 5 s steps: chunks ending on multiples of 5 s take exactly the same steps."""
+    s = Scene.from_toml(CONFIGS / "rustrel-2015-initial.toml")
+    scene = s.replace(mesh=dataclasses.replace(s.mesh, nx=20, ny=21),
+                      time=dataclasses.replace(s.time, end=200.0))
+    reference = simulate(scene)
+    sim = Simulation(scene)
+    for t in (35.0, 100.0, 200.0):
+        sim.advance(t)
+    _assert_identical(sim.result(), reference)
+
+
+def test_volume_and_pressure_drivers_are_checked():
+    sim = Simulation(pressure_controlled())
+    with pytest.raises(ValueError, match="volume= drives rate control"):
+        sim.advance(0.01, volume=1e-3)
+    # a constant overpressure equals the scene's own one-step schedule
+    dp = sim.scene.injection.schedule[0][1]
+    sim.advance(0.01, pressure=dp)
+    ref = Simulation(pressure_controlled())
+    ref.advance(0.01)
+    assert np.array_equal(sim.x, ref.x)
+
+
+def test_a_volume_spread_over_an_interval_is_injected_exactly():
+    s = Scene.from_toml(CONFIGS / "rustrel-2015-initial.toml")
+    scene = s.replace(mesh=dataclasses.replace(s.mesh, nx=20, ny=21))
+    sim = Simulation(scene)
+    sim.advance(60.0, volume=0.012)      # 12 L over the first minute
+    sim.advance(95.0, volume=lambda t0, t1: 1e-4 * (t1 - t0))  # 0.1 L/s
+    assert sim.result().injection["volume"][-1] == pytest.approx(0.012 + 35 * 1e-4, rel=1e-12)
