@@ -199,3 +199,28 @@ def test_catalogue_events_reach_the_rules_and_the_results(dist, scene_file, tmp_
         ("red", "event_magnitude >= 2", 35.0)
     assert first["metrics"]["event_magnitude"] == 2.3
     assert first["model_datetime"] == "2015-03-12T10:00:35+01:00"
+
+
+class SlowSimulation(FakeSimulation):
+    """A stepper slower than the idle limit: the first advance takes 0.6 s."""
+
+    def advance(self, t_next, volume=None, align=True):
+        if self.k == 0:
+            time.sleep(0.6)
+        return super().advance(t_next, volume=volume, align=align)
+
+
+def test_idle_time_counts_from_the_end_of_the_work(dist, scene_file, tmp_path):
+    lines = STANDIN.read_bytes().splitlines(keepends=True)
+    live = tmp_path / "log.csv"
+    live.write_bytes(b"".join(lines[:40]))
+    # the rest arrives while the first samples are being stepped (longer than --idle-exit)
+    writer = threading.Timer(0.3, lambda: append_lines(live, lines[40:], 0.0))
+    cfg = MonitorConfig(follow=str(live), idle_exit=0.4, poll_interval=0.02,
+                        out=tmp_path / "o.h5")
+    service = MonitorService(Scene.from_toml(scene_file), cfg, simulation_class=SlowSimulation,
+                             screener=ThresholdScreener())
+    writer.start()
+    summary = service.run()
+    writer.join()
+    assert summary["samples"] == 162

@@ -223,8 +223,8 @@ class MonitorService:
         while not self._stop.is_set():
             samples = self.source.read(self.cfg.poll_interval)
             if samples:
-                last_data = time.monotonic()
                 self._feed(samples)
+                last_data = time.monotonic()     # idle time counts from the end of the work
             else:
                 self._poll_seismicity()
             if getattr(self.source, "finished", False):
@@ -239,6 +239,7 @@ class MonitorService:
             self.checkpoint()
             self._write_result()
         else:
+            self._feed(self.source.read(0.0))    # what came in meanwhile
             self._feed(self.source.flush())
             self._poll_seismicity(force=True)
             self.checkpoint()            # the aligned state: a restart continues from here

@@ -414,6 +414,15 @@ class Stage:
             ev["kind"] = np.array([a["kind"] for a in self.associations], dtype="S")
             extra["monitor_events"] = ev
         res.extra = extra
+        if _is_layer_screener(self.screener):
+            # /screening/ as replay and run write it: the rules over the whole result, with the
+            # associated events at their origin times
+            from ..screening import Events, screen_result
+
+            a = self.associations
+            screen_result(res, events=Events([x["time"] for x in a],
+                                             [_nan(x["magnitude"]) for x in a],
+                                             [_nan(x["distance_injection"]) for x in a]))
         meta = dict(getattr(res, "meta", {}) or {})
         meta.update(monitor_samples=self.samples.count, monitor_ignored_samples=self.ignored,
                     monitor_alerts=self.alerts_raised)
@@ -559,6 +568,15 @@ def _fault_geometry(sim) -> _Geometry:
         k = int(np.argmin(np.abs(x)))
         inj = (float(xy[k, 0]), float(xy[k, 1]))
     return _Geometry(x, xy, np.asarray(res.fault_weights, dtype=float), inj)
+
+
+def _is_layer_screener(screener) -> bool:
+    """Is ``screener`` the screening layer's (whose rules can re-screen a whole result)?"""
+    try:
+        from ..screening import Screener
+    except ImportError:
+        return False
+    return isinstance(screener, Screener)
 
 
 def _screening(scene, screener, metrics):
