@@ -101,7 +101,9 @@ class MonitorService:
             self.stage = Stage(scene, start=config.t0, simulation=sim, screener=screener,
                                metrics=metrics, site=config.site, label=config.label)
         box = config.outbox
-        if box is None:
+        if box is None and not all_sinks:
+            box = ":memory:"           # no alert plugin: nothing to deliver, no file
+        elif box is None:
             base = config.state or config.out or Path("fault-screen-monitor")
             box = Path(str(base) + ".outbox.sqlite")
         self.outbox = Outbox(box, all_sinks, log=logging.getLogger("fault_screen.monitor.outbox"))
