@@ -15,10 +15,8 @@ step.  Goal: median well under one step's wall time plus the poll interval.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import importlib
 import logging
-import os
 import sys
 import tempfile
 import threading
