@@ -100,6 +100,7 @@ class NewtonSolver:
         if self.static_B:
             nonlinear[b.pf] = True
             nonlinear[b.q] = True
+        nonlinear |= self._uncoupled_to_linear(nonlinear)
         self.scale = None
         self.lu_B = None
         nl_free = nonlinear[self.free]
@@ -109,6 +110,19 @@ class NewtonSolver:
         self.n_index = np.full(disc.n_dofs, -1, dtype=np.int64)
         self.n_index[self.N] = np.arange(len(self.N))
         self.factorizations = 0
+
+    def _uncoupled_to_linear(self, nonlinear):
+        """Free unknowns whose constant rows or columns touch no other linear unknown: left in
+        the linear block they would make it singular (e.g. the pressure-control multiplier when
+        the fault pressures it constrains are nonlinear), so they join the condensed set."""
+        pattern = (abs(self.A) + abs(self.C) + abs(self.Hf)).tocsr()
+        linear = np.zeros(self.disc.n_dofs, dtype=bool)
+        linear[self.free] = True
+        linear &= ~nonlinear
+        lin = linear.astype(float)
+        rows_touch = pattern @ lin          # per row: weight of linear columns
+        cols_touch = pattern.T @ lin        # per column: weight of linear rows
+        return linear & ((rows_touch == 0) | (cols_touch == 0))
 
     def nonlinear(self, x, history, dt, residual):
         """Nonlinear terms at x added into ``residual``; their Jacobian triplets and the fault
