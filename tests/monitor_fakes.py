@@ -40,9 +40,9 @@ class FakeSimulation:
     def last_row(self):
         return self.rows[-1]
 
-    def advance(self, t_next, volume=None, align=True):
+    def advance(self, t_next, volume=None, align=True, max_steps=None):
         n = 0
-        while True:
+        while max_steps is None or n < max_steps:
             t1 = (self.k + 1) * self.dt
             if t1 > t_next:
                 if align or self.time >= t_next:

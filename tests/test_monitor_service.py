@@ -154,10 +154,10 @@ def test_catalogue_events_reach_the_rules_and_the_results(dist, scene_file, tmp_
 class SlowSimulation(FakeSimulation):
     """A stepper slower than the idle limit: the first advance takes 0.6 s."""
 
-    def advance(self, t_next, volume=None, align=True):
+    def advance(self, t_next, volume=None, align=True, max_steps=None):
         if self.k == 0:
             time.sleep(0.6)
-        return super().advance(t_next, volume=volume, align=align)
+        return super().advance(t_next, volume=volume, align=align, max_steps=max_steps)
 
 
 def test_idle_time_counts_from_the_end_of_the_work(dist, scene_file, tmp_path):

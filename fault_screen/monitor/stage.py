@@ -7,13 +7,14 @@ Embedding it::
     upd = stage.feed_samples([0.0, 5.0, 10.0], [0.0, 1.7e-4, 1.7e-4])   # s, m3/s [, Pa]
     stage.feed_events(events)                  # SeismicEvent list (model seconds)
     upd.steps, upd.time, upd.state, upd.transitions, upd.alerts
-    stage.checkpoint("state.h5"); stage = Stage.restore("state.h5")
+    stage.checkpoint("state.h5"); stage, _ = Stage.restore("state.h5")
     stage.finish()                             # last partial step, as a replay ends
     stage.result()                             # fault_screen.Result so far
 
 Stepping.  The model never runs ahead of the data: after each batch of samples the stepper is
 asked for the whole steps of the scene's own step sequence that end at or before the last
-sample (``Simulation.advance(t_last, volume=..., align=True)``), each receiving the log's exact
+sample (``Simulation.advance(t_last, volume=..., align=True, max_steps=1)`` until it takes no
+more), each receiving the log's exact
 volume over it (linear rate between samples, the trapezoidal integral computed the way
 :class:`~fault_screen.io.injection_log.InjectionLog` computes it, so a replay of the complete
 log sees the same floating-point volumes).  The model time is therefore the same whether the
@@ -325,12 +326,17 @@ class Stage:
         t_last = self.samples.last_time
         if t_last is None or t_last <= self.time:
             return upd
-        n = int(self.sim.advance(t_last, volume=self.samples.volume, align=align) or 0)
-        if n:
-            for row in _new_rows(self.sim, n):
-                self._screen_step(row, upd)
-            upd.steps = n
-            self.steps += n
+        # one step per call: each step is screened (and its alerts raised) as soon as it is done;
+        # the stepper's sequence state makes this the same steps as one call
+        while True:
+            n = int(self.sim.advance(t_last, volume=self.samples.volume, align=align,
+                                     max_steps=1) or 0)
+            if n == 0:
+                break
+            self._screen_step(dict(self.sim.last_row), upd)
+            upd.steps += 1
+            self.steps += 1
+        if upd.steps:
             self.samples.drop_before(self.time)
         upd.time, upd.level = self.time, self.level
         return upd
@@ -528,24 +534,6 @@ def _simulation_class():
 
 def _new_simulation(scene):
     return _simulation_class()(scene)
-
-
-def _new_rows(sim, n: int) -> List[dict]:
-    """The ``n`` rows recorded by the last ``advance``."""
-    if n == 1:
-        return [dict(sim.last_row)]
-    rows = getattr(getattr(sim, "recorder", None), "rows", None)
-    if rows is not None and len(rows) >= n:
-        return [dict(r) for r in rows[-n:]]
-    # fall back on the result (whole arrays): only for catch-ups of several steps
-    res = sim.result()
-    out = []
-    for k in range(len(res.time) - n, len(res.time)):
-        row = {"time": float(res.time[k])}
-        row.update({key: v[k] for key, v in res.fault.items()})
-        row.update({"inj_" + key: v[k] for key, v in res.injection.items()})
-        out.append(row)
-    return out
 
 
 @dataclass(frozen=True)
