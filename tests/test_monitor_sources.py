@@ -178,3 +178,39 @@ def test_stdin_source_reads_to_the_end():
         got += src.read(0.2)
     t, _ = arrays(got)
     assert np.array_equal(t, read_injection_log(STANDIN).time)
+
+
+DIALECTS = {
+    # semicolon, decimal comma, a units row, local stamps of a named zone, Latin-1 name
+    "semicolon.csv": ("Zeit;Durchfluss;Druck\n;l/min;bar\n"
+                      "12.03.2015 10:00:00;0,0;1,0\n12.03.2015 10:00:05;10,5;1,5\n"
+                      "12.03.2015 10:00:15;22,25;2,0\n12.03.2015 10:00:30;22,0;2,5\n",
+                      dict(tz="Europe/Paris")),
+    # tab-separated elapsed hh:mm:ss, flow in US gallons per minute
+    "tabs.csv": ("elapsed\tflow_rate[gpm]\n00:00:00\t0\n00:00:10\t5.5\n00:01:10\t6\n"
+                 "00:02:00\t6.25\n", {}),
+    # times of day crossing midnight, with the day and the zone given
+    "midnight.csv": ("time,rate[L/min]\n23:59:50,10\n23:59:58,11\n00:00:07,12\n00:00:20,12\n",
+                     dict(date="2015-03-12", tz="UTC")),
+    # a last row with a stamp but no values (a logger stopping)
+    "partial.csv": ("time,flow_rate[L/min]\n2015-03-12T10:00:00Z,0\n2015-03-12T10:00:05Z,10\n"
+                    "2015-03-12T10:00:10Z,11\n2015-03-12T10:00:15Z,\n", {}),
+}
+
+
+@pytest.mark.parametrize("name", sorted(DIALECTS))
+def test_decoder_reads_the_replay_dialects_line_by_line(name, tmp_path):
+    text, options = DIALECTS[name]
+    path = tmp_path / name
+    path.write_text(text, encoding="utf-8")
+    log = read_injection_log(path, **options)
+    dec = LogDecoder(str(path), **options)
+    got = []
+    for n, line in enumerate(text.splitlines(), start=1):
+        got += dec.feed_line(line, n)
+    got += dec.end()
+    t, q = arrays(got)
+    assert np.array_equal(t, log.time) and np.array_equal(q, log.flow_rate), name
+    if log.pressure is not None:
+        assert np.array_equal([s.pressure for s in got], log.pressure)
+    assert dec.warnings == list(log.warnings) and dec.start == log.start, name

@@ -84,6 +84,16 @@ def _count_callback(ctx, param, value):
 @click.option("--policy", type=click.Choice(["stop", "skip", "hold"]), default="stop",
               show_default=True, help="On a bad line or gap: stop, skip the row, or hold the "
                                       "last good value (as replay).")
+@click.option("--date", "log_date", default=None, metavar="YYYY-MM-DD",
+              help="Day of the first row of a log whose stamps are times of day (as replay).")
+@click.option("--tz", "log_tz", default=None, metavar="ZONE",
+              help="Time zone of stamps written without an offset (IANA name, as replay).")
+@click.option("--time-column", default=None, metavar="NAME|N",
+              help="The log's time column, by header or 1-based position [default: detected].")
+@click.option("--flow-column", default=None, metavar="NAME|N",
+              help="The log's flow-rate column, by header or 1-based position.")
+@click.option("--pressure-column", default=None, metavar="NAME|N",
+              help="The log's pressure column, by header or 1-based position.")
 @click.option("--t0", type=str, default=None, metavar="ISO", callback=_t0_callback,
               help="Date-time of model time 0 when the log has elapsed times (places events).")
 @click.option("--site", default=None, metavar="LAT,LON,DEPTH[,AZ]", callback=_site_callback,
@@ -96,7 +106,8 @@ def _count_callback(ctx, param, value):
 @version_option
 def monitor(scene_path, follow, events, waveforms, state, out, idle_exit, alerts, source,
             poll_interval, checkpoint_every, outbox, flow_unit, pressure_unit, max_gap, policy,
-            t0, site, sta_lta, quiet):
+            log_date, log_tz, time_column, flow_column, pressure_column, t0, site, sta_lta,
+            quiet):
     """Follow a growing injection log with the model of SCENE, screen every step, and alert.
 
     The model advances only as far as the samples allow (whole steps ending at or before the
@@ -109,7 +120,7 @@ def monitor(scene_path, follow, events, waveforms, state, out, idle_exit, alerts
         fault-screen monitor configs/rustrel-2015-calibrated.toml --follow live.csv \\
             --state live-state.h5 --out live.h5 --alert jsonl:alerts.jsonl --idle-exit 30
     """
-    from ..io.injection_log import InjectionLogError
+    from ..io.injection_log import CLI_OPTION_NAMES, InjectionLogError
     from ..monitor.plugins import PluginError
     from ..monitor.service import MonitorConfig, MonitorInputError, MonitorService
 
@@ -134,10 +145,13 @@ def monitor(scene_path, follow, events, waveforms, state, out, idle_exit, alerts
                         poll_interval=poll_interval, checkpoint_every=checkpoint_every,
                         outbox=outbox, flow_unit=flow_unit, pressure_unit=pressure_unit,
                         max_gap=max_gap, policy=policy, t0=t0, site=site, sta_lta=sta_lta,
-                        label=str(scene_path))
+                        label=str(scene_path),
+                        log_options=dict(date=log_date, tz=log_tz, time_column=time_column,
+                                         flow_column=flow_column, pressure_column=pressure_column,
+                                         option_names=CLI_OPTION_NAMES))
     try:
         service = MonitorService(scene, cfg)
-    except PluginError as exc:
+    except (PluginError, InjectionLogError) as exc:
         raise BadInput(str(exc)) from None
     except (ValueError, OSError) as exc:
         with reading(state):

@@ -55,6 +55,7 @@ class MonitorConfig:
     pressure_unit: Optional[str] = None
     max_gap: Optional[float] = 600.0
     policy: str = "stop"
+    log_options: dict = field(default_factory=dict)   # date, tz, *_column, option_names
     t0: Optional[datetime] = None              # model time 0 when the log has no stamps
     site: Optional[Site] = None
     sta_lta: dict = field(default_factory=dict)   # SdsDetector options
@@ -84,7 +85,8 @@ class MonitorService:
         all_sinks.update(sinks or {})
         self.decoder = LogDecoder(config.follow, flow_unit=config.flow_unit,
                                   pressure_unit=config.pressure_unit, max_gap=config.max_gap,
-                                  policy=config.policy, resume=extra.get("decoder"),
+                                  policy=config.policy, **config.log_options,
+                                  resume=extra.get("decoder"),
                                   on_warning=lambda m: log.warning("%s", m))
         name = config.source or ("stdin" if config.follow == "-" else "csv")
         self.source = plugins.instantiate("source", name, config.follow, decoder=self.decoder,
@@ -133,7 +135,7 @@ class MonitorService:
         if st.start is None:
             wanted = [o for o, v in (("--events", self.cfg.events),
                                      ("--waveforms", self.cfg.waveforms)) if v is not None]
-            if wanted and self.decoder.iso is False:
+            if wanted and self.decoder.has_clock is False:
                 raise MonitorInputError(
                     f"{' and '.join(wanted)} need the date-time of model time 0, and the log "
                     f"{self.cfg.follow} has elapsed times: give it with --t0")
@@ -243,6 +245,7 @@ class MonitorService:
         else:
             self._feed(self.source.read(0.0))    # what came in meanwhile
             self._feed(self.source.flush())
+            self._feed(self.decoder.end())
             self._poll_seismicity(force=True)
             self.checkpoint()            # the aligned state: a restart continues from here
             self._handle(self.stage.finish(), checkpoint=False)
