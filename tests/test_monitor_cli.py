@@ -48,7 +48,6 @@ def test_plugins_lists_every_builtin_and_describes_one():
     (["--alert", "webhook:colour=red"], "alert plugin 'webhook'"),
     (["--alert", "command:ls -l"], "not a shell string"),
     (["--source", "mqtt"], "unknown source plugin 'mqtt'; supported: csv, stdin"),
-    (["--site", "43.9,5.5"], "--site '43.9,5.5': expected LAT,LON,DEPTH_M"),
     (["--sta-lta", "10,1,3,1"], "--sta-lta '10,1,3,1': need 0 < STA < LTA"),
     (["--events", "no-such-catalog.xml"], "--events no-such-catalog.xml: file not found"),
     (["--waveforms", "no-such-sds"], "--waveforms no-such-sds: folder not found"),

@@ -47,11 +47,11 @@ def test_fdsn_text_catalogue_partial_lines_wait(tmp_path):
     start = datetime(2015, 3, 12, 9, 0, 0, tzinfo=UTC)
     follow = CatalogFollower(path, start)
     got = follow.poll()
-    assert [(e.id, e.time, e.magnitude, e.depth) for e in got] == [("ev1", 300.5, -1.2, 300.0)]
+    assert [(e.time, e.magnitude, e.depth) for e in got] == [(300.5, -1.2, 300.0)]
     with open(path, "a") as fh:
         fh.write("81|0.31|L|c|c|2|Mw|0.5|L|R\n")
     got = follow.poll()
-    assert [(e.id, e.time, e.longitude) for e in got] == [("ev2", 600.0, 5.481)]
+    assert [(e.time, e.longitude) for e in got] == [(600.0, 5.481)]
 
 
 def write_sds(root, st):
@@ -116,3 +116,14 @@ def test_site_distances_and_association():
     unlocated = associate(SeismicEvent(time=1.0), row, site=site, fault_xy=xy,
                           injection_xy=(0.0, 0.0), friction=0.6)
     assert math.isnan(unlocated.distance_injection)
+
+
+def test_site_from_the_scene_puts_the_dip_section_in_the_model_plane():
+    from fault_screen.scene import SiteSpec
+
+    site = Site.from_spec(SiteSpec(x=0.0, y=0.0, z=0.0, strike=45.0, dip=60.0))
+    assert site.azimuth == 135.0                      # down-dip: strike + 90 deg
+    ev = SeismicEvent(time=0.0, offset=(10.0, -10.0, -5.0), distance=15.0)
+    along, up, off = site.local(ev)
+    assert along == pytest.approx(math.sqrt(200.0)) and abs(off) < 1e-12 and up == -5.0
+    assert Site.from_spec(SiteSpec(latitude=43.9, longitude=5.5, depth=280.0)).azimuth == 90.0

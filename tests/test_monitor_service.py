@@ -129,16 +129,20 @@ def test_unknown_alert_plugin_names_the_supported_ones(dist, scene_file, tmp_pat
 
 
 def test_catalogue_events_reach_the_rules_and_the_results(dist, scene_file, tmp_path):
-    from fault_screen.monitor import Site
+    from fault_screen.scene import SiteSpec
 
+    # the injection point in the catalogue's frame: the scene's [site]
+    scene = Scene.from_toml(scene_file)
+    sited = tmp_path / "sited.toml"
+    sited.write_text(scene.replace(site=SiteSpec(latitude=43.9, longitude=5.5, depth=280.0,
+                                                 strike=0.0, dip=90.0)).to_toml())
     cat = tmp_path / "cat.txt"            # FDSN text; the log starts 2015-03-12T09:00:00Z
     cat.write_text("#EventID | Time | Latitude | Longitude | Depth/km | Author | Catalog | "
                    "Contributor | ContributorID | MagType | Magnitude | MagAuthor | Name\n"
                    "e1|2015-03-12T09:00:30|43.9|5.5|0.38|L|c|c|1|Mw|0.4|L|R\n"
                    "e2|2015-03-12T09:00:33|43.9|5.5|0.28|L|c|c|2|Mw|2.3|L|R\n")
-    run_service(scene_file, STANDIN, tmp_path / "s.h5", tmp_path / "out.h5",
-                tmp_path / "a.jsonl", idle_exit=0.3, events=cat,
-                site=Site(43.9, 5.5, 280.0))
+    run_service(sited, STANDIN, tmp_path / "s.h5", tmp_path / "out.h5",
+                tmp_path / "a.jsonl", idle_exit=0.3, events=cat)
     res = Result.load(tmp_path / "out.h5")
     ev = res.extra["monitor_events"]
     assert list(ev["time"]) == [30.0, 33.0] and list(ev["magnitude"]) == [0.4, 2.3]

@@ -12,21 +12,6 @@ from ._options import (DIR, FILE, BadInput, _positive_callback, _t0_callback, _u
 from .run import load_scene
 
 
-def _site_callback(ctx, param, value):
-    if value is None:
-        return None
-    from ..monitor.seismicity import Site
-
-    try:
-        parts = [float(x) for x in value.split(",")]
-        if len(parts) not in (3, 4):
-            raise ValueError
-    except ValueError:
-        raise BadInput(f"--site {value!r}: expected LAT,LON,DEPTH_M[,AZIMUTH_DEG] "
-                       f"(e.g. 43.94,5.48,280,90)") from None
-    return Site(*parts)
-
-
 def _sta_lta_callback(ctx, param, value):
     if value is None:
         return {}
@@ -96,9 +81,6 @@ def _count_callback(ctx, param, value):
               help="The log's pressure column, by header or 1-based position.")
 @click.option("--t0", type=str, default=None, metavar="ISO", callback=_t0_callback,
               help="Date-time of model time 0 when the log has elapsed times (places events).")
-@click.option("--site", default=None, metavar="LAT,LON,DEPTH[,AZ]", callback=_site_callback,
-              help="Injection point (deg, deg, m below surface) and azimuth of the model x axis "
-                   "(deg from north, default 90): places hypocentres for event distances.")
 @click.option("--sta-lta", "sta_lta", default=None, metavar="STA,LTA,ON,OFF",
               callback=_sta_lta_callback,
               help="STA/LTA windows (s) and trigger thresholds [default: 0.5,10,3.5,1].")
@@ -106,8 +88,7 @@ def _count_callback(ctx, param, value):
 @version_option
 def monitor(scene_path, follow, events, waveforms, state, out, idle_exit, alerts, source,
             poll_interval, checkpoint_every, outbox, flow_unit, pressure_unit, max_gap, policy,
-            log_date, log_tz, time_column, flow_column, pressure_column, t0, site, sta_lta,
-            quiet):
+            log_date, log_tz, time_column, flow_column, pressure_column, t0, sta_lta, quiet):
     """Follow a growing injection log with the model of SCENE, screen every step, and alert.
 
     The model advances only as far as the samples allow (whole steps ending at or before the
@@ -144,7 +125,7 @@ def monitor(scene_path, follow, events, waveforms, state, out, idle_exit, alerts
                         idle_exit=idle_exit, alerts=list(alerts), source=source,
                         poll_interval=poll_interval, checkpoint_every=checkpoint_every,
                         outbox=outbox, flow_unit=flow_unit, pressure_unit=pressure_unit,
-                        max_gap=max_gap, policy=policy, t0=t0, site=site, sta_lta=sta_lta,
+                        max_gap=max_gap, policy=policy, t0=t0, sta_lta=sta_lta,
                         label=str(scene_path),
                         log_options=dict(date=log_date, tz=log_tz, time_column=time_column,
                                          flow_column=flow_column, pressure_column=pressure_column,

@@ -1,13 +1,15 @@
 """Seismicity beside the model: catalogues that grow, STA/LTA detections, association.
 
-* :class:`CatalogFollower` polls a QuakeML file or an FDSN text catalogue (``#EventID|Time|...``,
-  obspy's ``EVENTTXT``) that grows, and returns the events it has not returned before.
+* :class:`CatalogFollower` polls a catalogue file that grows (every format
+  :func:`fault_screen.io.events.read_events` reads: QuakeML, CSV, FDSN text) and returns the
+  events it has not returned before, placed with the scene's ``[site]``.
 * :class:`SdsDetector` reads an SDS waveform archive (``obspy.clients.filesystem.sds``) as it
   fills, runs classic STA/LTA (``obspy.signal.trigger.classic_sta_lta`` and ``trigger_onset``)
   chunk by chunk with an LTA lead-in (so a chunked run finds the onsets of a whole-trace run),
   and returns detections (time, no magnitude, no location).
-* :class:`Site` places hypocentres relative to the injection point (local flat-earth
-  projection, good to ~0.1 % within tens of km) and :func:`associate` attaches the model state
+* :class:`Site` places hypocentres in the model plane (from the reader's offsets, or a local
+  flat-earth projection for events given by latitude and longitude) and :func:`associate`
+  attaches the model state
   at an event's time: distance to the injection point and to the nearest slipping fault point,
   slip rate and utilisation at the fault point nearest to the event.
 
@@ -16,7 +18,6 @@ Times are model seconds: seconds after ``start``, the date-time of model time 0.
 from __future__ import annotations
 
 import fnmatch
-import io
 import logging
 import math
 import os
@@ -37,7 +38,8 @@ EARTH_RADIUS = 6_371_000.0
 class SeismicEvent:
     """An event or a detection.  ``time`` s of model time; ``magnitude`` NaN if unknown;
     ``latitude``/``longitude`` deg and ``depth`` m (None if unknown); ``kind`` "event" or
-    "detection"; ``id`` unique within its feed."""
+    "detection"; ``id`` unique within its feed; ``offset`` (east, north, up) m and
+    ``distance`` m from the injection point when the catalogue reader placed it."""
 
     time: float
     magnitude: float = math.nan
@@ -46,11 +48,14 @@ class SeismicEvent:
     depth: Optional[float] = None
     kind: str = "event"
     id: str = ""
+    offset: Optional[tuple] = None       # (east, north, up) m from the injection point
+    distance: Optional[float] = None     # m to the injection point (the catalogue reader's)
 
     def to_dict(self) -> dict:
         return {"time": self.time, "magnitude": self.magnitude, "latitude": self.latitude,
                 "longitude": self.longitude, "depth": self.depth, "kind": self.kind,
-                "id": self.id}
+                "id": self.id, "offset": None if self.offset is None else list(self.offset),
+                "distance": self.distance}
 
 
 def _utc(start: datetime):
@@ -61,50 +66,53 @@ def _utc(start: datetime):
     return UTCDateTime(start.astimezone(timezone.utc).replace(tzinfo=None))
 
 
-def events_from_catalog(cat, start: datetime) -> List[SeismicEvent]:
-    """SeismicEvents of an obspy Catalog (preferred origin and magnitude, else the first)."""
-    ref = _utc(start)
+def events_from_catalog(cat, site=None, source: Optional[str] = None) -> List[SeismicEvent]:
+    """SeismicEvents of an :class:`~fault_screen.io.events.EventCatalog` (as
+    :func:`~fault_screen.io.events.read_events` returns it, distances included when it was read
+    with a site), with their east/north/up offsets from the injection point when ``site``
+    places them."""
+    from ..io.events import _offsets
+
+    n = len(cat)
+    off = _offsets(cat, site)[0] if site is not None and n else None
+    col = lambda a, k: None if a is None or not np.isfinite(a[k]) else float(a[k])  # noqa: E731
     out = []
-    for ev in cat:
-        org = ev.preferred_origin() or (ev.origins[0] if ev.origins else None)
-        if org is None or org.time is None:
-            continue
-        mag = ev.preferred_magnitude() or (ev.magnitudes[0] if ev.magnitudes else None)
-        m = float(mag.mag) if mag is not None and mag.mag is not None else math.nan
-        rid = str(ev.resource_id) if ev.resource_id is not None else ""
+    for k in range(n):
+        t, m = float(cat.time[k]), float(cat.magnitude[k])
+        o = off[k] if off is not None and np.all(np.isfinite(off[k])) else None
         out.append(SeismicEvent(
-            time=float(org.time - ref), magnitude=m,
-            latitude=None if org.latitude is None else float(org.latitude),
-            longitude=None if org.longitude is None else float(org.longitude),
-            depth=None if org.depth is None else float(org.depth),   # QuakeML depth is in m
-            kind="event", id=rid or f"{org.time.isoformat()}"))
-    return sorted(out, key=lambda e: e.time)
+            time=t, magnitude=m, latitude=col(cat.latitude, k), longitude=col(cat.longitude, k),
+            depth=col(cat.depth, k), kind="event",
+            id=f"{source or cat.source}@{t!r}/{m!r}",   # the reader has no ids: time and size
+            offset=None if o is None else (float(o[0]), float(o[1]), float(o[2])),
+            distance=col(cat.distance_to_injection, k)))
+    return out
 
 
 class CatalogFollower:
-    """New events of a growing catalogue file (QuakeML or FDSN text), by polling.
+    """New events of a growing catalogue file, by polling: every format
+    :func:`~fault_screen.io.events.read_events` reads (QuakeML and obspy's formats, CSV, FDSN
+    text), placed with the scene's ``[site]``.
 
-    The file is read again when its size or modification time changes; an FDSN text file is
-    read up to its last complete line and a QuakeML file that does not parse yet (being
-    written) is tried again at the next poll.  Events are returned once, by id.
+    The file is read again when its size or modification time changes; a text catalogue is
+    read up to its last complete line, and a file that does not parse yet (being written) is
+    tried again at the next poll.  Each event is returned once.
     """
 
-    def __init__(self, path, start: datetime, *, format: Optional[str] = None,
+    def __init__(self, path, start: datetime, *, site=None, format: Optional[str] = None,
                  log: Optional[logging.Logger] = None):
         self.path = os.fspath(path)
         self.start = start
+        self.site = site
         self.format = format
         self.log = log or logging.getLogger("fault_screen.monitor.seismicity")
         self.seen: set = set()
         self._sig = None
 
-    def _format_of(self, head: bytes) -> str:
-        if self.format:
-            return self.format
-        return "QUAKEML" if head.lstrip()[:1] == b"<" else "EVENTTXT"
-
     def poll(self) -> List[SeismicEvent]:
-        import obspy
+        import tempfile
+
+        from ..io.events import read_events
 
         try:
             st = os.stat(self.path)
@@ -115,21 +123,28 @@ class CatalogFollower:
             return []
         with open(self.path, "rb") as fh:
             data = fh.read()
-        fmt = self._format_of(data[:512])
-        if fmt == "EVENTTXT":
+        path, tmp = self.path, None
+        if data.lstrip()[:1] != b"<" and not data.endswith(b"\n"):
+            # a text catalogue with its last line being written: read the complete lines
             cut = data.rfind(b"\n")
-            data = data[:cut + 1] if cut >= 0 else b""
-            if not data.strip():
+            if cut < 0:
                 return []
-        stream = io.StringIO(data.decode("utf-8", "replace")) if fmt == "EVENTTXT" else \
-            io.BytesIO(data)       # obspy's text reader wants text, its XML reader bytes
+            tmp = tempfile.NamedTemporaryFile(suffix=os.path.splitext(self.path)[1],
+                                              delete=False)
+            tmp.write(data[:cut + 1])
+            tmp.close()
+            path = tmp.name
         try:
-            cat = obspy.read_events(stream, format=fmt)
+            cat = read_events(path, self.start, format=self.format, site=self.site)
         except Exception as exc:  # noqa: BLE001 - a file being written; try again later
             self.log.debug("%s: not readable yet (%s)", self.path, exc)
             return []
-        self._sig = sig
-        new = [e for e in events_from_catalog(cat, self.start) if e.id not in self.seen]
+        finally:
+            if tmp is not None:
+                os.unlink(tmp.name)
+        if tmp is None:
+            self._sig = sig
+        new = [e for e in events_from_catalog(cat, self.site, self.path) if e.id not in self.seen]
         self.seen.update(e.id for e in new)
         return new
 
@@ -221,26 +236,44 @@ class SdsDetector:
 @dataclass(frozen=True)
 class Site:
     """Where the model sits: the injection point's ``latitude``, ``longitude`` (deg) and
-    ``depth`` (m below the surface), and the ``azimuth`` (deg clockwise from north) of the
-    model's x axis, which lies in the model plane; the model's y axis points up."""
+    ``depth`` (m below the datum), and the ``azimuth`` (deg clockwise from north) of the model's
+    x axis, which is horizontal in the model plane; the model's y axis points up.  Events
+    placed by the catalogue reader (``SeismicEvent.offset``) need only the azimuth."""
 
-    latitude: float
-    longitude: float
-    depth: float
+    latitude: Optional[float] = None
+    longitude: Optional[float] = None
+    depth: Optional[float] = None
     azimuth: float = 90.0
+    spec: object = field(default=None, compare=False)   # the scene's [site], for the reader
+
+    @classmethod
+    def from_spec(cls, spec) -> Optional["Site"]:
+        """From the scene's ``[site]`` table: the model plane is the fault's dip section, so its
+        x axis points down-dip, at strike + 90 deg (east without a strike)."""
+        if spec is None:
+            return None
+        strike = getattr(spec, "strike", None)
+        return cls(getattr(spec, "latitude", None), getattr(spec, "longitude", None),
+                   getattr(spec, "depth", None),
+                   (float(strike) + 90.0) % 360.0 if strike is not None else 90.0, spec)
 
     def local(self, ev: SeismicEvent):
         """(along-section, up, off-section) offsets (m) of a hypocentre from the injection
-        point, or None if the event has no location."""
-        if ev.latitude is None or ev.longitude is None:
+        point, or None if it cannot be placed."""
+        if ev.offset is not None:
+            east, north, up = ev.offset
+        elif None not in (ev.latitude, ev.longitude, self.latitude, self.longitude):
+            # a local flat-earth projection: good to ~0.1 % within tens of km
+            lat0 = math.radians(self.latitude)
+            north = math.radians(ev.latitude - self.latitude) * EARTH_RADIUS
+            east = math.radians(ev.longitude - self.longitude) * EARTH_RADIUS * math.cos(lat0)
+            up = -((ev.depth if ev.depth is not None else self.depth or 0.0)
+                   - (self.depth or 0.0))
+        else:
             return None
-        lat0 = math.radians(self.latitude)
-        north = math.radians(ev.latitude - self.latitude) * EARTH_RADIUS
-        east = math.radians(ev.longitude - self.longitude) * EARTH_RADIUS * math.cos(lat0)
         az = math.radians(self.azimuth)
         along = east * math.sin(az) + north * math.cos(az)
         off = east * math.cos(az) - north * math.sin(az)
-        up = -((ev.depth if ev.depth is not None else self.depth) - self.depth)
         return along, up, off
 
 
@@ -282,7 +315,8 @@ def associate(ev: SeismicEvent, row: dict, *, site: Optional[Site], fault_xy, in
     if pos is None:
         return a
     along, up, off = pos
-    a.distance_injection = math.sqrt(along * along + up * up + off * off)
+    a.distance_injection = (ev.distance if ev.distance is not None
+                            else math.sqrt(along * along + up * up + off * off))
     xy = np.asarray(fault_xy, dtype=float).reshape(-1, 2)
     if xy.size == 0:
         return a

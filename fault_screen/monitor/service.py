@@ -141,7 +141,8 @@ class MonitorService:
                     f"{self.cfg.follow} has elapsed times: give it with --t0")
             return
         if self.cfg.events is not None and self.catalog is None:
-            self.catalog = CatalogFollower(self.cfg.events, st.start)
+            site = st.site.spec if st.site is not None else None
+            self.catalog = CatalogFollower(self.cfg.events, st.start, site=site)
         if self.cfg.waveforms is not None and self.detector is None:
             self.detector = SdsDetector(self.cfg.waveforms, st.start, **self.cfg.sta_lta)
             if self._detector_state:

@@ -622,14 +622,7 @@ def _basic_metrics(row: dict, scene) -> dict:
 
 
 def _site_of(scene) -> Optional[Site]:
-    s = getattr(scene, "site", None)
-    if s is None:
-        return None
-    try:
-        return Site(float(s.latitude), float(s.longitude), float(s.depth),
-                    float(getattr(s, "azimuth", 90.0)))
-    except (AttributeError, TypeError, ValueError):
-        return None
+    return Site.from_spec(getattr(scene, "site", None))
 
 
 def _dump_screener(screener):
@@ -670,10 +663,13 @@ def _row_from_json(row: dict) -> dict:
 
 
 def _event_args(d: dict) -> dict:
-    keys = ("time", "magnitude", "latitude", "longitude", "depth", "kind", "id")
+    keys = ("time", "magnitude", "latitude", "longitude", "depth", "kind", "id", "offset",
+            "distance")
     out = {k: d[k] for k in keys if k in d}
     if out.get("magnitude") is None:
         out["magnitude"] = math.nan
+    if out.get("offset") is not None:
+        out["offset"] = tuple(out["offset"])
     return out
 
 
