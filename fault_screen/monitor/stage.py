@@ -230,15 +230,18 @@ class Stage:
     of transitions`` (default: the scene's rules through ``fault_screen.screening``, when that
     module is present); ``metrics``: function ``(row, scene) -> dict`` of the screening metrics
     of a recorded row.  ``site``: :class:`~fault_screen.monitor.seismicity.Site` to place
-    hypocentres.  ``event_window``: seconds over which ``event_rate`` counts events.
+    hypocentres (default: the scene's ``[site]``).  ``event_window``: seconds over which
+    ``event_rate`` counts events (default: ``[monitor] event_rate_window``).
     """
 
     def __init__(self, scene, *, start: Optional[datetime] = None, simulation=None,
                  screener=None, metrics=None, site: Optional[Site] = None,
-                 event_window: float = 3600.0, label: str = "", history: int = 16):
+                 event_window: Optional[float] = None, label: str = "", history: int = 16):
         if getattr(scene.injection, "control", "rate") != "rate":
             raise ValueError(f"injection.control = {scene.injection.control!r}: the monitor "
                              f"drives the flow rate; use a scene with control = 'rate'")
+        if event_window is None:      # the scene's [monitor] event_rate_window, else 1 h
+            event_window = getattr(getattr(scene, "monitor", None), "event_rate_window", 3600.0)
         if not event_window > 0:
             raise ValueError(f"event_window must be > 0 s, got {event_window!r}")
         self.scene = scene
