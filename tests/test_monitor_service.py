@@ -144,10 +144,10 @@ def test_catalogue_events_reach_the_rules_and_the_results(dist, scene_file, tmp_
     run_service(sited, STANDIN, tmp_path / "s.h5", tmp_path / "out.h5",
                 tmp_path / "a.jsonl", idle_exit=0.3, events=cat)
     res = Result.load(tmp_path / "out.h5")
-    ev = res.extra["monitor_events"]
+    ev = res.extra["events"]
     assert list(ev["time"]) == [30.0, 33.0] and list(ev["magnitude"]) == [0.4, 2.3]
     assert list(ev["model_time"]) == [35.0, 35.0]          # the step (28, 35] s holds both
-    assert list(ev["distance_injection"]) == pytest.approx([100.0, 0.0], abs=1e-9)
+    assert list(ev["distance_to_injection"]) == pytest.approx([100.0, 0.0], abs=1e-6)
     first = json.loads((tmp_path / "a.jsonl").read_text().splitlines()[0])
     assert (first["level"], first["rule"], first["model_time"]) == \
         ("red", "event_magnitude >= 2", 35.0)

@@ -403,8 +403,9 @@ class Stage:
 
     # -- output -----------------------------------------------------------------------------
     def result(self):
-        """The model's :class:`~fault_screen.Result` so far, with the monitor's transitions and
-        associated events in ``extra`` (groups ``monitor_transitions``, ``monitor_events``)."""
+        """The model's :class:`~fault_screen.Result` so far, with the live level changes
+        (``extra["monitor_transitions"]``), the events with the model state each was associated
+        with (``extra["events"]``, the layout run and replay use) and ``/screening/``."""
         res = self.sim.result()
         extra = dict(getattr(res, "extra", {}) or {})
         if self.transitions:
@@ -417,11 +418,20 @@ class Stage:
                 "rule": np.array([str(d["rule"]) for d in self.transitions], dtype="S"),
             }
         if self.associations:
-            keys = ("time", "magnitude", "model_time", "distance_injection", "distance_slipping",
-                    "slip_rate", "utilisation")
-            ev = {k: np.array([_nan(a[k]) for a in self.associations], dtype=float) for k in keys}
-            ev["kind"] = np.array([a["kind"] for a in self.associations], dtype="S")
-            extra["monitor_events"] = ev
+            # /events as run and replay write it (plot and screen read it), plus the model
+            # state each event was associated with
+            a = self.associations
+            ev = {"time": [x["time"] for x in a], "magnitude": [x["magnitude"] for x in a],
+                  "latitude": [x["latitude"] for x in a], "longitude": [x["longitude"] for x in a],
+                  "depth": [x["depth"] for x in a],
+                  "distance_to_injection": [x["distance_injection"] for x in a],
+                  "model_time": [x["model_time"] for x in a],
+                  "distance_to_slipping": [x["distance_slipping"] for x in a],
+                  "slip_rate": [x["slip_rate"] for x in a],
+                  "utilisation": [x["utilisation"] for x in a]}
+            ev = {k: np.array([_nan(v) for v in vals], dtype=float) for k, vals in ev.items()}
+            ev["kind"] = np.array([x["kind"] for x in a], dtype="S")
+            extra["events"] = ev
         res.extra = extra
         if _is_layer_screener(self.screener):
             # /screening/ as replay and run write it: the rules over the whole result, with the
