@@ -450,6 +450,6 @@ def discretise(scene: Scene) -> Discretisation:
 
     physics = terms_for(scene)
     disc = Discretisation(scene, physics)
-    if disc.has("u"):
-        physics.in_situ.check_equilibrium(disc)
+    for term in physics.terms:
+        term.check(disc)
     return disc

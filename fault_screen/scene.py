@@ -147,10 +147,23 @@ class FluidSpec:
     """Fluid density (kg/m^3)."""
 
 
+#: What an in-situ stress given in a scene means; each converts through the total stress sigma:
+#: Biot-effective = sigma + alpha p0 (the rock's), fault-effective = sigma + p0 (the fault's,
+#: Biot coefficient 1 on the fault).
+STRESS_KINDS = ("total", "biot_effective", "fault_effective")
+
+
 @_spec
 class InitialSpec:
-    effective_stress: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    """In-situ effective stress sxx', syy', sxy' (Pa, tension positive)."""
+    stress: tuple[float, float, float] | None = None
+    """In-situ stress sxx, syy, sxy at the reference point (Pa, tension positive), of the kind
+    ``stress_kind`` names; give both together. Neither: no in-situ stress."""
+    stress_kind: str | None = None
+    """'total' (hydraulic fracturing tests, overcoring, regional models usually give these),
+    'biot_effective' (sigma + alpha p0) or 'fault_effective' (sigma + p0: what the fault's
+    effective normal stress is projected from, as in the paper's Eq. 19)."""
+    effective_stress: tuple[float, float, float] | None = None
+    """Older key, read as ``stress`` with ``stress_kind = "biot_effective"`` (Pa)."""
     pore_pressure: float = 0.0
     """Initial pore pressure at the reference point (Pa)."""
     reference_point: tuple[float, float] | None = None
@@ -163,6 +176,15 @@ class InitialSpec:
     """Hydrostatic gradient along gravity (Pa/m); default fluid density * gravity."""
     lateral_stress_ratio: float | None = None
     """Effective-stress gradient across gravity over that along it (-); default nu/(1-nu)."""
+
+    @property
+    def stress_and_kind(self) -> tuple[tuple[float, float, float], str]:
+        """The in-situ stress as given and its kind (the older key: Biot-effective)."""
+        if self.stress is not None:
+            return self.stress, self.stress_kind
+        if self.effective_stress is not None:
+            return self.effective_stress, "biot_effective"
+        return (0.0, 0.0, 0.0), "biot_effective"
 
 
 @_spec
@@ -429,7 +451,7 @@ def _to_plain(obj):
 #: What each dimensional field measures, so that values may carry units (see ``units.py``):
 #: as a key suffix, ``"youngs_modulus[GPa]" = 29.2``, or in a string, ``youngs_modulus = "29.2 GPa"``.
 QUANTITY = {
-    **dict.fromkeys(["youngs_modulus", "solid_bulk_modulus", "bulk_modulus", "effective_stress",
+    **dict.fromkeys(["youngs_modulus", "solid_bulk_modulus", "bulk_modulus", "effective_stress", "stress",
                      "pore_pressure", "traction"], "pressure"),
     **dict.fromkeys(["normal_stiffness", "shear_stiffness", "pore_pressure_gradient"], "stiffness"),
     **dict.fromkeys(["lx", "ly", "origin", "center", "half_width", "size", "point",
@@ -614,6 +636,7 @@ RANGES: dict[str, tuple[str, tuple, tuple]] = {
     "fluid.bulk_modulus": ("Pa", (0.0, 1e11), (1e7, 5e9)),
     "fluid.density": ("kg/m3", (0.0, 2e4), (100.0, 1500.0)),
     "initial.effective_stress": ("Pa", (-1e10, 1e10), (-3e8, 3e7)),
+    "initial.stress": ("Pa", (-1e10, 1e10), (-3e8, 3e7)),
     "initial.pore_pressure": ("Pa", (-1e8, 1e10), (-1e6, 3e8)),
     "initial.gravity": ("m/s2", (0.0, 100.0), (0.0, 30.0)),
     "initial.pore_pressure_gradient": ("Pa/m", (-1e6, 1e6), (0.0, 3e4)),
@@ -860,6 +883,14 @@ def _validate(s: Scene, sink: list | None = None):
     d = ini.gravity_direction
     _check(abs(math.hypot(d[0], d[1]) - 1.0) < 1e-6, "initial.gravity_direction", d, "must be a unit vector")
     _check(ini.gravity >= 0, "initial.gravity", ini.gravity, "must be >= 0 m/s^2")
+    _check((ini.stress is None) == (ini.stress_kind is None), "initial.stress_kind", ini.stress_kind,
+           "initial.stress and initial.stress_kind go together: say which kind of stress the numbers "
+           f"are ({', '.join(STRESS_KINDS)}); the tool does not guess")
+    _check(ini.stress_kind is None or ini.stress_kind in STRESS_KINDS, "initial.stress_kind",
+           ini.stress_kind, f"must be one of {', '.join(STRESS_KINDS)}")
+    _check(ini.stress is None or ini.effective_stress is None, "initial.effective_stress",
+           ini.effective_stress, "give either initial.stress with initial.stress_kind or the older "
+           "initial.effective_stress (Biot-effective), not both")
     if ini.reference_point is not None:
         rx, ry = ini.reference_point
         _check(x0 <= rx <= x0 + m.lx and y0 <= ry <= y0 + m.ly, "initial.reference_point",

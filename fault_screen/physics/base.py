@@ -61,6 +61,9 @@ class Term:
     def previous_step(self, disc, x_n, time_weight, residual) -> None:
         """Known part at the start of the step of a time-weighted nonlinear term."""
 
+    def check(self, disc) -> None:
+        """Refuse (SceneError) a discretised scene this term cannot start from."""
+
     def stored_volume(self, disc, x) -> float:
         """Fluid volume (m^3 per m of thickness) this term stores since the in-situ state."""
         return 0.0
