@@ -178,3 +178,24 @@ def test_idle_time_counts_from_the_end_of_the_work(dist, scene_file, tmp_path):
     summary = service.run()
     writer.join()
     assert summary["samples"] == 162
+
+
+def test_sds_detections_reach_the_results(dist, scene_file, tmp_path):
+    import obspy
+    from datetime import datetime, timezone
+
+    from test_monitor_seismicity import write_sds
+
+    write_sds(tmp_path / "sds", obspy.read())          # 30 s from 2009-08-24T00:20:03Z
+    log = tmp_path / "elapsed.csv"
+    log.write_text("elapsed[s],flow_rate[L/min]\n"
+                   + "".join(f"{t},10\n" for t in range(0, 36, 5)))
+    run_service(scene_file, log, tmp_path / "s.h5", tmp_path / "out.h5", tmp_path / "a.jsonl",
+                idle_exit=0.3, waveforms=tmp_path / "sds",
+                t0=datetime(2009, 8, 24, 0, 20, 3, tzinfo=timezone.utc),
+                sta_lta=dict(sta=0.5, lta=5.0, on=3.0, off=1.0, merge=1.0, min_channels=2))
+    ev = Result.load(tmp_path / "out.h5").extra["events"]
+    # the P arrival on the three channels, merged: one detection at the earliest onset
+    assert ev["kind"][0] == b"detection" and ev["time"][0] == pytest.approx(4.99, abs=1e-9)
+    assert ev["model_time"][0] == 7.0                  # the first step (dt = 7 s) holds it
+    assert np.isnan(ev["magnitude"][0])

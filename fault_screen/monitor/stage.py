@@ -320,8 +320,15 @@ class Stage:
 
     def finish(self) -> Update:
         """Take the final partial step to the last sample (as a replay ends at its last stamp).
+        Events reported after the model passed their time and not yet associated are associated
+        with the newest state (recorded in the results; no step is left to screen them).
         After it the stage should not be fed again (its step sequence left the scene's)."""
-        return self._advance(align=False)
+        upd = self._advance(align=False)
+        late = [e for e in self.pending_events if e.time <= self.time]
+        if late and self._rows:
+            self.pending_events = [e for e in self.pending_events if e.time > self.time]
+            self.associations.extend(self._associate(e).to_dict() for e in late)
+        return upd
 
     # -- stepping ---------------------------------------------------------------------------
     def _advance(self, align: bool) -> Update:
