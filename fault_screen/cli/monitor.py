@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from ._options import (DIR, FILE, BadInput, _positive_callback, _t0_callback, _unit_callback,
-                       reading, version_option)
+                       check_size, reading, version_option)
 from .run import load_scene
 
 
@@ -37,7 +37,7 @@ def _count_callback(ctx, param, value):
               help="Injection log to follow as it grows (CSV, the replay format), or '-' to "
                    "read it from standard input.")
 @click.option("--events", type=FILE, default=None, metavar="CATALOG",
-              help="Seismic catalogue (QuakeML or FDSN text) polled as it grows.")
+              help="Seismic catalogue (QuakeML, CSV or FDSN text) polled as it grows.")
 @click.option("--waveforms", type=DIR, default=None, metavar="SDS_DIR",
               help="SDS waveform archive: classic STA/LTA detections as it fills.")
 @click.option("--state", type=FILE, default=None, metavar="STATE.h5",
@@ -109,6 +109,7 @@ def monitor(scene_path, follow, events, waveforms, state, out, idle_exit, alerts
                         format="%(asctime)s %(levelname)s %(message)s")
     scene_path = Path(scene_path)
     scene = load_scene(scene_path)
+    check_size(scene, str(scene_path))
     if scene.injection.control != "rate":
         raise BadInput(f"{scene_path}: injection.control = {scene.injection.control!r}: the "
                        f"monitor drives the flow rate; use a scene with control = 'rate'")
