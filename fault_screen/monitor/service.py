@@ -68,7 +68,8 @@ class MonitorService:
 
     ``sinks`` adds alert plugin instances by key besides ``config.alerts`` (used by embedding
     programs and the latency benchmark); ``simulation_class``, ``screener`` and ``metrics`` are
-    passed to the stage (defaults: ``fault_screen.Simulation`` and the scene's rules).
+    passed to the stage (defaults: ``fault_screen.Simulation`` and the scene's rules);
+    ``on_update(update)`` is called after every batch of samples the stage took.
     """
 
     def __init__(self, scene, config: MonitorConfig, *, sinks: Optional[Dict[str, object]] = None,
