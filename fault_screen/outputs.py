@@ -121,7 +121,8 @@ def unit(group: str, name: str) -> str:
 def markdown_table() -> str:
     """The README's results table."""
     lines = ["| dataset | shape | unit | meaning |", "|---|---|---|---|"]
-    lines += [f"| `{o.path}` | {o.shape} | {o.unit} | {o.description} |" for o in SCHEMA]
+    cell = lambda text: text.replace("|", "\\|")  # a bar inside a cell would end it
+    lines += [f"| `{o.path}` | {o.shape} | {cell(o.unit)} | {cell(o.description)} |" for o in SCHEMA]
     return "\n".join(lines)
 
 
