@@ -31,7 +31,7 @@ def run(request):
 
 def _reference(scene, model, T):
     f = scene.fault
-    sig = np.array(scene.initial.effective_stress)
+    sig = np.array(scene.initial.stress)  # fault-effective; p0 = 0 in these scenes
     stress = np.array([[sig[0], sig[2]], [sig[2], sig[1]]])
     t, n = model.fault.tangent, model.fault.normal
     sigma0, tau0 = -(n @ stress @ n), t @ stress @ n
