@@ -12,7 +12,7 @@ in-situ state, which is in equilibrium on its own.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -86,7 +86,7 @@ def effective_rock(spec: RockSpec, fluid_bulk_modulus: float, viscosity: float) 
     if Ks is None:
         Ks = K / (1.0 - alpha) if alpha < 1.0 else np.inf
     inv_M = (alpha - n) / Ks + n / fluid_bulk_modulus
-    return {"E": E, "nu": nu, "alpha": alpha, "mobility": spec.permeability / viscosity,
+    return {"E": E, "nu": nu, "alpha": alpha, "mobility": spec.mobility_at(viscosity),
             "inv_M": inv_M, "Ks": Ks}
 
 
@@ -141,7 +141,7 @@ class Discretisation:
                 inside = ((centroids[:, 0] >= x0) & (centroids[:, 0] <= x1)
                           & (centroids[:, 1] >= y0) & (centroids[:, 1] <= y1))
             zone_of[inside] = k
-            specs.append(replace(s.rock, **z.rock))
+            specs.append(s.rock.with_overrides(z.rock))
         self.zone_of = zone_of
         props = [effective_rock(spec, s.fluid.bulk_modulus, s.fluid.viscosity) for spec in specs]
         self.zone_props = props
@@ -451,6 +451,6 @@ def discretise(scene: Scene) -> Discretisation:
 
     physics = terms_for(scene)
     disc = Discretisation(scene, physics)
-    if disc.has("u"):
-        physics.in_situ.check_equilibrium(disc)
+    for term in physics.terms:
+        term.check(disc)
     return disc

@@ -104,12 +104,29 @@ class RockSpec:
     """Biot coefficient alpha (-), in (porosity, 1]."""
     porosity: float = 0.148
     """Porosity n (-)."""
-    permeability: float = 6.77e-19
-    """Intrinsic permeability (m^2)."""
+    permeability: float | None = 6.77e-19
+    """Intrinsic permeability (m^2); the flow uses permeability / fluid viscosity."""
+    mobility: float | None = None
+    """Mobility k/mu (m^2/(Pa s)), instead of permeability (give one; from a file, giving
+    mobility unsets permeability). The paper's k_f is written in m^3 s/kg: a mobility."""
     solid_bulk_modulus: float | None = None
     """Grain bulk modulus Ks (Pa); default K_drained / (1 - alpha), consistent with alpha."""
     density: float = 2364.0
     """Solid grain density (kg/m^3)."""
+
+    def mobility_at(self, viscosity: float) -> float:
+        """Darcy mobility (m^2/(Pa s)): ``mobility`` if given, else permeability / viscosity."""
+        return self.mobility if self.mobility is not None else self.permeability / viscosity
+
+    def with_overrides(self, overrides: dict) -> "RockSpec":
+        """This rock with a zone's overrides; a zone's permeability replaces a mobility and
+        vice versa (the most specific table decides how the flow property is given)."""
+        over = dict(overrides)
+        if "mobility" in over:
+            over.setdefault("permeability", None)
+        if "permeability" in over:
+            over.setdefault("mobility", None)
+        return dataclasses.replace(self, **over)
 
 
 @_spec
@@ -135,6 +152,13 @@ class DamageZoneSpec:
     """Poisson's ratio in the damage zone (-)."""
     permeability: float | None = None
     """Permeability in the damage zone (m^2)."""
+    mobility: float | None = None
+    """Mobility k/mu in the damage zone (m^2/(Pa s)), instead of permeability."""
+
+    def rock_overrides(self) -> dict:
+        """The ``[rock]`` keys this damage zone overrides (for ``RockSpec.with_overrides``)."""
+        keys = ("youngs_modulus", "poissons_ratio", "permeability", "mobility")
+        return {k: getattr(self, k) for k in keys if getattr(self, k) is not None}
 
 
 @_spec
@@ -147,10 +171,23 @@ class FluidSpec:
     """Fluid density (kg/m^3)."""
 
 
+#: What an in-situ stress given in a scene means; each converts through the total stress sigma:
+#: Biot-effective = sigma + alpha p0 (the rock's), fault-effective = sigma + p0 (the fault's,
+#: Biot coefficient 1 on the fault).
+STRESS_KINDS = ("total", "biot_effective", "fault_effective")
+
+
 @_spec
 class InitialSpec:
-    effective_stress: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    """In-situ effective stress sxx', syy', sxy' (Pa, tension positive)."""
+    stress: tuple[float, float, float] | None = None
+    """In-situ stress sxx, syy, sxy at the reference point (Pa, tension positive), of the kind
+    ``stress_kind`` names; give both together. Neither: no in-situ stress."""
+    stress_kind: str | None = None
+    """'total' (hydraulic fracturing tests, overcoring, regional models usually give these),
+    'biot_effective' (sigma + alpha p0) or 'fault_effective' (sigma + p0: what the fault's
+    effective normal stress is projected from, as in the paper's Eq. 19)."""
+    effective_stress: tuple[float, float, float] | None = None
+    """Older key, read as ``stress`` with ``stress_kind = "biot_effective"`` (Pa)."""
     pore_pressure: float = 0.0
     """Initial pore pressure at the reference point (Pa)."""
     reference_point: tuple[float, float] | None = None
@@ -163,6 +200,15 @@ class InitialSpec:
     """Hydrostatic gradient along gravity (Pa/m); default fluid density * gravity."""
     lateral_stress_ratio: float | None = None
     """Effective-stress gradient across gravity over that along it (-); default nu/(1-nu)."""
+
+    @property
+    def stress_and_kind(self) -> tuple[tuple[float, float, float], str]:
+        """The in-situ stress as given and its kind (the older key: Biot-effective)."""
+        if self.stress is not None:
+            return self.stress, self.stress_kind
+        if self.effective_stress is not None:
+            return self.effective_stress, "biot_effective"
+        return (0.0, 0.0, 0.0), "biot_effective"
 
 
 @_spec
@@ -402,6 +448,22 @@ class Scene:
         return dumps_toml(self.to_dict())
 
     # ---- derived quantities --------------------------------------------------------------
+    def flow_summary(self) -> list[str]:
+        """One line per rock region: its permeability and mobility at this scene's viscosity
+        (both printed whichever was given), e.g. for ``scene show``."""
+        mu = self.fluid.viscosity
+        regions = [("rock", self.rock)]
+        if self.effects.damage_zone:
+            regions.append(("damage_zone", self.rock.with_overrides(self.damage_zone.rock_overrides())))
+        regions += [(f"zones[{i}] ({z.name})", self.rock.with_overrides(z.rock)) for i, z in enumerate(self.zones)]
+        lines = []
+        for name, rock in regions:
+            m = rock.mobility_at(mu)
+            given = "mobility" if rock.mobility is not None else "permeability"
+            lines.append(f"{name}: permeability {m * mu:.6g} m2, mobility {m:.6g} m2/(Pa s) "
+                         f"(given as {given}; viscosity {mu:g} Pa s)")
+        return lines
+
     @property
     def fault_point(self) -> tuple[float, float]:
         if self.fault.point is not None:
@@ -429,13 +491,14 @@ def _to_plain(obj):
 #: What each dimensional field measures, so that values may carry units (see ``units.py``):
 #: as a key suffix, ``"youngs_modulus[GPa]" = 29.2``, or in a string, ``youngs_modulus = "29.2 GPa"``.
 QUANTITY = {
-    **dict.fromkeys(["youngs_modulus", "solid_bulk_modulus", "bulk_modulus", "effective_stress",
+    **dict.fromkeys(["youngs_modulus", "solid_bulk_modulus", "bulk_modulus", "effective_stress", "stress",
                      "pore_pressure", "traction"], "pressure"),
     **dict.fromkeys(["normal_stiffness", "shear_stiffness", "pore_pressure_gradient"], "stiffness"),
     **dict.fromkeys(["lx", "ly", "origin", "center", "half_width", "size", "point",
                      "hydraulic_aperture", "critical_slip_distance", "asperity_height_std", "width",
                      "band", "box", "position", "reference_point"], "length"),
     "permeability": "permeability",
+    "mobility": "mobility",
     **dict.fromkeys(["end", "dt", "dt_max", "initial_state", "log_max_gap"], "time"),
     **dict.fromkeys(["hold", "event_rate_window"], "time"),
     "viscosity": "viscosity",
@@ -481,7 +544,19 @@ def _build(cls, data, where):
         if unit is not None and quantity is None:
             raise SceneError(f"{_key(where, raw)}: {name} takes no unit")
         kwargs[name] = _coerce(hints[name], value, _key(where, raw), quantity, unit)
+    _one_flow_property(kwargs, where)
+    if cls is RockSpec and "mobility" in kwargs:
+        kwargs.setdefault("permeability", None)
     return cls(**kwargs)
+
+
+def _one_flow_property(table: dict, where: str):
+    """Permeability (m^2, divided by the viscosity) and mobility (m^2/(Pa s)) say the same thing
+    two ways: a table may give one of them only."""
+    if "permeability" in table and "mobility" in table:
+        raise SceneError(f"[{where or 'scene'}] gives both permeability = {table['permeability']!r} "
+                         f"and mobility = {table['mobility']!r}; give one (mobility = "
+                         f"permeability / fluid viscosity)")
 
 
 def _key(where, name):
@@ -526,6 +601,7 @@ def _coerce(hint, value, key, quantity=None, unit=None):
             m = _UNIT_KEY.match(raw)
             name, u = (m.group(1), m.group(2).strip()) if m else (raw, None)
             out[name] = _number(v, f"{key}.{raw}", QUANTITY.get(name), u) if name in QUANTITY or u else v
+        _one_flow_property(out, key)
         return out
     if base.startswith("tuple[tuple[float, float]"):
         if not isinstance(value, list) or not value:
@@ -607,6 +683,8 @@ RANGES: dict[str, tuple[str, tuple, tuple]] = {
     "rock.biot_coefficient": ("-", (0.0, 1.0), (0.3, 1.0)),
     "rock.porosity": ("-", (0.0, 1.0), (0.0, 0.5)),
     "rock.permeability": ("m2", (0.0, 1e-7), (0.0, 1e-10)),
+    # mobility k/mu: the permeability ranges over water's viscosity at reservoir temperatures (~1e-3 Pa s)
+    "rock.mobility": ("m2/(Pa s)", (0.0, 1e-4), (0.0, 1e-7)),
     "rock.solid_bulk_modulus": ("Pa", (0.0, 1e12), (1e9, 1e11)),
     "rock.density": ("kg/m3", (0.0, 2e4), (1500.0, 5000.0)),
     "damage_zone.width": ("m", (0.0, 1e5), (0.0, 1e4)),
@@ -614,6 +692,7 @@ RANGES: dict[str, tuple[str, tuple, tuple]] = {
     "fluid.bulk_modulus": ("Pa", (0.0, 1e11), (1e7, 5e9)),
     "fluid.density": ("kg/m3", (0.0, 2e4), (100.0, 1500.0)),
     "initial.effective_stress": ("Pa", (-1e10, 1e10), (-3e8, 3e7)),
+    "initial.stress": ("Pa", (-1e10, 1e10), (-3e8, 3e7)),
     "initial.pore_pressure": ("Pa", (-1e8, 1e10), (-1e6, 3e8)),
     "initial.gravity": ("m/s2", (0.0, 100.0), (0.0, 30.0)),
     "initial.pore_pressure_gradient": ("Pa/m", (-1e6, 1e6), (0.0, 3e4)),
@@ -719,7 +798,12 @@ def _validate_rock(rock: RockSpec, where: str, sink: list | None = None, keys=No
     _check(0.0 <= rock.porosity < 1.0, f"{where}.porosity", rock.porosity, "must be in [0, 1)")
     _check(rock.porosity <= rock.biot_coefficient <= 1.0, f"{where}.biot_coefficient",
            rock.biot_coefficient, f"must be in [porosity = {rock.porosity}, 1]")
-    _check(rock.permeability >= 0, f"{where}.permeability", rock.permeability, "must be >= 0 m^2")
+    if rock.mobility is not None:
+        _check(rock.mobility >= 0, f"{where}.mobility", rock.mobility, "must be >= 0 m^2/(Pa s)")
+    else:
+        _check(rock.permeability is not None, f"{where}.permeability", rock.permeability,
+               "give a permeability (m^2) or a mobility (m^2/(Pa s))")
+        _check(rock.permeability >= 0, f"{where}.permeability", rock.permeability, "must be >= 0 m^2")
     _check(rock.density >= 0, f"{where}.density", rock.density, "must be >= 0 kg/m^3")
     if rock.solid_bulk_modulus is not None:
         _check(rock.solid_bulk_modulus > 0, f"{where}.solid_bulk_modulus", rock.solid_bulk_modulus,
@@ -789,7 +873,7 @@ def _validate(s: Scene, sink: list | None = None):
                f"unknown rock key; known: {', '.join(sorted(rock_keys))}")
         for k, v in z.rock.items():
             _number(v, f"{where}.rock.{k}")
-        _validate_rock(dataclasses.replace(s.rock, **z.rock), f"{where}.rock", sink, z.rock)
+        _validate_rock(s.rock.with_overrides(z.rock), f"{where}.rock", sink, z.rock)
     fl = s.fluid
     for key in ("viscosity", "bulk_modulus"):
         _check(getattr(fl, key) > 0, f"fluid.{key}", getattr(fl, key), "must be > 0")
@@ -860,6 +944,14 @@ def _validate(s: Scene, sink: list | None = None):
     d = ini.gravity_direction
     _check(abs(math.hypot(d[0], d[1]) - 1.0) < 1e-6, "initial.gravity_direction", d, "must be a unit vector")
     _check(ini.gravity >= 0, "initial.gravity", ini.gravity, "must be >= 0 m/s^2")
+    _check((ini.stress is None) == (ini.stress_kind is None), "initial.stress_kind", ini.stress_kind,
+           "initial.stress and initial.stress_kind go together: say which kind of stress the numbers "
+           f"are ({', '.join(STRESS_KINDS)}); the tool does not guess")
+    _check(ini.stress_kind is None or ini.stress_kind in STRESS_KINDS, "initial.stress_kind",
+           ini.stress_kind, f"must be one of {', '.join(STRESS_KINDS)}")
+    _check(ini.stress is None or ini.effective_stress is None, "initial.effective_stress",
+           ini.effective_stress, "give either initial.stress with initial.stress_kind or the older "
+           "initial.effective_stress (Biot-effective), not both")
     if ini.reference_point is not None:
         rx, ry = ini.reference_point
         _check(x0 <= rx <= x0 + m.lx and y0 <= ry <= y0 + m.ly, "initial.reference_point",
@@ -868,9 +960,8 @@ def _validate(s: Scene, sink: list | None = None):
     _check(dz.width > 0, "damage_zone.width", dz.width, "must be > 0 m")
     if ef.damage_zone:
         _check(ef.fault, "effects.damage_zone", ef.damage_zone, "a damage zone needs a fault")
-        over = {k: v for k, v in (("youngs_modulus", dz.youngs_modulus), ("poissons_ratio", dz.poissons_ratio),
-                                  ("permeability", dz.permeability)) if v is not None}
-        _validate_rock(dataclasses.replace(s.rock, **over), "damage_zone", sink, over)
+        over = dz.rock_overrides()
+        _validate_rock(s.rock.with_overrides(over), "damage_zone", sink, over)
     if not ef.fault:
         for key in ("fault_flow", "leak_off"):
             _check(not getattr(ef, key), f"effects.{key}", getattr(ef, key),

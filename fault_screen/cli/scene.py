@@ -19,6 +19,32 @@ def scene():
     """Inspect scene files (TOML)."""
 
 
+# ---- the fault at the injection point --------------------------------------------------------
+def fault_state_lines(disc) -> list[str]:
+    """What the in-situ state means for the fault at the injection point (MPa)."""
+    from ..kernels.contact import MU0
+    from ..physics.contact import failure_state
+
+    lines = []
+    if disc.scene.initial.effective_stress is not None:
+        lines.append("notice: initial.effective_stress is read as a Biot-effective stress (sigma + alpha p0); "
+                     "say which kind the numbers are with initial.stress and initial.stress_kind")
+    contact = disc.physics.contact
+    if contact is None:
+        return lines
+    st = failure_state(disc, float(contact.law.params[MU0]))
+    lines += [
+        f"in-situ state at the injection point (initial.stress_kind = {disc.in_situ.stress_kind!r}):",
+        f"  total normal stress          {st['total_normal_stress'] / 1e6:.3f} MPa (compression +)",
+        f"  pore pressure                {st['pore_pressure'] / 1e6:.3f} MPa",
+        f"  effective normal stress      {st['effective_normal_stress'] / 1e6:.3f} MPa (fault, Biot 1)",
+        f"  shear stress                 {st['shear_stress'] / 1e6:.3f} MPa",
+        f"  friction mu0                 {st['friction']:g}",
+        f"overpressure to failure at the injection point: {st['overpressure_to_failure'] / 1e6:.2f} MPa",
+    ]
+    return lines
+
+
 # ---- show ----------------------------------------------------------------------------------
 def _unit(section: str, name: str, value, scene) -> str:
     from ..scene import QUANTITY, RANGES
@@ -140,6 +166,10 @@ def show(path):
     lines = [f"# {path}: resolved scene, SI units (angles in degrees).",
              "# After each value: its unit and its source (file, default, derived)."]
     _show_table(sc, "", raw, sc, _derived(sc), lines)
+    from ..discretisation import discretise
+
+    with reading(path):
+        lines += [""] + ["# " + line for line in fault_state_lines(discretise(sc))]
     click.echo("\n".join(lines) + "\n", nl=False)
 
 
@@ -165,6 +195,8 @@ def check(path):
                f"{len(model.cut_elements)} of them")
     click.echo(f"  unknowns {model.n_dofs} ({counts}); memory about {memory / 1e6:.0f} MB")
     click.echo(f"  physics terms: {', '.join(model.physics.names())}")
+    for line in fault_state_lines(model):
+        click.echo(("  " if not line.startswith("notice") else "") + line)
     if log is not None:
         click.echo(f"  log: {log.summary}")
         for w in log.warnings:

@@ -61,6 +61,9 @@ class Term:
     def previous_step(self, disc, x_n, time_weight, residual) -> None:
         """Known part at the start of the step of a time-weighted nonlinear term."""
 
+    def check(self, disc) -> None:
+        """Refuse (SceneError) a discretised scene this term cannot start from."""
+
     def stored_volume_weights(self, disc) -> np.ndarray | None:
         """Weights w (n_dofs,) with stored volume = w . x (m^3 per m of thickness), for a term
         whose stored fluid is linear in the unknowns (every store today): the recorder forms

@@ -84,10 +84,7 @@ class DamageZone(Term):
 
     def __init__(self, scene):
         dz = scene.damage_zone
-        over = {k: v for k, v in (("youngs_modulus", dz.youngs_modulus),
-                                  ("poissons_ratio", dz.poissons_ratio),
-                                  ("permeability", dz.permeability)) if v is not None}
-        self.zone = Zone(name="damage zone", band=dz.width, rock=over)
+        self.zone = Zone(name="damage zone", band=dz.width, rock=dz.rock_overrides())
 
     def zones(self, scene):
         return (self.zone,)
