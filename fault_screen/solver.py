@@ -90,7 +90,8 @@ class NewtonSolver:
     DOFs, evolving-aperture conduction on the fault pressures). The free unknowns are split into
     those (N, a few hundred) and everything else (B), whose Jacobian block is constant for a given
     time step. B is factorised once per step size and its Schur complement on N is formed once;
-    each Newton iteration then costs two sparse triangular solves and a small dense solve.
+    each Newton iteration then costs one sparse solve with B, a small dense solve and the product
+    with the kept condensation W = B^-1 L_BN (a second sparse solve where W is not kept).
     """
 
     #: B^-1 L_BN (scaled), kept when small (KEEP_CONDENSATION_BYTES), else None
