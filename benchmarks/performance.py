@@ -42,7 +42,7 @@ RUSTREL = ROOT / "configs" / "rustrel-2015-calibrated.toml"
 SLIP_SCENES = ["fluid-driven-slip-T0.4-horizontal", "fluid-driven-slip-T0.4-dip30",
                "fluid-driven-slip-T0.7-horizontal", "fluid-driven-slip-T0.7-dip30"]
 #: a case that runs longer than this is stopped and reported as such (s)
-CASE_TIMEOUT = 900
+CASE_TIMEOUT = 600
 
 
 # ------------------------------------------------------------------ cases (in a child process)

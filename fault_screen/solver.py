@@ -90,7 +90,8 @@ class NewtonSolver:
     DOFs, evolving-aperture conduction on the fault pressures). The free unknowns are split into
     those (N, a few hundred) and everything else (B), whose Jacobian block is constant for a given
     time step. B is factorised once per step size and its Schur complement on N is formed once;
-    each Newton iteration then costs two sparse triangular solves and a small dense solve.
+    each Newton iteration then costs one sparse solve with B, a small dense solve and the product
+    with the kept condensation W = B^-1 L_BN (a second sparse solve where W is not kept).
     """
 
     #: B^-1 L_BN (scaled), kept when small (KEEP_CONDENSATION_BYTES), else None
@@ -193,7 +194,7 @@ class NewtonSolver:
         # one dense product (dxB = yB - W dxN)
         keep_W = len(N) and len(B) * len(N) * 8 <= KEEP_CONDENSATION_BYTES
         if self.static_B:  # first step: B, the products and the N blocks, once for the run
-            self.lu_B = spla.splu(Ls[B][:, B].tocsc(), permc_spec="MMD_ATA")
+            self.lu_B = _sparse_lu(Ls[B][:, B])
             self.factorizations += 1
             rows_N = [(D @ M @ D).tocsr()[N] for M in (self.A, self.C, self.Hf)]
             parts = [r[:, B] for r in rows_N]
@@ -208,7 +209,7 @@ class NewtonSolver:
                     P[:, j0:j0 + 256] = part @ X
             self.schur = self._static_schur(dt)
         else:
-            self.lu_B = spla.splu(Ls[B][:, B].tocsc(), permc_spec="MMD_ATA")
+            self.lu_B = _sparse_lu(Ls[B][:, B])
             self.factorizations += 1
             self.W = np.empty((len(B), len(N))) if keep_W else None
             if len(N):
@@ -331,6 +332,13 @@ class NewtonSolver:
         M = self.schur.copy()
         add_triplets_to_dense(M, self.n_index, rows, cols, vals, self.scale)
         return _DenseLU(M)
+
+
+def _sparse_lu(M):
+    """Sparse LU of the linear block. Its pattern is symmetric (the same unknowns couple both
+    ways) and, scaled, its diagonal dominates: minimum degree on A^T + A with diagonal pivots
+    preferred has 20 % less fill than on A^T A and solves a third faster (issue 15)."""
+    return spla.splu(M.tocsc(), permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True))
 
 
 class _DenseLU:
