@@ -146,3 +146,20 @@ def test_inclined_fault_on_a_coarse_mesh_is_warned():
 def test_grading_off_on_a_coarse_mesh_is_warned():
     with pytest.warns(SceneWarning, match="fault_grading = 'off'"):
         discretise(half_space(10, "off"))
+
+
+def test_scene_check_prints_the_leak_off_warning(tmp_path):
+    """`scene check` of the issue-10 scene turned to 10 degrees (a mesh that cannot be graded
+    across it) says so on stderr and still succeeds."""
+    from click.testing import CliRunner
+
+    from fault_screen.cli import main
+
+    text = (CONFIGS / "verification" / "leak-off-convergence.toml").read_text()
+    path = tmp_path / "inclined.toml"
+    path.write_text(text.replace("angle = 0.0", "angle = 10.0", 1))
+    r = CliRunner().invoke(main, ["scene", "check", str(path)], catch_exceptions=False)
+    assert r.exit_code == 0
+    assert "Warning:" in r.stderr and "does not run along x or y" in r.stderr
+    assert "times the leak-off length" in r.stderr
+
