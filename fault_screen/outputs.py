@@ -92,6 +92,21 @@ SCHEMA += (
 UNITS = {o.name: o.unit for o in SCHEMA}
 
 
+#: how the figures show a quantity: SI unit -> (display unit, factor from SI); slips and
+#: openings are millimetres, every stress and pressure megapascals
+_DISPLAY = {"Pa": ("MPa", 1e-6)}
+_MILLIMETRES = ("slip", "opening", "induced_slip")
+
+
+def display(group: str, name: str) -> tuple[float, str]:
+    """(factor from SI, unit) in which the figures show ``/group/name``."""
+    if name in _MILLIMETRES:
+        return 1e3, "mm"
+    u = unit(group, name)
+    shown, factor = _DISPLAY.get(u, (u, 1.0))
+    return factor, shown
+
+
 def by_group(group: str) -> list[Output]:
     return [o for o in SCHEMA if o.group == group]
 
@@ -106,7 +121,8 @@ def unit(group: str, name: str) -> str:
 def markdown_table() -> str:
     """The README's results table."""
     lines = ["| dataset | shape | unit | meaning |", "|---|---|---|---|"]
-    lines += [f"| `{o.path}` | {o.shape} | {o.unit} | {o.description} |" for o in SCHEMA]
+    cell = lambda text: text.replace("|", "\\|")  # a bar inside a cell would end it
+    lines += [f"| `{o.path}` | {o.shape} | {cell(o.unit)} | {cell(o.description)} |" for o in SCHEMA]
     return "\n".join(lines)
 
 

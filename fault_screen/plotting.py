@@ -17,8 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-MPA = 1e-6
-MM = 1e3
+from .outputs import display
+
+MPA, _ = display("injection", "overpressure")   # figures show stresses in MPa, slips in mm
+MM, _ = display("injection", "slip")
 L_PER_MIN = 60e3
 
 __all__ = ["plot_result", "plot_injection_point", "plot_space_time", "time_scale", "flow_unit",
@@ -234,9 +236,10 @@ def plot_injection_point(result, path, events=None) -> Path:
         tw.set_ylim(0, 1.15 * top)
         return tw, hs
 
-    hp = ax_p.plot(t * f, np.asarray(inj["overpressure"], dtype=float) * MPA, color="tab:blue",
-                   lw=1.8, label="overpressure (MPa)")
-    ax_p.set_ylabel("overpressure at injection point (MPa)")
+    pf, pu = display("injection", "overpressure")
+    hp = ax_p.plot(t * f, np.asarray(inj["overpressure"], dtype=float) * pf, color="tab:blue",
+                   lw=1.8, label=f"overpressure ({pu})")
+    ax_p.set_ylabel(f"overpressure at injection point ({pu})")
     _, hq = flow_twin(ax_p)
     ax_p.set_zorder(2)
     ax_p.patch.set_visible(False)
@@ -252,11 +255,12 @@ def plot_injection_point(result, path, events=None) -> Path:
         ax_m.set_ylabel("injection pressure (MPa)")
         ax_m.grid(alpha=0.3)
 
-    hs = ax_d.plot(t * f, np.asarray(inj["slip"], dtype=float) * MM, color="tab:red", lw=1.8,
-                   label="slip (mm)")
-    ho = ax_d.plot(t * f, np.asarray(inj["opening"], dtype=float) * MM, color="tab:green",
-                   lw=1.8, label="opening (mm)")
-    ax_d.set_ylabel("slip, opening at injection point (mm)")
+    sf, su = display("injection", "slip")
+    hs = ax_d.plot(t * f, np.asarray(inj["slip"], dtype=float) * sf, color="tab:red", lw=1.8,
+                   label=f"slip ({su})")
+    ho = ax_d.plot(t * f, np.asarray(inj["opening"], dtype=float) * sf, color="tab:green",
+                   lw=1.8, label=f"opening ({su})")
+    ax_d.set_ylabel(f"slip, opening at injection point ({su})")
     _, hq2 = flow_twin(ax_d)
     ax_d.set_zorder(2)
     ax_d.patch.set_visible(False)
@@ -356,14 +360,15 @@ def plot_space_time(result, path, events=None, *, xlim=None) -> Path:
     x = x[order]
     fields = [
         # overpressure: the in-situ pore pressure varies with depth and would hide the plume
-        ("overpressure", MPA, "fault overpressure (MPa)", "viridis"),
-        ("slip", MM, "slip (mm)", None),
-        ("opening", MM, "opening (mm)", "magma"),
+        ("overpressure", *display("fault", "overpressure"), "fault overpressure", "viridis"),
+        ("slip", *display("fault", "slip"), "slip", None),
+        ("opening", *display("fault", "opening"), "opening", "magma"),
     ]
     ev = _events_in(events, float(t[0]), float(t[-1])) if t.size else None
     fig = _figure(figsize=(15, 5.5), layout="constrained")
     axes = fig.subplots(1, 3, sharey=True)
-    for ax, (key, scale, label, cmap) in zip(axes, fields):
+    for ax, (key, scale, shown_unit, name, cmap) in zip(axes, fields):
+        label = f"{name} ({shown_unit})"
         z = np.asarray(result.fault[key], dtype=float)[:, order] * scale
         kw = {}
         if cmap is None:  # slip: diverging if it changes sign

@@ -112,12 +112,29 @@ class RockSpec:
     """Biot coefficient alpha (-), in (porosity, 1]."""
     porosity: float = 0.148
     """Porosity n (-)."""
-    permeability: float = 6.77e-19
-    """Intrinsic permeability (m^2)."""
+    permeability: float | None = 6.77e-19
+    """Intrinsic permeability (m^2); the flow uses permeability / fluid viscosity."""
+    mobility: float | None = None
+    """Mobility k/mu (m^2/(Pa s)), instead of permeability (give one; from a file, giving
+    mobility unsets permeability). The paper's k_f is written in m^3 s/kg: a mobility."""
     solid_bulk_modulus: float | None = None
     """Grain bulk modulus Ks (Pa); default K_drained / (1 - alpha), consistent with alpha."""
     density: float = 2364.0
     """Solid grain density (kg/m^3)."""
+
+    def mobility_at(self, viscosity: float) -> float:
+        """Darcy mobility (m^2/(Pa s)): ``mobility`` if given, else permeability / viscosity."""
+        return self.mobility if self.mobility is not None else self.permeability / viscosity
+
+    def with_overrides(self, overrides: dict) -> "RockSpec":
+        """This rock with a zone's overrides; a zone's permeability replaces a mobility and
+        vice versa (the most specific table decides how the flow property is given)."""
+        over = dict(overrides)
+        if "mobility" in over:
+            over.setdefault("permeability", None)
+        if "permeability" in over:
+            over.setdefault("mobility", None)
+        return dataclasses.replace(self, **over)
 
 
 @_spec
@@ -143,6 +160,13 @@ class DamageZoneSpec:
     """Poisson's ratio in the damage zone (-)."""
     permeability: float | None = None
     """Permeability in the damage zone (m^2)."""
+    mobility: float | None = None
+    """Mobility k/mu in the damage zone (m^2/(Pa s)), instead of permeability."""
+
+    def rock_overrides(self) -> dict:
+        """The ``[rock]`` keys this damage zone overrides (for ``RockSpec.with_overrides``)."""
+        keys = ("youngs_modulus", "poissons_ratio", "permeability", "mobility")
+        return {k: getattr(self, k) for k in keys if getattr(self, k) is not None}
 
 
 @_spec
@@ -432,6 +456,22 @@ class Scene:
         return dumps_toml(self.to_dict())
 
     # ---- derived quantities --------------------------------------------------------------
+    def flow_summary(self) -> list[str]:
+        """One line per rock region: its permeability and mobility at this scene's viscosity
+        (both printed whichever was given), e.g. for ``scene show``."""
+        mu = self.fluid.viscosity
+        regions = [("rock", self.rock)]
+        if self.effects.damage_zone:
+            regions.append(("damage_zone", self.rock.with_overrides(self.damage_zone.rock_overrides())))
+        regions += [(f"zones[{i}] ({z.name})", self.rock.with_overrides(z.rock)) for i, z in enumerate(self.zones)]
+        lines = []
+        for name, rock in regions:
+            m = rock.mobility_at(mu)
+            given = "mobility" if rock.mobility is not None else "permeability"
+            lines.append(f"{name}: permeability {m * mu:.6g} m2, mobility {m:.6g} m2/(Pa s) "
+                         f"(given as {given}; viscosity {mu:g} Pa s)")
+        return lines
+
     @property
     def fault_point(self) -> tuple[float, float]:
         if self.fault.point is not None:
@@ -466,6 +506,7 @@ QUANTITY = {
                      "hydraulic_aperture", "critical_slip_distance", "asperity_height_std", "width",
                      "band", "box", "position", "reference_point"], "length"),
     "permeability": "permeability",
+    "mobility": "mobility",
     **dict.fromkeys(["end", "dt", "dt_max", "initial_state", "log_max_gap"], "time"),
     **dict.fromkeys(["hold", "event_rate_window"], "time"),
     "viscosity": "viscosity",
@@ -511,7 +552,19 @@ def _build(cls, data, where):
         if unit is not None and quantity is None:
             raise SceneError(f"{_key(where, raw)}: {name} takes no unit")
         kwargs[name] = _coerce(hints[name], value, _key(where, raw), quantity, unit)
+    _one_flow_property(kwargs, where)
+    if cls is RockSpec and "mobility" in kwargs:
+        kwargs.setdefault("permeability", None)
     return cls(**kwargs)
+
+
+def _one_flow_property(table: dict, where: str):
+    """Permeability (m^2, divided by the viscosity) and mobility (m^2/(Pa s)) say the same thing
+    two ways: a table may give one of them only."""
+    if "permeability" in table and "mobility" in table:
+        raise SceneError(f"[{where or 'scene'}] gives both permeability = {table['permeability']!r} "
+                         f"and mobility = {table['mobility']!r}; give one (mobility = "
+                         f"permeability / fluid viscosity)")
 
 
 def _key(where, name):
@@ -556,6 +609,7 @@ def _coerce(hint, value, key, quantity=None, unit=None):
             m = _UNIT_KEY.match(raw)
             name, u = (m.group(1), m.group(2).strip()) if m else (raw, None)
             out[name] = _number(v, f"{key}.{raw}", QUANTITY.get(name), u) if name in QUANTITY or u else v
+        _one_flow_property(out, key)
         return out
     if base.startswith("tuple[tuple[float, float]"):
         if not isinstance(value, list) or not value:
@@ -637,6 +691,8 @@ RANGES: dict[str, tuple[str, tuple, tuple]] = {
     "rock.biot_coefficient": ("-", (0.0, 1.0), (0.3, 1.0)),
     "rock.porosity": ("-", (0.0, 1.0), (0.0, 0.5)),
     "rock.permeability": ("m2", (0.0, 1e-7), (0.0, 1e-10)),
+    # mobility k/mu: the permeability ranges over water's viscosity at reservoir temperatures (~1e-3 Pa s)
+    "rock.mobility": ("m2/(Pa s)", (0.0, 1e-4), (0.0, 1e-7)),
     "rock.solid_bulk_modulus": ("Pa", (0.0, 1e12), (1e9, 1e11)),
     "rock.density": ("kg/m3", (0.0, 2e4), (1500.0, 5000.0)),
     "damage_zone.width": ("m", (0.0, 1e5), (0.0, 1e4)),
@@ -750,7 +806,12 @@ def _validate_rock(rock: RockSpec, where: str, sink: list | None = None, keys=No
     _check(0.0 <= rock.porosity < 1.0, f"{where}.porosity", rock.porosity, "must be in [0, 1)")
     _check(rock.porosity <= rock.biot_coefficient <= 1.0, f"{where}.biot_coefficient",
            rock.biot_coefficient, f"must be in [porosity = {rock.porosity}, 1]")
-    _check(rock.permeability >= 0, f"{where}.permeability", rock.permeability, "must be >= 0 m^2")
+    if rock.mobility is not None:
+        _check(rock.mobility >= 0, f"{where}.mobility", rock.mobility, "must be >= 0 m^2/(Pa s)")
+    else:
+        _check(rock.permeability is not None, f"{where}.permeability", rock.permeability,
+               "give a permeability (m^2) or a mobility (m^2/(Pa s))")
+        _check(rock.permeability >= 0, f"{where}.permeability", rock.permeability, "must be >= 0 m^2")
     _check(rock.density >= 0, f"{where}.density", rock.density, "must be >= 0 kg/m^3")
     if rock.solid_bulk_modulus is not None:
         _check(rock.solid_bulk_modulus > 0, f"{where}.solid_bulk_modulus", rock.solid_bulk_modulus,
@@ -825,7 +886,7 @@ def _validate(s: Scene, sink: list | None = None):
                f"unknown rock key; known: {', '.join(sorted(rock_keys))}")
         for k, v in z.rock.items():
             _number(v, f"{where}.rock.{k}")
-        _validate_rock(dataclasses.replace(s.rock, **z.rock), f"{where}.rock", sink, z.rock)
+        _validate_rock(s.rock.with_overrides(z.rock), f"{where}.rock", sink, z.rock)
     fl = s.fluid
     for key in ("viscosity", "bulk_modulus"):
         _check(getattr(fl, key) > 0, f"fluid.{key}", getattr(fl, key), "must be > 0")
@@ -912,9 +973,8 @@ def _validate(s: Scene, sink: list | None = None):
     _check(dz.width > 0, "damage_zone.width", dz.width, "must be > 0 m")
     if ef.damage_zone:
         _check(ef.fault, "effects.damage_zone", ef.damage_zone, "a damage zone needs a fault")
-        over = {k: v for k, v in (("youngs_modulus", dz.youngs_modulus), ("poissons_ratio", dz.poissons_ratio),
-                                  ("permeability", dz.permeability)) if v is not None}
-        _validate_rock(dataclasses.replace(s.rock, **over), "damage_zone", sink, over)
+        over = dz.rock_overrides()
+        _validate_rock(s.rock.with_overrides(over), "damage_zone", sink, over)
     if not ef.fault:
         for key in ("fault_flow", "leak_off"):
             _check(not getattr(ef, key), f"effects.{key}", getattr(ef, key),

@@ -108,6 +108,13 @@ _TABLE: Dict[str, Dict[str, Tuple[float, Tuple[str, ...]]]] = {
         "µD": (DARCY_M2 * 1e-6, ("uD", "microdarcy")),
         "nD": (DARCY_M2 * 1e-9, ("nanodarcy",)),
     },
+    # mobility k/mu (Darcy flux per pressure gradient); the paper writes it m3 s/kg
+    "mobility": {
+        "m2/(Pa s)": (1.0, ("m2/Pa/s", "m3 s/kg", "m3/(Pa s)/m")),
+        "mD/cP": (DARCY_M2,  # 1e-3 D over 1e-3 Pa s
+                ("md/cp", "mD/(mPa s)")),
+        "D/cP": (DARCY_M2 / 1e-3, ("darcy/cP",)),
+    },
     "time": {
         "s": (1.0, ("sec",)),
         "min": (60.0, ()),
@@ -139,6 +146,7 @@ SI_UNIT = {
     "length": "m",
     "stiffness": "Pa/m",
     "permeability": "m2",
+    "mobility": "m2/(Pa s)",
     "time": "s",
     "volume": "m3",
     "viscosity": "Pa s",

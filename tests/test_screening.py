@@ -373,3 +373,14 @@ def test_the_screening_figure_is_drawn_for_screened_results_only(impermeable, tm
     (png,) = screening_figures(result, tmp_path, prefix="a-")
     assert png.name == "a-screening.png" and png.read_bytes()[:8] == PNG_MAGIC
     assert screening_figures(dataclasses.replace(result, extra={}), tmp_path) == []
+
+
+def test_rescreening_reads_the_stored_event_distances():
+    """The results' /events group stores distance_to_injection (the output schema's name)."""
+    from types import SimpleNamespace
+
+    from fault_screen.screening import _stored_events
+
+    stored = SimpleNamespace(extra={"events": {"time": np.array([10.0]), "magnitude": np.array([1.5]),
+                                               "distance_to_injection": np.array([420.0])}})
+    assert np.asarray(_stored_events(stored).distance).tolist() == [420.0]

@@ -12,6 +12,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from ..budget import fluid_budget
 from ._options import FILE, BadInput, check_size, reading, run_options, version_option
 from ._progress import Progress, format_duration
 from .screen import conclude, fail_on_option
@@ -149,6 +150,7 @@ def _summary(result, out: Path, figures, catalog) -> None:
         ("peak injection overpressure", f"{peak_p:.4g} MPa"),
         ("peak slip on the fault", f"{peak_slip:.4g} mm"),
         ("injected volume", f"{volume:.5g} L"),
+        ("injected fluid went to", fluid_budget(result).summary()),
         ("steps", f"{len(result.time) - 1}"),
         ("wall time", format_duration(float(result.meta.get("wall_time", float("nan"))))),
         ("result", str(out)),

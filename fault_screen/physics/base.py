@@ -68,6 +68,13 @@ class Term:
     def check(self, disc) -> None:
         """Refuse (SceneError) a discretised scene this term cannot start from."""
 
+    def stored_volume_weights(self, disc) -> np.ndarray | None:
+        """Weights w (n_dofs,) with stored volume = w . x (m^3 per m of thickness), for a term
+        whose stored fluid is linear in the unknowns (every store today): the recorder forms
+        them once instead of integrating the fields every step. None: not linear."""
+        return None
+
     def stored_volume(self, disc, x) -> float:
         """Fluid volume (m^3 per m of thickness) this term stores since the in-situ state."""
-        return 0.0
+        w = self.stored_volume_weights(disc)
+        return 0.0 if w is None else float(w @ x)

@@ -24,7 +24,6 @@ says so (refine with ``[mesh.refinement]`` or rotate the model so that the fault
 from __future__ import annotations
 
 import warnings
-from dataclasses import replace
 
 import numpy as np
 
@@ -78,12 +77,12 @@ class LeakOffGrading(Term):
         specs = [scene.rock]
         for z in zones:  # in the order they are applied: a later zone overrides an earlier one
             if z.band is not None:
-                specs = [replace(scene.rock, **z.rock)]  # a band holds the whole fault
+                specs = [scene.rock.with_overrides(z.rock)]  # a band holds the whole fault
                 continue
             x0, x1, y0, y1 = z.box
             phi = (np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]]) - p) @ n
             if phi.min() <= 0 <= phi.max():  # the fault passes through the box
-                specs.append(replace(scene.rock, **z.rock))
+                specs.append(scene.rock.with_overrides(z.rock))
         c = []
         for spec in specs:
             props = effective_rock(spec, scene.fluid.bulk_modulus, scene.fluid.viscosity)
