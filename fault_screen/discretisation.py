@@ -97,7 +97,7 @@ class Discretisation:
         self.scene = scene
         self.physics = physics
         m = scene.mesh
-        self.mesh = build_mesh(m.nx, m.ny, m.lx, m.ly, m.origin, m.refinement)
+        self.mesh = physics.refine_mesh(scene, build_mesh(m.nx, m.ny, m.lx, m.ly, m.origin, m.refinement))
         self.coords = self.mesh.coordinates
         self.elements = self.mesh.elements
         self.has_fault = physics.has_fault

@@ -58,6 +58,14 @@ class MeshSpec:
     origin: tuple[float, float] = (0.0, 0.0)
     """Lower-left corner (m)."""
     refinement: Refinement | None = None
+    fault_grading: str = "auto"
+    """'auto': with leak-off, grade the node lines across a fault parallel to x or y down to a
+    fraction of the leak-off length sqrt(c dt) of the first step (README "Leak-off and mesh");
+    'off': keep the lines as given."""
+    fault_grading_size: float | None = None
+    """Height of the element the fault cuts with fault_grading (m); default 0.5 sqrt(c dt)."""
+    fault_grading_growth: float = 1.2
+    """Ratio of consecutive element heights away from the fault with fault_grading (-)."""
 
 
 @_spec
@@ -851,6 +859,11 @@ def _validate(s: Scene, sink: list | None = None):
         _check(r.size > 0, "mesh.refinement.size", r.size, "must be > 0 m")
         _check(1.0 <= r.growth <= 2.0, "mesh.refinement.growth", r.growth, "must be in [1, 2]")
         _check(min(r.half_width) >= 0, "mesh.refinement.half_width", r.half_width, "must be >= 0 m")
+    _check(m.fault_grading in ("auto", "off"), "mesh.fault_grading", m.fault_grading, "must be 'auto' or 'off'")
+    _check(m.fault_grading_size is None or m.fault_grading_size > 0, "mesh.fault_grading_size",
+           m.fault_grading_size, "must be > 0 m")
+    _check(1.0 < m.fault_grading_growth <= 2.0, "mesh.fault_grading_growth", m.fault_grading_growth,
+           "must be in (1, 2]")
     f = s.fault
     x0, y0 = m.origin
     px, py = s.fault_point

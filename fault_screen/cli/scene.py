@@ -186,8 +186,16 @@ def check(path):
     sc = load_scene(path)
     check_size(sc, str(path))
     log = read_scene_log(sc) if sc.injection.log is not None else None
-    with reading(path):
-        model = discretise(sc)
+    import warnings
+
+    from ..scene import SceneWarning
+
+    with reading(path), warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", SceneWarning)
+        model = discretise(sc)  # terms may warn about the discretised scene (e.g. leak-off mesh)
+    for w in caught:
+        if issubclass(w.category, SceneWarning):
+            click.echo(f"Warning: {path}: {w.message}", err=True)
     counts = ", ".join(f"{k} {v}" for k, v in model.dof_counts().items() if v)
     _, _, memory = estimate_size(sc)
     click.echo(f"{path}: ok -- {sc.title}")

@@ -43,6 +43,10 @@ class Term:
         """Material zones this term adds to the scene's own (``scene.Zone`` objects)."""
         return ()
 
+    def refine_mesh(self, scene, mesh, zones):
+        """The mesh the term needs, given the scene's (``zones``: every material zone)."""
+        return mesh
+
     def assemble_bulk(self, disc, group, out: ConstantMatrices) -> None:
         """Add the term's constant matrices over one element group (``disc.element_groups``)."""
 
