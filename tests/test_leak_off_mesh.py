@@ -7,6 +7,7 @@ side edges, constant total stress normal to the fault), so the rock has taken
 """
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import numpy as np
@@ -189,3 +190,10 @@ def test_scene_check_prints_the_leak_off_warning(tmp_path):
     assert "Warning:" in r.stderr and "does not run along x or y" in r.stderr
     assert "times the leak-off length" in r.stderr
 
+
+
+def test_coarse_grading_size_is_warned():
+    scene = half_space(10)
+    scene = scene.replace(mesh=dataclasses.replace(scene.mesh, fault_grading_size=1.0))
+    with pytest.warns(SceneWarning, match="fault_grading_size = 1 m"):
+        discretise(scene)
