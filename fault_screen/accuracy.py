@@ -246,8 +246,17 @@ def run_study(scene: Scene, runner: Runner, *, levels: int = 3, quantities=None,
     rungs, skipped = ladder(scene, levels, effects, kinds)
     outs = runner.run(scene, [Variant(r.name, r.overrides) for r in rungs], summarise=rung_summary,
                       warm=True, progress=progress, out=out)
+    return analyse(scene, rungs, outs, quantities, kinds, skipped)
+
+
+def analyse(scene: Scene, rungs, outs, quantities, kinds=("space", "time"), skipped=()) -> Study:
+    """The study from the rungs' outcomes (a fresh run's, or ``ensemble.read_ensemble`` of a
+    stored ``runs.h5``: rungs without an outcome are left out)."""
+    family = exact_family(scene)
+    by_name = {o.name: o for o in outs}
+    pairs = [(r, by_name[r.name]) for r in rungs if r.name in by_name]
     rows = []
-    for r, o in zip(rungs, outs):
+    for r, o in pairs:
         row = {"rung": r.name, "kind": r.kind, "factor": r.factor,
                "element_size": o.summary.get("element_size", float("nan")),
                "dt": r.overrides.get("time.dt", scene.time.dt), "effect_off": r.effect_off,
@@ -297,7 +306,8 @@ def run_study(scene: Scene, runner: Runner, *, levels: int = 3, quantities=None,
     for r in rows:
         for q in quantities:
             r.setdefault(f"error_{q}", float("nan"))
-    return Study(rows, list(quantities), f"exact ({family})" if family else "richardson", orders, skipped, warnings)
+    return Study(rows, list(quantities), f"exact ({family})" if family else "richardson", orders, list(skipped),
+                 warnings)
 
 
 def _set_error(row, q, e):
