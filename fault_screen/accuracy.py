@@ -294,8 +294,11 @@ def analyse(scene: Scene, rungs, outs, quantities, kinds=("space", "time"), skip
                     warnings.append(f"{ladder_kind} ladder, {q}: {ref.note}; its errors are against "
                                     f"the finest rung")
                 for r, v in zip(lad, vals):
-                    _set_error(r, q, abs(v - ref.value) / abs(ref.value)
-                               if np.isfinite(ref.value) and ref.value != 0 and np.isfinite(v) else float("nan"))
+                    r.setdefault("partial", {})[(ladder_kind, q)] = (
+                        abs(v - ref.value) / abs(ref.value)
+                        if np.isfinite(ref.value) and ref.value != 0 and np.isfinite(v) else float("nan"))
+    if not family:
+        _total_errors(rows, base, quantities, kinds)
     # effect rungs: the change from the full scene
     for r in rows:
         if r["kind"] != "effect":
@@ -308,6 +311,22 @@ def analyse(scene: Scene, rungs, outs, quantities, kinds=("space", "time"), skip
             r.setdefault(f"error_{q}", float("nan"))
     return Study(rows, list(quantities), f"exact ({family})" if family else "richardson", orders, list(skipped),
                  warnings)
+
+
+def _total_errors(rows, base, quantities, kinds):
+    """A rung's error is its own ladder's (against that ladder's extrapolation) plus the other
+    ladder's error at x1, since a space rung keeps the base time step and a time rung the base
+    mesh (to first order the two errors add); the x1 rung gets both."""
+    for r in rows:
+        if r["kind"] not in kinds or "partial" not in r:
+            continue
+        for q in quantities:
+            parts = [r["partial"].get((r["kind"], q), float("nan"))]
+            for other in kinds:
+                if other != r["kind"]:
+                    parts.append(base.get("partial", {}).get((other, q), float("nan")))
+            finite = [e for e in parts if np.isfinite(e)]
+            r[f"error_{q}"] = sum(finite) if np.isfinite(parts[0]) else float("nan")
 
 
 def _set_error(row, q, e):
