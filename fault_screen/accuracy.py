@@ -387,7 +387,7 @@ def plot_study(study: Study, path, title: str = "") -> None:
             # in ladder order (coarse to fine), so the curve shows the refinement path
             pts = [(r["wall_s"], r[f"error_{q}"]) for r in sorted(disc, key=lambda r: -r["factor"])
                    if (r["kind"] == kind or r["rung"] == "base") and np.isfinite(r[f"error_{q}"])
-                   and r[f"error_{q}"] > 0]
+                   and r[f"error_{q}"] > 1e-10]  # below: round-off, nothing to show on a log axis
             if pts:
                 ax.plot(*zip(*pts), marker=marker, ls="-" if kind == "space" else "--", color=f"C{i}",
                         label=f"{q} ({kind})", ms=4)
@@ -402,7 +402,7 @@ def plot_study(study: Study, path, title: str = "") -> None:
     ax.set_yscale("log")
     ax.set_xlabel("wall time per run (s)")
     ax.set_ylabel(f"relative error ({study.reference})")
-    ax.set_title(title, fontsize=9)
+    ax.set_title(title if len(title) <= 70 else title[:67] + "...", fontsize=9)
     ax.legend(fontsize=6, loc="best")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
