@@ -293,10 +293,11 @@ def analyse(scene: Scene, rungs, outs, quantities, kinds=("space", "time"), skip
                 if not ref.asymptotic:
                     warnings.append(f"{ladder_kind} ladder, {q}: {ref.note}; its errors are against "
                                     f"the finest rung")
+                # a reference at round-off of the values' scale is a zero reference: no relative error
+                zero = not np.isfinite(ref.value) or abs(ref.value) <= 1e-9 * np.nanmax(np.abs(vals))
                 for r, v in zip(lad, vals):
                     r.setdefault("partial", {})[(ladder_kind, q)] = (
-                        abs(v - ref.value) / abs(ref.value)
-                        if np.isfinite(ref.value) and ref.value != 0 and np.isfinite(v) else float("nan"))
+                        abs(v - ref.value) / abs(ref.value) if not zero and np.isfinite(v) else float("nan"))
     if not family:
         _total_errors(rows, base, quantities, kinds)
     # effect rungs: the change from the full scene
