@@ -34,7 +34,8 @@ def diffusion(nx=200, **time):
 def test_exact_family_is_recognised():
     assert exact_family(Scene.from_toml(DIFFUSION)) == "fault_diffusion"
     rate = Scene.from_toml(DIFFUSION)
-    rate = rate.replace(injection=dataclasses.replace(rate.injection, control="rate"))
+    rate = rate.replace(injection=dataclasses.replace(rate.injection, control="rate",
+                                                      schedule=((0.0, 1e-4),)))
     assert exact_family(rate) is None
     assert exact_family(Scene.from_toml(VERIFICATION / "fluid-driven-slip-T0.4-horizontal.toml")) is None
 

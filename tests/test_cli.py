@@ -451,7 +451,7 @@ def test_scene_check_reports_unknowns_and_refuses_bad_scenes(tmp_path):
 
     runner = CliRunner()
     good = tmp_path / "good.toml"
-    good.write_text("[mesh]\nnx = 10\nny = 11\n")
+    good.write_text("[mesh]\nnx = 10\nny = 11\nfault_grading = \"off\"\n")  # the mesh as given
     res = runner.invoke(main, ["scene", "check", str(good)])
     assert res.exit_code == 0 and "unknowns" in res.output
     # 11 x 12 nodes: u 264, a 2 x 22, p 132, c 22
