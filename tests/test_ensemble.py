@@ -60,7 +60,7 @@ def test_in_process_run_keeps_failures_and_streams(tiny, tmp_path):
     direct = default_summary(simulate(scene_with(tiny, {"injection.number_of_fractures": 46.0})))
     assert out[0].summary["peak_overpressure"] == direct["peak_overpressure"]
     # fewer fractures share the flow: more pressure (Eq. 29)
-    assert out[0].summary["peak_overpressure"] > 1.2 * out[2].summary["peak_overpressure"]
+    assert out[0].summary["peak_overpressure"] > 1.1 * out[2].summary["peak_overpressure"]
     stored = read_ensemble(tmp_path / "e.h5")
     assert [o.name for o in stored] == ["nof46", "bad", "nof120"]
     assert not stored[1].ok and stored[1].error == out[1].error
