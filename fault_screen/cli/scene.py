@@ -170,6 +170,7 @@ def show(path):
 
     with reading(path):
         lines += [""] + ["# " + line for line in fault_state_lines(discretise(sc))]
+    lines += ["# " + line for line in sc.flow_summary()]  # permeability and mobility, both
     click.echo("\n".join(lines) + "\n", nl=False)
 
 
