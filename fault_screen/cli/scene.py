@@ -130,7 +130,7 @@ def _show_table(obj, section: str, raw, scene, derived, lines: list) -> None:
         else:
             src = "default"
         if value is None:
-            if key in derived:
+            if key in derived and derived[key][0] is not None:  # (a mobility leaves permeability unset)
                 dv, how = derived[key]
                 lines.append(f"# {name} = {_toml_value(dv)}".ljust(44)
                              + f"# {unit}, derived: {how}")
