@@ -45,10 +45,10 @@ DAMPED_AHEAD = 5
 #: shrink every later step for good). When that size fails again, the next try waits
 #: RECOVERY_HOLD clean steps, then twice as many, and so on.
 RECOVERY_GROWTH = 1.5
+RECOVERY_HOLD = 10
 
 #: Stages of the load continuation, the last resort before a step is halved.
 CONTINUATION_STAGES = 4
-RECOVERY_HOLD = 10
 
 
 class SimulationError(RuntimeError):
@@ -191,8 +191,6 @@ class Simulation:
             if self.watch_instability:
                 self._check_instability(t1, slip_rate)
             if cuts:
-                # grow back towards the size that failed, but only once: if the step fails again
-                # on the way back, the smaller size is the one this stretch of the run needs
                 # grow back towards the size that failed; if that size fails again, wait longer
                 # (RECOVERY_HOLD clean steps, doubling) before the next try
                 tried_before = self.dt >= 0.999 * self.dt_failed > 0.0
