@@ -1,4 +1,4 @@
-"""Numerical stability of the hard cases (configs/hard-cases, tests/hard_cases/cases.py).
+"""Numerical stability of the hard cases (configs/hard-cases, tests/hard_cases/stability_cases.py).
 
     python benchmarks/stability.py [CASE ...] [--markdown]
 
@@ -14,7 +14,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests" / "hard_cases"))
 
-from cases import CASES, OPEN_CASES, balance_error, run_case, solver_stats  # noqa: E402
+from stability_cases import CASES, OPEN_CASES, balance_error, run_case, solver_stats  # noqa: E402
 
 
 def main(argv):

@@ -4,7 +4,7 @@ import h5py
 import numpy as np
 from click.testing import CliRunner
 
-from cases import HARD, load
+from stability_cases import HARD, load
 from fault_screen.cli import main
 from fault_screen.cli.run import slip_split
 

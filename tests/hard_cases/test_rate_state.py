@@ -3,29 +3,29 @@ unstable, stick-slip cycling, and no creep counted as slip."""
 import numpy as np
 import pytest
 
-from cases import CASES, check_common
+from stability_cases import CASES, check_common, run_case
 
 RATE_STATE = [n for n, c in CASES.items() if c.family == "rate-state"]
 
 
 @pytest.mark.parametrize("name", RATE_STATE + ["stick-slip-cycling"])
-def test_completes_finite_and_balanced(hard_run, name):
-    check_common(hard_run(name))
+def test_completes_finite_and_balanced(name):
+    check_common(run_case(name))
 
 
-def test_small_a_behaves_as_coulomb_with_a_log_rate_term(hard_run):
+def test_small_a_behaves_as_coulomb_with_a_log_rate_term():
     """a = 1e-4: friction while sliding is mu0 + a ln(V/V0) (the law in logarithms): with
     |ln(V/V0)| < 20, within 2e-3 of mu0 = 0.68; a = 0.05 strengthens more and slips less."""
-    small = hard_run("rate-state-a0.0001-b0").result
-    large = hard_run("rate-state-a0.05-b0").result
+    small = run_case("rate-state-a0.0001-b0").result
+    large = run_case("rate-state-a0.05-b0").result
     sliding = small.fault["contact_state"] == 1
     assert sliding.any()
     assert np.all(np.abs(small.fault["friction"][sliding] - 0.68) < 2e-3)
     assert np.max(np.abs(large.fault["slip"])) < np.max(np.abs(small.fault["slip"]))
 
 
-def test_velocity_weakening_stops_cleanly_as_unstable(hard_run):
-    run = hard_run("velocity-weakening")
+def test_velocity_weakening_stops_cleanly_as_unstable():
+    run = run_case("velocity-weakening")
     r = run.result
     check_common(run, stopped="unstable")
     stop = r.meta["stopped"]
@@ -42,11 +42,11 @@ def test_velocity_weakening_stops_cleanly_as_unstable(hard_run):
     assert np.all(r.solver["dt"][2:] * peak[1:-1] <= 0.5 * dc * 1.0001)
 
 
-def test_unstable_result_saves_and_screens_red(hard_run, tmp_path):
+def test_unstable_result_saves_and_screens_red(tmp_path):
     from fault_screen import Result
     from fault_screen.screening import screen_result
 
-    r = hard_run("velocity-weakening").result
+    r = run_case("velocity-weakening").result
     out = screen_result(r)
     assert out.level[-1] == 2
     assert out.verdict.rule == "unstable"
@@ -56,9 +56,9 @@ def test_unstable_result_saves_and_screens_red(hard_run, tmp_path):
     assert np.array_equal(back.time, r.time)
 
 
-def test_stick_slip_cycling_runs_to_the_end_and_cycles(hard_run):
+def test_stick_slip_cycling_runs_to_the_end_and_cycles():
     """The patch at the injection point goes stick -> slip -> stick three times."""
-    r = hard_run("stick-slip-cycling").result
+    r = run_case("stick-slip-cycling").result
     g = r.injection["slip"]  # noqa: F841 - the series exists
     state = r.fault["contact_state"][:, np.argmin(np.abs(r.fault_x))]
     sliding = (state == 1).astype(int)

@@ -4,15 +4,15 @@ import numpy as np
 import pytest
 
 import analytical as an
-from cases import check_common
+from stability_cases import check_common, run_case
 
 CASES = ["critically-stressed-T0.02", "far-from-failure-T0.98", "hydraulic-jacking",
          "permeability-0-poroelastic", "permeability-1e-12"]
 
 
 @pytest.mark.parametrize("name", CASES)
-def test_completes_finite_and_balanced(hard_run, name):
-    check_common(hard_run(name))
+def test_completes_finite_and_balanced(name):
+    check_common(run_case(name))
 
 
 def _diffusion_length(scene, t):
@@ -22,10 +22,10 @@ def _diffusion_length(scene, t):
     return np.sqrt(4 * alpha * t)
 
 
-def test_critically_stressed_slip_front_lambda(hard_run):
+def test_critically_stressed_slip_front_lambda():
     """T = 0.02: lambda = 17.97 (Viesca 2021); the patch spans 60 elements. lambda from the slip
     moment (as in tests/test_verification_fluid_driven_slip.py) within 4 %."""
-    run = hard_run("critically-stressed-T0.02")
+    run = run_case("critically-stressed-T0.02")
     r, scene = run.result, run.scene
     T = 0.02
     lam = an.slip_front_lambda(T)
@@ -42,10 +42,10 @@ def test_critically_stressed_slip_front_lambda(hard_run):
     assert lam * L - 1.0 < sliding.max() < lam * L + 2.0
 
 
-def test_far_from_failure_slips_nowhere_at_element_resolution(hard_run):
+def test_far_from_failure_slips_nowhere_at_element_resolution():
     """T = 0.98: the exact patch (a = 0.028 L = 0.07 m) is far below an element: no Gauss point
     may slide, and the jump is the elastic give of the penalty springs only (< 1e-9 m)."""
-    run = hard_run("far-from-failure-T0.98")
+    run = run_case("far-from-failure-T0.98")
     r = run.result
     L = _diffusion_length(run.scene, r.time[-1])
     assert an.slip_front_lambda(0.98) * L < 0.1
@@ -53,8 +53,8 @@ def test_far_from_failure_slips_nowhere_at_element_resolution(hard_run):
     assert np.max(np.abs(r.fault["slip"])) < 1e-9
 
 
-def test_hydraulic_jacking_opens_then_closes_after_shut_in(hard_run):
-    r = hard_run("hydraulic-jacking").result
+def test_hydraulic_jacking_opens_then_closes_after_shut_in():
+    r = run_case("hydraulic-jacking").result
     sigma_n = 10e6
     inject = r.time <= 0.01
     state = r.fault["contact_state"]
@@ -86,7 +86,7 @@ def _nodal_storage(sim, x):
     return out
 
 
-def test_permeability_zero_stores_fluid_only_next_to_the_fault(hard_run):
+def test_permeability_zero_stores_fluid_only_next_to_the_fault():
     """k = 0: the mass balance of a rock node has no conduction, so a free node away from the
     fault stores nothing net (it responds undrained). The nodes of the cut elements carry the
     fault's pressure (the trace basis) and store fluid in the rock around them although nothing
@@ -94,7 +94,7 @@ def test_permeability_zero_stores_fluid_only_next_to_the_fault(hard_run):
     (1/M + alpha^2/K) times the largest overpressure over the elements touching those nodes: it
     scales with the element size, and an impermeable rock is better modelled without
     poroelasticity (the fault's own pressure line), as configs/rustrel-2015-impermeable.toml does."""
-    run = hard_run("permeability-0-poroelastic")
+    run = run_case("permeability-0-poroelastic")
     sim, r = run.sim, run.result
     disc = sim.disc
     nodal = _nodal_storage(sim, sim.x)
@@ -117,10 +117,10 @@ def test_permeability_zero_stores_fluid_only_next_to_the_fault(hard_run):
     assert near <= (inv_M + alpha ** 2 / K) * p_max * band
 
 
-def test_very_permeable_rock_takes_the_fluid(hard_run):
+def test_very_permeable_rock_takes_the_fluid():
     """k = 1e-12 m2: nearly all the fluid leaks off into the rock or drains; the fault barely
     pressurises (< 0.1 MPa)."""
-    r = hard_run("permeability-1e-12").result
+    r = run_case("permeability-1e-12").result
     injected = r.injection["volume"][-1] / r.scene.injection.number_of_fractures
     b = r.balance
     assert (b["stored_rock"][-1] + b["leaked"][-1]) > 0.9 * injected
