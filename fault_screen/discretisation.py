@@ -13,7 +13,7 @@ in-situ state, which is in equilibrium on its own.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -91,7 +91,7 @@ def effective_rock(spec: RockSpec, fluid_bulk_modulus: float, viscosity: float) 
     if Ks is None:
         Ks = K / (1.0 - alpha) if alpha < 1.0 else np.inf
     inv_M = (alpha - n) / Ks + n / fluid_bulk_modulus
-    return {"E": E, "nu": nu, "alpha": alpha, "mobility": spec.permeability / viscosity,
+    return {"E": E, "nu": nu, "alpha": alpha, "mobility": spec.mobility_at(viscosity),
             "inv_M": inv_M, "Ks": Ks}
 
 
@@ -102,7 +102,7 @@ class Discretisation:
         self.scene = scene
         self.physics = physics
         m = scene.mesh
-        self.mesh = build_mesh(m.nx, m.ny, m.lx, m.ly, m.origin, m.refinement)
+        self.mesh = physics.refine_mesh(scene, build_mesh(m.nx, m.ny, m.lx, m.ly, m.origin, m.refinement))
         self.coords = self.mesh.coordinates
         self.elements = self.mesh.elements
         self.has_fault = physics.has_fault
@@ -156,14 +156,15 @@ class Discretisation:
                 inside = ((centroids[:, 0] >= x0) & (centroids[:, 0] <= x1)
                           & (centroids[:, 1] >= y0) & (centroids[:, 1] <= y1))
             zone_of[inside] = k
-            specs.append(replace(s.rock, **z.rock))
+            specs.append(s.rock.with_overrides(z.rock))
         self.zone_of = zone_of
         props = [effective_rock(spec, s.fluid.bulk_modulus, s.fluid.viscosity) for spec in specs]
         self.zone_props = props
-        self.el_D = np.array([rock.plane_strain_elasticity(props[z]["E"], props[z]["nu"]) for z in zone_of])
-        self.el_alpha = np.array([props[z]["alpha"] for z in zone_of])
-        self.el_mobility = np.array([props[z]["mobility"] for z in zone_of])
-        self.el_inv_M = np.array([props[z]["inv_M"] for z in zone_of])
+        # per zone, then indexed by element (one elasticity matrix per zone, not per element)
+        self.el_D = np.array([rock.plane_strain_elasticity(p["E"], p["nu"]) for p in props])[zone_of]
+        self.el_alpha = np.array([p["alpha"] for p in props])[zone_of]
+        self.el_mobility = np.array([p["mobility"] for p in props])[zone_of]
+        self.el_inv_M = np.array([p["inv_M"] for p in props])[zone_of]
 
     # ------------------------------------------------------------------ unknowns
     def _number_unknowns(self, declared):
@@ -465,6 +466,6 @@ def discretise(scene: Scene) -> Discretisation:
 
     physics = terms_for(scene)
     disc = Discretisation(scene, physics)
-    if disc.has("u"):
-        physics.in_situ.check_equilibrium(disc)
+    for term in physics.terms:
+        term.check(disc)
     return disc

@@ -107,3 +107,41 @@ def build_mesh(nx: int, ny: int, lx: float, ly: float, origin=(0.0, 0.0), refine
         graded_line(x0, lx, cx, wx, refinement.size, refinement.growth),
         graded_line(y0, ly, cy, wy, refinement.size, refinement.growth),
     )
+
+
+def grade_across(lines: np.ndarray, at: float, size: float, growth: float) -> np.ndarray:
+    """Node lines (one axis) refined around ``at``: an element of height ``size`` centred on
+    ``at``, then elements growing by ``growth`` on each side until they reach the spacing of the
+    original lines there, which are kept beyond (m). Lines already finer than ``size`` at ``at``
+    are returned unchanged. Used to resolve a thin boundary layer along an axis-aligned line."""
+    lines = np.asarray(lines, dtype=float)
+    lo_end, hi_end = lines[0], lines[-1]
+
+    def spacing(y: float) -> float:
+        k = int(np.clip(np.searchsorted(lines, y, side="right") - 1, 0, len(lines) - 2))
+        return float(lines[k + 1] - lines[k])
+
+    if spacing(at) <= size:
+        return lines
+    new = []
+    for sign in (1.0, -1.0):
+        z, h = 0.5 * size, size
+        while True:
+            y = at + sign * z
+            if not lo_end < y < hi_end:
+                break
+            new.append(y)
+            if h * growth >= spacing(y):
+                break
+            h *= growth
+            z += h
+        # original lines closer than half the next size to the graded ones would leave slivers
+        reach = z + 0.5 * h * growth
+        lines = lines[(sign * (lines - at) > reach) | (sign * (lines - at) <= 0)
+                      | (lines == lo_end) | (lines == hi_end)]
+    out = np.unique(np.concatenate([lines, new]))
+    # a graded line within a sliver of a domain edge: drop it, keep the edge
+    h_min = 0.5 * size
+    keep = np.ones(len(out), dtype=bool)
+    keep[1:-1] = (out[1:-1] - lo_end > 1e-3 * h_min) & (hi_end - out[1:-1] > 1e-3 * h_min)
+    return out[keep]

@@ -74,10 +74,37 @@ SCHEMA += (
     Output("log", "time", "(samples,)", "s", "injection-log sample times used by the run (model time)"),
     Output("log", "flow_rate", "(samples,)", "m3/s", "logged flow rate of the whole interval"),
     Output("log", "pressure", "(samples,)", "Pa", "logged (wellhead or downhole) pressure"),
+    Output("events", "time", "(events,)", "s", "origin time of each event read (model time)"),
+    Output("events", "magnitude", "(events,)", "1", "magnitude (its type in magnitude_type)"),
+    Output("events", "magnitude_type", "(events,)", "", "magnitude type as the catalog gives it (ML, Mw, mb)"),
+    Output("events", "in_run", "(events,)", "1", "1 if the event falls inside the run's time span"),
+    Output("events", "latitude", "(events,)", "degree", "epicentre latitude (geographic catalogs)"),
+    Output("events", "longitude", "(events,)", "degree", "epicentre longitude (geographic catalogs)"),
+    Output("events", "depth", "(events,)", "m", "hypocentre depth (positive down)"),
+    Output("events", "x", "(events,)", "m", "local easting (local catalogs)"),
+    Output("events", "y", "(events,)", "m", "local northing (local catalogs)"),
+    Output("events", "z", "(events,)", "m", "local elevation (local catalogs)"),
+    Output("events", "distance_to_injection", "(events,)", "m", "distance to the injection point ([site])"),
+    Output("events", "distance_to_fault", "(events,)", "m", "distance to the modelled fault plane ([site])"),
 )
 
 #: unit of each named dataset (the same name means the same unit in every group)
 UNITS = {o.name: o.unit for o in SCHEMA}
+
+
+#: how the figures show a quantity: SI unit -> (display unit, factor from SI); slips and
+#: openings are millimetres, every stress and pressure megapascals
+_DISPLAY = {"Pa": ("MPa", 1e-6)}
+_MILLIMETRES = ("slip", "opening", "induced_slip")
+
+
+def display(group: str, name: str) -> tuple[float, str]:
+    """(factor from SI, unit) in which the figures show ``/group/name``."""
+    if name in _MILLIMETRES:
+        return 1e3, "mm"
+    u = unit(group, name)
+    shown, factor = _DISPLAY.get(u, (u, 1.0))
+    return factor, shown
 
 
 def by_group(group: str) -> list[Output]:
@@ -94,7 +121,8 @@ def unit(group: str, name: str) -> str:
 def markdown_table() -> str:
     """The README's results table."""
     lines = ["| dataset | shape | unit | meaning |", "|---|---|---|---|"]
-    lines += [f"| `{o.path}` | {o.shape} | {o.unit} | {o.description} |" for o in SCHEMA]
+    cell = lambda text: text.replace("|", "\\|")  # a bar inside a cell would end it
+    lines += [f"| `{o.path}` | {o.shape} | {cell(o.unit)} | {cell(o.description)} |" for o in SCHEMA]
     return "\n".join(lines)
 
 

@@ -16,11 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
+from .outputs import display
 from .plotting import _figure, _save, _title, time_scale
 
 LEVEL_COLOURS = ("#2ca02c", "#f2c200", "#d62728")
-MPA = 1e-6
-MM = 1e3
+MPA, _ = display("screening", "min_coulomb_margin")   # stresses in MPa, slips in mm (the schema's)
+MM, _ = display("screening", "induced_slip")
 
 __all__ = ["plot_screening", "draw_level_band", "rule_thresholds", "screening_arrays", "screening_figures",
            "draw_result_level_band"]

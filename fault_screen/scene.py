@@ -10,6 +10,7 @@ import dataclasses
 import math
 import re
 import tomllib
+import warnings
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,10 @@ EDGES = ("bottom", "right", "top", "left")
 
 class SceneError(ValueError):
     """A scene that cannot be simulated; the message names the key and the value."""
+
+
+class SceneWarning(UserWarning):
+    """A value inside its physical range but outside the range met in practice."""
 
 
 def _spec(cls):
@@ -53,6 +58,14 @@ class MeshSpec:
     origin: tuple[float, float] = (0.0, 0.0)
     """Lower-left corner (m)."""
     refinement: Refinement | None = None
+    fault_grading: str = "auto"
+    """'auto': with leak-off, grade the node lines across a fault parallel to x or y down to a
+    fraction of the leak-off length sqrt(c dt) of the first step (README "Leak-off and mesh");
+    'off': keep the lines as given."""
+    fault_grading_size: float | None = None
+    """Height of the element the fault cuts with fault_grading (m); default 0.5 sqrt(c dt)."""
+    fault_grading_growth: float = 1.2
+    """Ratio of consecutive element heights away from the fault with fault_grading (-)."""
 
 
 @_spec
@@ -99,12 +112,29 @@ class RockSpec:
     """Biot coefficient alpha (-), in (porosity, 1]."""
     porosity: float = 0.148
     """Porosity n (-)."""
-    permeability: float = 6.77e-19
-    """Intrinsic permeability (m^2)."""
+    permeability: float | None = 6.77e-19
+    """Intrinsic permeability (m^2); the flow uses permeability / fluid viscosity."""
+    mobility: float | None = None
+    """Mobility k/mu (m^2/(Pa s)), instead of permeability (give one; from a file, giving
+    mobility unsets permeability). The paper's k_f is written in m^3 s/kg: a mobility."""
     solid_bulk_modulus: float | None = None
     """Grain bulk modulus Ks (Pa); default K_drained / (1 - alpha), consistent with alpha."""
     density: float = 2364.0
     """Solid grain density (kg/m^3)."""
+
+    def mobility_at(self, viscosity: float) -> float:
+        """Darcy mobility (m^2/(Pa s)): ``mobility`` if given, else permeability / viscosity."""
+        return self.mobility if self.mobility is not None else self.permeability / viscosity
+
+    def with_overrides(self, overrides: dict) -> "RockSpec":
+        """This rock with a zone's overrides; a zone's permeability replaces a mobility and
+        vice versa (the most specific table decides how the flow property is given)."""
+        over = dict(overrides)
+        if "mobility" in over:
+            over.setdefault("permeability", None)
+        if "permeability" in over:
+            over.setdefault("mobility", None)
+        return dataclasses.replace(self, **over)
 
 
 @_spec
@@ -130,6 +160,13 @@ class DamageZoneSpec:
     """Poisson's ratio in the damage zone (-)."""
     permeability: float | None = None
     """Permeability in the damage zone (m^2)."""
+    mobility: float | None = None
+    """Mobility k/mu in the damage zone (m^2/(Pa s)), instead of permeability."""
+
+    def rock_overrides(self) -> dict:
+        """The ``[rock]`` keys this damage zone overrides (for ``RockSpec.with_overrides``)."""
+        keys = ("youngs_modulus", "poissons_ratio", "permeability", "mobility")
+        return {k: getattr(self, k) for k in keys if getattr(self, k) is not None}
 
 
 @_spec
@@ -142,10 +179,23 @@ class FluidSpec:
     """Fluid density (kg/m^3)."""
 
 
+#: What an in-situ stress given in a scene means; each converts through the total stress sigma:
+#: Biot-effective = sigma + alpha p0 (the rock's), fault-effective = sigma + p0 (the fault's,
+#: Biot coefficient 1 on the fault).
+STRESS_KINDS = ("total", "biot_effective", "fault_effective")
+
+
 @_spec
 class InitialSpec:
-    effective_stress: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    """In-situ effective stress sxx', syy', sxy' (Pa, tension positive)."""
+    stress: tuple[float, float, float] | None = None
+    """In-situ stress sxx, syy, sxy at the reference point (Pa, tension positive), of the kind
+    ``stress_kind`` names; give both together. Neither: no in-situ stress."""
+    stress_kind: str | None = None
+    """'total' (hydraulic fracturing tests, overcoring, regional models usually give these),
+    'biot_effective' (sigma + alpha p0) or 'fault_effective' (sigma + p0: what the fault's
+    effective normal stress is projected from, as in the paper's Eq. 19)."""
+    effective_stress: tuple[float, float, float] | None = None
+    """Older key, read as ``stress`` with ``stress_kind = "biot_effective"`` (Pa)."""
     pore_pressure: float = 0.0
     """Initial pore pressure at the reference point (Pa)."""
     reference_point: tuple[float, float] | None = None
@@ -158,6 +208,15 @@ class InitialSpec:
     """Hydrostatic gradient along gravity (Pa/m); default fluid density * gravity."""
     lateral_stress_ratio: float | None = None
     """Effective-stress gradient across gravity over that along it (-); default nu/(1-nu)."""
+
+    @property
+    def stress_and_kind(self) -> tuple[tuple[float, float, float], str]:
+        """The in-situ stress as given and its kind (the older key: Biot-effective)."""
+        if self.stress is not None:
+            return self.stress, self.stress_kind
+        if self.effective_stress is not None:
+            return self.effective_stress, "biot_effective"
+        return (0.0, 0.0, 0.0), "biot_effective"
 
 
 @_spec
@@ -324,6 +383,29 @@ class MonitorSpec:
 
 
 @_spec
+class SiteSpec:
+    """Where the model is in the seismic catalogue's frame, for event distances: the injection
+    point either geographic (latitude, longitude, depth) or local (x, y and z or depth, the
+    catalogue's metres: x east, y north, z up), and the modelled fault's orientation."""
+    latitude: float | None = None
+    """Latitude of the injection point (degrees north)."""
+    longitude: float | None = None
+    """Longitude of the injection point (degrees east)."""
+    depth: float | None = None
+    """Depth of the injection point below the catalogue's datum (m, positive down)."""
+    x: float | None = None
+    """Local easting of the injection point in the catalogue's frame (m)."""
+    y: float | None = None
+    """Local northing of the injection point in the catalogue's frame (m)."""
+    z: float | None = None
+    """Local elevation of the injection point in the catalogue's frame (m, up)."""
+    strike: float | None = None
+    """Strike of the fault plane, clockwise from north (degrees)."""
+    dip: float | None = None
+    """Dip of the fault plane, down to the right of the strike (degrees)."""
+
+
+@_spec
 class Scene:
     title: str = "untitled"
     mesh: MeshSpec = MeshSpec()
@@ -339,6 +421,7 @@ class Scene:
     solver: SolverSpec = SolverSpec()
     effects: EffectsSpec = EffectsSpec()
     monitor: MonitorSpec = MonitorSpec()
+    site: SiteSpec = SiteSpec()
 
     # ---- loading -------------------------------------------------------------------------
     @classmethod
@@ -359,8 +442,17 @@ class Scene:
         if scene.injection.log is not None and base_dir is not None:
             log = Path(base_dir) / scene.injection.log
             scene = dataclasses.replace(scene, injection=dataclasses.replace(scene.injection, log=str(log)))
-        _validate(scene)
+        sink: list = []
+        _validate(scene, sink)
+        for text in sink:
+            warnings.warn(text, SceneWarning, stacklevel=2)
         return scene
+
+    def plausibility(self) -> list[str]:
+        """Warnings for the values outside their plausible range (see ``RANGES``)."""
+        sink: list = []
+        _validate(self, sink)
+        return sink
 
     def replace(self, **changes) -> "Scene":
         """A copy with top-level sections replaced (validated)."""
@@ -375,6 +467,22 @@ class Scene:
         return dumps_toml(self.to_dict())
 
     # ---- derived quantities --------------------------------------------------------------
+    def flow_summary(self) -> list[str]:
+        """One line per rock region: its permeability and mobility at this scene's viscosity
+        (both printed whichever was given), e.g. for ``scene show``."""
+        mu = self.fluid.viscosity
+        regions = [("rock", self.rock)]
+        if self.effects.damage_zone:
+            regions.append(("damage_zone", self.rock.with_overrides(self.damage_zone.rock_overrides())))
+        regions += [(f"zones[{i}] ({z.name})", self.rock.with_overrides(z.rock)) for i, z in enumerate(self.zones)]
+        lines = []
+        for name, rock in regions:
+            m = rock.mobility_at(mu)
+            given = "mobility" if rock.mobility is not None else "permeability"
+            lines.append(f"{name}: permeability {m * mu:.6g} m2, mobility {m:.6g} m2/(Pa s) "
+                         f"(given as {given}; viscosity {mu:g} Pa s)")
+        return lines
+
     @property
     def fault_point(self) -> tuple[float, float]:
         if self.fault.point is not None:
@@ -402,17 +510,19 @@ def _to_plain(obj):
 #: What each dimensional field measures, so that values may carry units (see ``units.py``):
 #: as a key suffix, ``"youngs_modulus[GPa]" = 29.2``, or in a string, ``youngs_modulus = "29.2 GPa"``.
 QUANTITY = {
-    **dict.fromkeys(["youngs_modulus", "solid_bulk_modulus", "bulk_modulus", "effective_stress",
+    **dict.fromkeys(["youngs_modulus", "solid_bulk_modulus", "bulk_modulus", "effective_stress", "stress",
                      "pore_pressure", "traction"], "pressure"),
     **dict.fromkeys(["normal_stiffness", "shear_stiffness", "pore_pressure_gradient"], "stiffness"),
     **dict.fromkeys(["lx", "ly", "origin", "center", "half_width", "size", "point",
                      "hydraulic_aperture", "critical_slip_distance", "asperity_height_std", "width",
                      "band", "box", "position", "reference_point"], "length"),
     "permeability": "permeability",
+    "mobility": "mobility",
     **dict.fromkeys(["end", "dt", "dt_max", "initial_state", "log_max_gap"], "time"),
     **dict.fromkeys(["hold", "event_rate_window"], "time"),
     "viscosity": "viscosity",
-    **dict.fromkeys(["angle", "dilation_angle"], "angle"),
+    **dict.fromkeys(["angle", "dilation_angle", "latitude", "longitude", "strike", "dip"], "angle"),
+    **dict.fromkeys(["depth", "x", "y", "z"], "length"),
 }
 _UNIT_KEY = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*\[(.+)\]\s*$")
 
@@ -437,6 +547,11 @@ def _build(cls, data, where):
         if _key(where, name) in MOVED_KEYS:
             raise SceneError(f"{_key(where, raw)} = {value!r} is no longer read: "
                              f"{MOVED_KEYS[_key(where, name)]}")
+        if name not in known and isinstance(value, dict):
+            tables = sorted(k for k, f in known.items() if str(f.type).replace(" | None", "") in _SECTIONS
+                            or k == "zones")
+            raise SceneError(f"unknown section [{_key(where, raw)}]; known sections"
+                             f"{' in [' + where + ']' if where else ''}: {', '.join(tables)}")
         if name not in known:
             raise SceneError(f"unknown key {_key(where, raw)!s} = {value!r}; "
                              f"known keys in [{where or 'scene'}]: {', '.join(sorted(known))}")
@@ -448,7 +563,19 @@ def _build(cls, data, where):
         if unit is not None and quantity is None:
             raise SceneError(f"{_key(where, raw)}: {name} takes no unit")
         kwargs[name] = _coerce(hints[name], value, _key(where, raw), quantity, unit)
+    _one_flow_property(kwargs, where)
+    if cls is RockSpec and "mobility" in kwargs:
+        kwargs.setdefault("permeability", None)
     return cls(**kwargs)
+
+
+def _one_flow_property(table: dict, where: str):
+    """Permeability (m^2, divided by the viscosity) and mobility (m^2/(Pa s)) say the same thing
+    two ways: a table may give one of them only."""
+    if "permeability" in table and "mobility" in table:
+        raise SceneError(f"[{where or 'scene'}] gives both permeability = {table['permeability']!r} "
+                         f"and mobility = {table['mobility']!r}; give one (mobility = "
+                         f"permeability / fluid viscosity)")
 
 
 def _key(where, name):
@@ -493,6 +620,7 @@ def _coerce(hint, value, key, quantity=None, unit=None):
             m = _UNIT_KEY.match(raw)
             name, u = (m.group(1), m.group(2).strip()) if m else (raw, None)
             out[name] = _number(v, f"{key}.{raw}", QUANTITY.get(name), u) if name in QUANTITY or u else v
+        _one_flow_property(out, key)
         return out
     if base.startswith("tuple[tuple[float, float]"):
         if not isinstance(value, list) or not value:
@@ -516,18 +644,17 @@ def _number(value, key, quantity=None, unit=None):
     """A float in SI (angles in degrees) from a number, or a "number unit" string."""
     text = value
     if isinstance(value, str):
-        parts = value.strip().split(None, 1)
         try:
-            value = float(parts[0])
-        except (ValueError, IndexError):
+            value, written = units.split_value(value)   # "100 mD" and "100mD" alike
+        except ValueError:
             raise SceneError(f"{key} = {text!r} must be a number, optionally with a unit "
                              f"(\"29.2 GPa\")") from None
-        if len(parts) == 2:
+        if written is not None:
             if unit is not None:
                 raise SceneError(f"{key} = {text!r}: the unit is already given in the key")
             if quantity is None:
                 raise SceneError(f"{key} = {text!r}: this value takes no unit")
-            unit = parts[1]
+            unit = written
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise SceneError(f"{key} = {text!r} must be a number (SI units unless a unit is given)")
     if not math.isfinite(value):
@@ -542,8 +669,136 @@ def _number(value, key, quantity=None, unit=None):
 
 
 for _cls in (Refinement, MeshSpec, FaultSpec, RockSpec, DamageZoneSpec, FluidSpec, InitialSpec, EdgeSpec,
-             BoundarySpec, InjectionSpec, TimeSpec, SolverSpec, EffectsSpec, MonitorRule, MonitorSpec):
+             BoundarySpec, InjectionSpec, TimeSpec, SolverSpec, EffectsSpec, MonitorRule, MonitorSpec,
+             SiteSpec):
     _SECTIONS[_cls.__name__] = _cls
+
+
+#: Every physical parameter's range, in SI (angles in degrees): key -> (unit, physical range,
+#: plausible range).  Outside the physical range a scene is refused (the value cannot describe
+#: rock, fluid or an operation); outside the plausible range it is accepted with a warning
+#: (possible, but usually a unit slip).  Bounds are inclusive; strict positivity and the
+#: coupled bounds (Biot coefficient above porosity, ...) are checked in ``_validate``.
+#: ``rock.*`` also applies to ``zones[i].rock`` and ``damage_zone``.
+RANGES: dict[str, tuple[str, tuple, tuple]] = {
+    "mesh.lx": ("m", (0.0, 1e6), (0.1, 1e5)),
+    "mesh.ly": ("m", (0.0, 1e6), (0.1, 1e5)),
+    "fault.angle": ("deg", (-360.0, 360.0), (-180.0, 180.0)),
+    "fault.normal_stiffness": ("Pa/m", (0.0, 1e16), (1e8, 1e13)),
+    "fault.shear_stiffness": ("Pa/m", (0.0, 1e16), (1e8, 1e13)),
+    "fault.friction": ("-", (0.0, 2.0), (0.2, 1.0)),
+    "fault.hydraulic_aperture": ("m", (0.0, 0.1), (1e-7, 1e-2)),
+    "fault.kappa": ("-", (0.0, 1e6), (1.0, 100.0)),
+    "fault.storativity": ("m/Pa", (0.0, 1e-6), (1e-17, 1e-8)),
+    "fault.rate_parameter": ("-", (0.0, 1.0), (0.0, 0.05)),
+    "fault.state_parameter": ("-", (0.0, 1.0), (0.0, 0.05)),
+    "fault.reference_velocity": ("m/s", (0.0, 1.0), (1e-12, 1e-3)),
+    "fault.critical_slip_distance": ("m", (0.0, 10.0), (1e-7, 0.1)),
+    "fault.dilation_angle": ("deg", (0.0, 90.0), (0.0, 30.0)),
+    "fault.asperity_height_std": ("m", (0.0, 0.1), (0.0, 1e-3)),
+    "fault.slip_rate_threshold": ("m/s", (0.0, 1.0), (1e-12, 1e-3)),
+    "rock.youngs_modulus": ("Pa", (0.0, 1e12), (1e8, 1.5e11)),
+    "rock.poissons_ratio": ("-", (-1.0, 0.5), (0.0, 0.45)),
+    "rock.biot_coefficient": ("-", (0.0, 1.0), (0.3, 1.0)),
+    "rock.porosity": ("-", (0.0, 1.0), (0.0, 0.5)),
+    "rock.permeability": ("m2", (0.0, 1e-7), (0.0, 1e-10)),
+    # mobility k/mu: the permeability ranges over water's viscosity at reservoir temperatures (~1e-3 Pa s)
+    "rock.mobility": ("m2/(Pa s)", (0.0, 1e-4), (0.0, 1e-7)),
+    "rock.solid_bulk_modulus": ("Pa", (0.0, 1e12), (1e9, 1e11)),
+    "rock.density": ("kg/m3", (0.0, 2e4), (1500.0, 5000.0)),
+    "damage_zone.width": ("m", (0.0, 1e5), (0.0, 1e4)),
+    "fluid.viscosity": ("Pa s", (0.0, 1e3), (1e-5, 1.0)),
+    "fluid.bulk_modulus": ("Pa", (0.0, 1e11), (1e7, 5e9)),
+    "fluid.density": ("kg/m3", (0.0, 2e4), (100.0, 1500.0)),
+    "initial.effective_stress": ("Pa", (-1e10, 1e10), (-3e8, 3e7)),
+    "initial.stress": ("Pa", (-1e10, 1e10), (-3e8, 3e7)),
+    "initial.pore_pressure": ("Pa", (-1e8, 1e10), (-1e6, 3e8)),
+    "initial.gravity": ("m/s2", (0.0, 100.0), (0.0, 30.0)),
+    "initial.pore_pressure_gradient": ("Pa/m", (-1e6, 1e6), (0.0, 3e4)),
+    "initial.lateral_stress_ratio": ("-", (0.0, 100.0), (0.1, 10.0)),
+    "boundary.traction": ("Pa", (-1e10, 1e10), (-3e8, 3e8)),
+    "injection.number_of_fractures": ("-", (1.0, 1e4), (1.0, 100.0)),
+    # the same bound as an injection log's flow rate (fault_screen.io.injection_log)
+    "injection.schedule.rate": ("m3/s", (0.0, 10.0), (0.0, 1.0)),
+    "injection.schedule.pressure": ("Pa", (-1e9, 1e9), (-1e8, 1e8)),
+    "injection.log_max_gap": ("s", (0.0, 1e9), (1.0, 86400.0)),
+    "time.end": ("s", (0.0, 1e12), (1e-3, 3.2e9)),
+    "time.dt": ("s", (0.0, 1e12), (1e-3, 3.2e8)),
+    "time.growth": ("-", (1.0, 10.0), (1.0, 2.0)),
+    "solver.tolerance": ("-", (0.0, 1.0), (1e-14, 1e-4)),
+    "site.latitude": ("deg", (-90.0, 90.0), (-90.0, 90.0)),
+    "site.longitude": ("deg", (-180.0, 360.0), (-180.0, 360.0)),
+    "site.depth": ("m", (-1e4, 1e5), (-5e3, 1.5e4)),
+    "site.strike": ("deg", (0.0, 360.0), (0.0, 360.0)),
+    "site.dip": ("deg", (0.0, 90.0), (0.0, 90.0)),
+}
+
+
+def _fmt(v: float) -> str:
+    return f"{v:g}"
+
+
+def _in_range(key: str, value, where: str | None = None, sink: list | None = None):
+    """Refuse ``value`` outside the physical range of ``key``; add a warning to ``sink``
+    outside the plausible range.  ``where`` is the key as the user wrote its section."""
+    unit, (plo, phi), (qlo, qhi) = RANGES[key]
+    name = where or key
+    values = value if isinstance(value, (tuple, list)) else (value,)
+    u = "" if unit == "-" else f" {unit}"
+    for v in values:
+        if v is None:
+            continue
+        if not plo <= v <= phi:
+            raise SceneError(f"{name} = {value!r}: outside the physical range {_fmt(plo)} to "
+                             f"{_fmt(phi)}{u} (plausible: {_fmt(qlo)} to {_fmt(qhi)}{u})")
+    if sink is not None:
+        for v in values:
+            if v is not None and not qlo <= v <= qhi:
+                sink.append(f"{name} = {value!r} is outside the plausible range {_fmt(qlo)} to "
+                            f"{_fmt(qhi)}{u}: accepted, but check the value and its unit")
+                break
+
+
+#: Memory of a run ~ BASE_MEMORY + BYTES_PER_UNKNOWN_LOG * N log2 N bytes (N unknowns; the
+#: sparse factor's fill grows like N log N).  Fitted to the peak resident memory of one step of
+#: the Rustrel scene on uniform meshes: 244 MB at 20 x 21, 507 MB at 100 x 101 (N = 31k), 1.62 GB
+#: at 200 x 201 (N = 122k); the fit is within 10 % at both larger sizes.
+BYTES_PER_UNKNOWN_LOG = 650.0
+BASE_MEMORY = 250e6
+
+
+def _graded_count(length: float, lo: float, hi: float, size: float, growth: float) -> int:
+    """Elements of a graded axis: ``size`` on [lo, hi], growing by ``growth`` outside."""
+    inner = max(hi - lo, 0.0)
+    n = math.ceil(inner / size) if inner > 0 else 0
+    for side in (lo, length - hi):
+        side = max(side, 0.0)
+        if side <= 0:
+            continue
+        if growth <= 1.0:
+            n += math.ceil(side / size)
+        else:
+            n += math.ceil(math.log1p(side * (growth - 1.0) / size) / math.log(growth))
+    return max(n, 1)
+
+
+def estimate_size(scene: "Scene") -> tuple[int, int, float]:
+    """(elements, unknowns, bytes): a run's size from the mesh and the effects alone, before
+    anything is built (refusing an absurd mesh must not itself exhaust the memory)."""
+    m, ef = scene.mesh, scene.effects
+    if m.refinement is None:
+        nx, ny = m.nx, m.ny
+    else:
+        r = m.refinement
+        cx, cy = r.center[0] - m.origin[0], r.center[1] - m.origin[1]
+        nx = _graded_count(m.lx, cx - r.half_width[0], cx + r.half_width[0], r.size, r.growth)
+        ny = _graded_count(m.ly, cy - r.half_width[1], cy + r.half_width[1], r.size, r.growth)
+    nodes = (nx + 1) * (ny + 1)
+    per_node = 2 * ef.mechanics + 1 * ef.poroelastic
+    # a straight fault crosses about max(nx, ny) cells; the nodes of those cells are enriched
+    enriched = 2 * (max(nx, ny) + 1) if ef.fault else 0
+    unknowns = per_node * nodes + enriched * (2 * ef.mechanics + ef.leak_off + ef.fault_flow)
+    return nx * ny, unknowns, BASE_MEMORY + BYTES_PER_UNKNOWN_LOG * unknowns * math.log2(max(unknowns, 2))
 
 
 def _check(ok, key, value, why):
@@ -551,21 +806,60 @@ def _check(ok, key, value, why):
         raise SceneError(f"{key} = {value!r}: {why}")
 
 
-def _validate_rock(rock: RockSpec, where: str):
+def _validate_rock(rock: RockSpec, where: str, sink: list | None = None, keys=None):
+    """``keys``: the keys to range-check (default all; a zone checks only its overrides, so a
+    value of [rock] is not reported once more for every zone)."""
+    for name in (keys if keys is not None else [fl.name for fl in fields(RockSpec)]):
+        _in_range(f"rock.{name}", getattr(rock, name), f"{where}.{name}", sink)
     _check(rock.youngs_modulus > 0, f"{where}.youngs_modulus", rock.youngs_modulus, "must be > 0 Pa")
     _check(-1.0 < rock.poissons_ratio < 0.5, f"{where}.poissons_ratio", rock.poissons_ratio,
            "must be in (-1, 0.5)")
     _check(0.0 <= rock.porosity < 1.0, f"{where}.porosity", rock.porosity, "must be in [0, 1)")
     _check(rock.porosity <= rock.biot_coefficient <= 1.0, f"{where}.biot_coefficient",
            rock.biot_coefficient, f"must be in [porosity = {rock.porosity}, 1]")
-    _check(rock.permeability >= 0, f"{where}.permeability", rock.permeability, "must be >= 0 m^2")
+    if rock.mobility is not None:
+        _check(rock.mobility >= 0, f"{where}.mobility", rock.mobility, "must be >= 0 m^2/(Pa s)")
+    else:
+        _check(rock.permeability is not None, f"{where}.permeability", rock.permeability,
+               "give a permeability (m^2) or a mobility (m^2/(Pa s))")
+        _check(rock.permeability >= 0, f"{where}.permeability", rock.permeability, "must be >= 0 m^2")
     _check(rock.density >= 0, f"{where}.density", rock.density, "must be >= 0 kg/m^3")
     if rock.solid_bulk_modulus is not None:
         _check(rock.solid_bulk_modulus > 0, f"{where}.solid_bulk_modulus", rock.solid_bulk_modulus,
                "must be > 0 Pa")
 
 
-def _validate(s: Scene):
+def _validate_site(site: SiteSpec):
+    geo = [k for k in ("latitude", "longitude") if getattr(site, k) is not None]
+    loc = [k for k in ("x", "y") if getattr(site, k) is not None]
+    _check(len(geo) in (0, 2), f"site.{'longitude' if 'latitude' in geo else 'latitude'}", None,
+           "give both latitude and longitude")
+    _check(len(loc) in (0, 2), f"site.{'y' if 'x' in loc else 'x'}", None, "give both x and y")
+    _check(not (geo and loc), "site", "latitude/longitude and x/y",
+           "give the injection point in one frame: latitude/longitude/depth or local x/y/z")
+    _check(not (geo and site.z is not None), "site.z", site.z,
+           "z is for local x/y frames; with latitude/longitude give depth (m, positive down)")
+    _check(site.z is None or site.depth is None, "site.z", site.z, "give z (up) or depth (down), not both")
+    _check((site.strike is None) == (site.dip is None), "site.strike" if site.dip is not None else "site.dip",
+           None, "give both strike and dip of the fault plane")
+
+
+def _validate(s: Scene, sink: list | None = None):
+    """Refuse what cannot be simulated; append plausibility warnings to ``sink``."""
+    for section in ("mesh", "fault", "fluid", "initial", "injection", "time", "solver",
+                    "damage_zone", "site"):
+        spec = getattr(s, section)
+        for fl in fields(spec):
+            key = f"{section}.{fl.name}"
+            if key in RANGES:
+                _in_range(key, getattr(spec, fl.name), None, sink)
+    for edge in EDGES:
+        _in_range("boundary.traction", getattr(s.boundary, edge).traction,
+                  f"boundary.{edge}.traction", sink)
+    which = "rate" if s.injection.control == "rate" else "pressure"
+    _in_range(f"injection.schedule.{which}", tuple(v for _, v in s.injection.schedule),
+              "injection.schedule", sink)
+    _validate_site(s.site)
     m = s.mesh
     _check(m.nx >= 1, "mesh.nx", m.nx, "must be >= 1")
     _check(m.ny >= 1, "mesh.ny", m.ny, "must be >= 1")
@@ -576,6 +870,11 @@ def _validate(s: Scene):
         _check(r.size > 0, "mesh.refinement.size", r.size, "must be > 0 m")
         _check(1.0 <= r.growth <= 2.0, "mesh.refinement.growth", r.growth, "must be in [1, 2]")
         _check(min(r.half_width) >= 0, "mesh.refinement.half_width", r.half_width, "must be >= 0 m")
+    _check(m.fault_grading in ("auto", "off"), "mesh.fault_grading", m.fault_grading, "must be 'auto' or 'off'")
+    _check(m.fault_grading_size is None or m.fault_grading_size > 0, "mesh.fault_grading_size",
+           m.fault_grading_size, "must be > 0 m")
+    _check(1.0 < m.fault_grading_growth <= 2.0, "mesh.fault_grading_growth", m.fault_grading_growth,
+           "must be in (1, 2]")
     f = s.fault
     x0, y0 = m.origin
     px, py = s.fault_point
@@ -586,7 +885,7 @@ def _validate(s: Scene):
     _check(f.friction >= 0, "fault.friction", f.friction, "must be >= 0")
     if f.storativity is not None:
         _check(f.storativity >= 0, "fault.storativity", f.storativity, "must be >= 0 m/Pa")
-    _validate_rock(s.rock, "rock")
+    _validate_rock(s.rock, "rock", sink)
     rock_keys = {fl.name for fl in fields(RockSpec)}
     for i, z in enumerate(s.zones):
         where = f"zones[{i}]"
@@ -598,7 +897,7 @@ def _validate(s: Scene):
                f"unknown rock key; known: {', '.join(sorted(rock_keys))}")
         for k, v in z.rock.items():
             _number(v, f"{where}.rock.{k}")
-        _validate_rock(dataclasses.replace(s.rock, **z.rock), f"{where}.rock")
+        _validate_rock(s.rock.with_overrides(z.rock), f"{where}.rock", sink, z.rock)
     fl = s.fluid
     for key in ("viscosity", "bulk_modulus"):
         _check(getattr(fl, key) > 0, f"fluid.{key}", getattr(fl, key), "must be > 0")
@@ -670,6 +969,14 @@ def _validate(s: Scene):
     d = ini.gravity_direction
     _check(abs(math.hypot(d[0], d[1]) - 1.0) < 1e-6, "initial.gravity_direction", d, "must be a unit vector")
     _check(ini.gravity >= 0, "initial.gravity", ini.gravity, "must be >= 0 m/s^2")
+    _check((ini.stress is None) == (ini.stress_kind is None), "initial.stress_kind", ini.stress_kind,
+           "initial.stress and initial.stress_kind go together: say which kind of stress the numbers "
+           f"are ({', '.join(STRESS_KINDS)}); the tool does not guess")
+    _check(ini.stress_kind is None or ini.stress_kind in STRESS_KINDS, "initial.stress_kind",
+           ini.stress_kind, f"must be one of {', '.join(STRESS_KINDS)}")
+    _check(ini.stress is None or ini.effective_stress is None, "initial.effective_stress",
+           ini.effective_stress, "give either initial.stress with initial.stress_kind or the older "
+           "initial.effective_stress (Biot-effective), not both")
     if ini.reference_point is not None:
         rx, ry = ini.reference_point
         _check(x0 <= rx <= x0 + m.lx and y0 <= ry <= y0 + m.ly, "initial.reference_point",
@@ -678,9 +985,8 @@ def _validate(s: Scene):
     _check(dz.width > 0, "damage_zone.width", dz.width, "must be > 0 m")
     if ef.damage_zone:
         _check(ef.fault, "effects.damage_zone", ef.damage_zone, "a damage zone needs a fault")
-        over = {k: v for k, v in (("youngs_modulus", dz.youngs_modulus), ("poissons_ratio", dz.poissons_ratio),
-                                  ("permeability", dz.permeability)) if v is not None}
-        _validate_rock(dataclasses.replace(s.rock, **over), "damage_zone")
+        over = dz.rock_overrides()
+        _validate_rock(s.rock.with_overrides(over), "damage_zone", sink, over)
     if not ef.fault:
         for key in ("fault_flow", "leak_off"):
             _check(not getattr(ef, key), f"effects.{key}", getattr(ef, key),

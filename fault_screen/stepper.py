@@ -363,6 +363,16 @@ class Recorder:
     def __init__(self, disc: Discretisation):
         self.disc = disc
         self.rows: list[dict] = []
+        # fluid stored in the rock and in the fault: linear in the unknowns, so weights formed once
+        self.store_weights = {"rock": np.zeros(disc.n_dofs), "fault": np.zeros(disc.n_dofs)}
+        self.nonlinear_stores = []
+        for term in disc.physics.terms:
+            if term.fluid_store is not None:
+                w = term.stored_volume_weights(disc)
+                if w is None:
+                    self.nonlinear_stores.append(term)
+                else:
+                    self.store_weights[term.fluid_store] += w
 
     def record(self, t, x, point, *, slip_rate, flow_rate, volume, leaked, iterations, cuts, dt):
         disc = self.disc
@@ -372,10 +382,9 @@ class Recorder:
         p_inj = disc.injection_overpressure(x)
         ng = len(fp.s)
         aperture = point["hydraulic_aperture"]
-        stored = {"rock": 0.0, "fault": 0.0}
-        for term in disc.physics.terms:
-            if term.fluid_store is not None:
-                stored[term.fluid_store] += term.stored_volume(disc, x)
+        stored = {k: float(w @ x) for k, w in self.store_weights.items()}
+        for term in self.nonlinear_stores:
+            stored[term.fluid_store] += term.stored_volume(disc, x)
         self.rows.append(dict(
             time=t, overpressure=dp, pressure=fp.p0 + dp, slip=point["slip"], opening=point["opening"],
             slip_rate=np.asarray(slip_rate, dtype=float) * np.ones(ng),

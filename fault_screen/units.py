@@ -39,12 +39,15 @@ __all__ = [
     "QUANTITIES",
     "to_si",
     "factor",
+    "canonical",
     "quantity_of",
     "accepted_units",
     "parse_header",
     "BARREL_M3",
     "DARCY_M2",
     "PSI_PA",
+    "US_GALLON_M3",
+    "split_value",
 ]
 
 
@@ -56,6 +59,8 @@ class UnitError(ValueError):
 BARREL_M3 = 0.158987294928
 #: 1 darcy in m2.
 DARCY_M2 = 9.869233e-13
+#: US liquid gallon (231 cubic inches) in m3.
+US_GALLON_M3 = 3.785411784e-3
 #: 1 psi (pound-force per square inch) in Pa.
 PSI_PA = 6894.757293168361
 
@@ -81,6 +86,7 @@ _TABLE: Dict[str, Dict[str, Tuple[float, Tuple[str, ...]]]] = {
         "L/h": (1e-3 / 3600.0, ("l/h",)),
         "bbl/min": (BARREL_M3 / 60.0, ("bpm", "BPM")),
         "bbl/day": (BARREL_M3 / 86400.0, ("bbl/d", "bpd", "BPD")),
+        "gpm": (US_GALLON_M3 / 60.0, ("GPM", "gal/min", "USgal/min", "usgpm", "USgpm")),
     },
     "length": {
         "m": (1.0, ()),
@@ -98,6 +104,16 @@ _TABLE: Dict[str, Dict[str, Tuple[float, Tuple[str, ...]]]] = {
         "m2": (1.0, ()),
         "mD": (DARCY_M2 * 1e-3, ("md", "millidarcy")),
         "D": (DARCY_M2, ("darcy",)),
+        # tight rock (shales, granite, salt): micro- and nanodarcy; µ is normalised to u
+        "µD": (DARCY_M2 * 1e-6, ("uD", "microdarcy")),
+        "nD": (DARCY_M2 * 1e-9, ("nanodarcy",)),
+    },
+    # mobility k/mu (Darcy flux per pressure gradient); the paper writes it m3 s/kg
+    "mobility": {
+        "m2/(Pa s)": (1.0, ("m2/Pa/s", "m3 s/kg", "m3/(Pa s)/m")),
+        "mD/cP": (DARCY_M2,  # 1e-3 D over 1e-3 Pa s
+                ("md/cp", "mD/(mPa s)")),
+        "D/cP": (DARCY_M2 / 1e-3, ("darcy/cP",)),
     },
     "time": {
         "s": (1.0, ("sec",)),
@@ -109,6 +125,7 @@ _TABLE: Dict[str, Dict[str, Tuple[float, Tuple[str, ...]]]] = {
         "m3": (1.0, ()),
         "L": (1e-3, ("l",)),
         "bbl": (BARREL_M3, ()),
+        "gal": (US_GALLON_M3, ("USgal",)),
     },
     "viscosity": {
         "Pa s": (1.0, ()),
@@ -129,6 +146,7 @@ SI_UNIT = {
     "length": "m",
     "stiffness": "Pa/m",
     "permeability": "m2",
+    "mobility": "m2/(Pa s)",
     "time": "s",
     "volume": "m3",
     "viscosity": "Pa s",
@@ -225,6 +243,11 @@ def factor(unit: str, quantity: Optional[str] = None) -> float:
     return _resolve(unit, quantity)[2]
 
 
+def canonical(unit: str, quantity: Optional[str] = None) -> str:
+    """The table's spelling of a unit (``"l/min" -> "L/min"``, ``"uD" -> "µD"``)."""
+    return _resolve(unit, quantity)[1]
+
+
 def quantity_of(unit: str) -> str:
     """Quantity a unit belongs to (raises UnitError if unknown/ambiguous)."""
     return _resolve(unit, None)[0]
@@ -259,3 +282,18 @@ def parse_header(name: str) -> Tuple[str, Optional[str]]:
         return s, None
     unit = m.group("u1") if m.group("u1") is not None else m.group("u2")
     return m.group("name"), (unit if unit else None)
+
+
+_VALUE = re.compile(r"^\s*([+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?)\s*(.*?)\s*$")
+
+
+def split_value(text: str) -> Tuple[float, Optional[str]]:
+    """``"100 mD" -> (100.0, "mD")``, ``"100mD" -> (100.0, "mD")``, ``"2.5e-3" -> (0.0025, None)``.
+
+    The space between number and unit is optional, as people write it both ways.
+    Raises ValueError when the text does not start with a number.
+    """
+    m = _VALUE.match(str(text))
+    if m is None:
+        raise ValueError(f"not a number with an optional unit: {text!r}")
+    return float(m.group(1)), (m.group(2) or None)

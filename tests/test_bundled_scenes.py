@@ -2,8 +2,6 @@
 import numpy as np
 import pytest
 
-from conftest import CONFIGS
-from fault_screen import Scene, simulate
 from fault_screen.kernels.contact import SLIP
 from fault_screen.discretisation import discretise
 
@@ -11,8 +9,8 @@ NAMES = ["rustrel-2015-calibrated", "rustrel-2015-initial", "rustrel-2015-imperm
 
 
 @pytest.fixture(scope="module")
-def runs():
-    return {name: simulate(Scene.from_toml(CONFIGS / f"{name}.toml")) for name in NAMES}
+def runs(bundled_run):
+    return {name: bundled_run(name) for name in NAMES}
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -46,10 +44,10 @@ def test_injection_pressure_rises_with_the_rate_steps(runs, name):
         assert rising.all()
 
 
-def test_slip_starts_only_when_coulomb_is_met():
+def test_slip_starts_only_when_coulomb_is_met(runs):
     """Constant friction (impermeable scene): before the first slipping point, every point is
     below mu0; at that step the slipping points sit exactly on the Coulomb line."""
-    r = simulate(Scene.from_toml(CONFIGS / "rustrel-2015-impermeable.toml"))
+    r = runs["rustrel-2015-impermeable"]
     mu0 = r.scene.fault.friction
     state = r.fault["contact_state"]
     first = int(np.argmax((state == SLIP).any(axis=1)))

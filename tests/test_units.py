@@ -107,3 +107,40 @@ def test_parse_header():
     assert parse_header("depth (m)") == ("depth", "m")
     assert parse_header("time") == ("time", None)
     assert parse_header("q[]") == ("q", None)
+
+
+@pytest.mark.parametrize("unit, quantity, expected", [
+    ("gpm", "flow_rate", 3.785411784e-3 / 60),       # US gallon = 231 in^3 = 3.785411784 L
+    ("gal/min", "flow_rate", 3.785411784e-3 / 60),
+    ("µD", "permeability", 9.869233e-19),
+    ("uD", "permeability", 9.869233e-19),
+    ("nD", "permeability", 9.869233e-22),
+])
+def test_field_units_of_issue_13(unit, quantity, expected):
+    assert factor(unit, quantity) == pytest.approx(expected, rel=1e-12)
+
+
+@pytest.mark.parametrize("text, value, unit", [
+    ("100mD", 100.0, "mD"), ("100 mD", 100.0, "mD"), ("2.5e-3MPa", 2.5e-3, "MPa"),
+    ("-4 deg", -4.0, "deg"), (" 7 ", 7.0, None), ("5 µD", 5.0, "µD"),
+])
+def test_split_value_with_or_without_a_space(text, value, unit):
+    from fault_screen.units import split_value
+
+    assert split_value(text) == (value, unit)
+
+
+def test_split_value_refuses_text_without_a_number():
+    from fault_screen.units import split_value
+
+    with pytest.raises(ValueError, match="not a number"):
+        split_value("mD 100")
+
+
+def test_scene_permeability_without_space_and_in_microdarcy():
+    from fault_screen import Scene
+
+    assert Scene.from_dict({"rock": {"permeability": "100mD"}}).rock.permeability == \
+        pytest.approx(9.869233e-14, rel=1e-12)
+    assert Scene.from_dict({"rock": {"permeability": "250 nD"}}).rock.permeability == \
+        pytest.approx(250 * 9.869233e-22, rel=1e-12)

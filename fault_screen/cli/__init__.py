@@ -1,4 +1,5 @@
-"""Command-line interface: ``fault-screen run | replay | plot``.
+"""Command-line interface: ``fault-screen run | replay | monitor | plot | screen | scene |
+accuracy | calibrate | sensitivity | ensemble | plugins`` (one module per command).
 
 Exit codes: 0 success, 1 failure (simulation failed, output not written), 2 bad usage or bad
 input (bad scene, bad log, unknown unit, missing file).  See :mod:`fault_screen.cli._options`.
@@ -8,11 +9,17 @@ from __future__ import annotations
 import click
 
 from ._options import Group, version_option
+from .accuracy import accuracy
+from .calibrate import calibrate
+from .ensemble import ensemble
+from .monitor import monitor
 from .plot import plot
+from .plugins import plugins
 from .replay import replay
 from .run import run
 from .scene import scene
 from .screen import screen
+from .sensitivity import sensitivity
 
 __all__ = ["main"]
 
@@ -30,6 +37,9 @@ def main():
     fault-screen plot result.h5 --out figs
     fault-screen scene check SCENE.toml   (scene show SCENE.toml: resolved, in SI)
     fault-screen screen result.h5 --scene new-thresholds.toml
+    fault-screen monitor SCENE.toml --follow live.csv --state state.h5 --alert jsonl:alerts.jsonl
+    fault-screen accuracy SCENE.toml --target 5%     (calibrate, sensitivity, ensemble: see --help)
+    fault-screen plugins                  installed alert hooks and sample sources
 
     Exit codes: 0 success, 1 run failed or output not written, 2 bad usage or bad input,
     3 the fault became unstable, 4 the --fail-on screening level was reached.
@@ -41,3 +51,9 @@ main.add_command(replay)
 main.add_command(plot)
 main.add_command(scene)
 main.add_command(screen)
+main.add_command(calibrate)
+main.add_command(sensitivity)
+main.add_command(ensemble)
+main.add_command(accuracy)
+main.add_command(monitor)
+main.add_command(plugins)

@@ -165,7 +165,9 @@ out_option = click.option(
 
 events_option = click.option(
     "--events", type=FILE, default=None, metavar="CATALOG",
-    help="Seismic event catalogue (QuakeML, read with obspy) drawn as markers on the time axes.")
+    help="Seismic event catalogue (QuakeML, CSV or FDSN text) drawn on the time axes and stored "
+         "under /events; with a [site] table in the scene, distances to the injection point and "
+         "to the fault plane.")
 
 t0_option = click.option(
     "--t0", type=str, default=None, metavar="ISO", callback=_t0_callback,
@@ -199,5 +201,39 @@ log_options = _compose(
                  help="On a bad row or gap: stop with an error, skip the row (gaps bridged "
                       "linearly), or hold the last good value."),
     click.option("--end", type=float, default=None, metavar="S", callback=_positive_callback,
-                 help="End time of the run (s after the first stamp) [default: log duration]."),
+                 help="End time of the run (s after the first stamp) [default: log duration]; "
+                      "after the log's last sample the rate is 0 (shut-in), with a warning."),
+    click.option("--date", "log_date", default=None, metavar="YYYY-MM-DD",
+                 help="Day of the first row of a log whose stamps are times of day (08:50:05); "
+                      "a time going back by more than 12 h is the next day."),
+    click.option("--tz", "log_tz", default=None, metavar="ZONE",
+                 help="Time zone of stamps written without an offset (IANA name: "
+                      "Europe/Zurich, America/Denver, UTC)."),
+    click.option("--time-column", default=None, metavar="NAME|N",
+                 help="The log's time column, by header or 1-based position [default: "
+                      "detected]."),
+    click.option("--flow-column", default=None, metavar="NAME|N",
+                 help="The log's flow-rate column, by header or 1-based position."),
+    click.option("--pressure-column", default=None, metavar="NAME|N",
+                 help="The log's pressure column, by header or 1-based position."),
 )
+
+
+def check_size(scene, label) -> None:
+    """Refuse a mesh whose run would not fit in this machine's memory, with the estimate, before
+    anything is built (exit 2)."""
+    from ..scene import estimate_size
+
+    elements, unknowns, need = estimate_size(scene)
+    try:
+        have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):   # not POSIX: assume a large workstation
+        have = 64e9
+    if need > 0.8 * have:
+        m = scene.mesh
+        mesh = (f"mesh.nx = {m.nx}, mesh.ny = {m.ny}" if m.refinement is None
+                else "the graded mesh ([mesh.refinement])")
+        raise BadInput(f"{label}: {mesh} gives about {elements:.3g} elements and {unknowns:.3g} "
+                       f"unknowns, needing about {need / 1e9:.3g} GB of memory; this machine has "
+                       f"{have / 1e9:.3g} GB. Use a coarser mesh or a graded one "
+                       f"([mesh.refinement]).")

@@ -6,8 +6,51 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ._options import DIR, FILE, events_option, parse_iso, reading, t0_option, version_option
-from .run import load_events
+from ._options import (DIR, FILE, BadInput, events_option, parse_iso, reading, t0_option,
+                       version_option)
+from .run import events_report, load_events
+
+HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
+
+
+def load_result(path: Path):
+    """A saved result, or one line saying why the file is not one (exit 2)."""
+    from ..result import Result
+
+    if not path.exists():
+        raise BadInput(f"file not found: {path}")
+    if path.is_dir():
+        raise BadInput(f"{path}: is a directory, expected a result file (.h5)")
+    with open(path, "rb") as fh:
+        head = fh.read(8)
+    if head != HDF5_MAGIC:
+        raise BadInput(f"{path}: not a fault_screen result (not an HDF5 file); results are "
+                       f"written by 'fault-screen run' or 'replay'")
+    try:
+        return Result.load(path)
+    except OSError:
+        raise BadInput(f"{path}: truncated or damaged HDF5 file (was the run or the copy "
+                       f"interrupted?); run it again") from None
+    except Exception:  # noqa: BLE001 - any missing group or attribute: not one of ours
+        raise BadInput(f"{path}: an HDF5 file but not a fault_screen result (no readable "
+                       f"scene, /time, /fault or /injection)") from None
+
+
+def stored_events(result):
+    """The catalogue stored under /events by run/replay --events (None if there is none)."""
+    from ..io.events import EventCatalog
+
+    ev = result.extra.get("events")
+    if not ev or "time" not in ev:
+        return None
+    kw = {k: np.asarray(ev[k], dtype=float) for k in
+          ("latitude", "longitude", "depth", "x", "y", "z", "distance_to_injection",
+           "distance_to_fault") if k in ev}
+    types = tuple(t.decode() if isinstance(t, bytes) else str(t)
+                  for t in np.asarray(ev.get("magnitude_type", []), dtype=object))
+    return EventCatalog(np.asarray(ev["time"], dtype=float),
+                        np.asarray(ev["magnitude"], dtype=float), types,
+                        source=str(result.meta.get("events_file", "/events")), **kw)
 
 
 @click.command("plot")
@@ -24,28 +67,31 @@ def plot(result_path, out_dir, events, t0):
 
     Events from --events are placed relative to --t0, else to the start stored in the result
     (the log's first stamp of a replay), else to the first event.  Without --events, events
-    stored in the result by run/replay --events are drawn.
+    stored in the result by run/replay --events are drawn.  With a start time the figures show
+    clock time as well.
     """
-    from ..io.events import EventCatalog
     from ..plotting import plot_result
-    from ..result import Result
 
     result_path = Path(result_path)
-    with reading(result_path):
-        result = Result.load(result_path)
+    result = load_result(result_path)
     start = t0
     if start is None and result.meta.get("start"):
         start = parse_iso(result.meta["start"], f"{result_path}: meta start")
+    if t0 is not None:
+        result.meta["start"] = t0.isoformat()
     if events is not None:
-        catalog = load_events(events, start)
-    elif "events" in result.extra:
-        ev = result.extra["events"]
-        catalog = EventCatalog(np.asarray(ev["time"], dtype=float),
-                               np.asarray(ev["magnitude"], dtype=float))
+        catalog = load_events(events, start, result.scene.site)
     else:
-        catalog = None
+        catalog = stored_events(result)
+    if catalog is not None:
+        t_run = (float(result.time[0]), float(result.time[-1]))
+        inside = int(np.count_nonzero((catalog.time >= t_run[0]) & (catalog.time <= t_run[1])))
+        click.echo(f"seismic events: {len(catalog)} read, {inside} within the run")
+        for line in events_report(catalog, float(result.time[0]), float(result.time[-1]), start):
+            click.echo(line, err=line.startswith("Warning"))
     if out_dir.exists() and not out_dir.is_dir():
-        from ._options import BadInput
         raise BadInput(f"--out {out_dir}: exists and is not a directory")
-    for f in plot_result(result, out_dir, events=catalog, prefix=f"{result_path.stem}-"):
+    with reading(out_dir):
+        files = plot_result(result, out_dir, events=catalog, prefix=f"{result_path.stem}-")
+    for f in files:
         click.echo(str(f))

@@ -1,11 +1,9 @@
 """``fault-screen replay SCENE --log LOG``: run a scene driven by an operator's injection log."""
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import click
-import numpy as np
 
 from ._options import FILE, BadInput, log_options, reading, run_options, version_option
 from .run import load_scene, run_scene
@@ -18,22 +16,26 @@ from .screen import conclude, fail_on_option
 @run_options
 @fail_on_option
 @version_option
-def replay(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, end, out, plot_dir,
-           events, t0, quiet, fail_on):
+def replay(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, end, log_date, log_tz,
+           time_column, flow_column, pressure_column, out, plot_dir, events, t0, quiet, fail_on):
     """Run SCENE (TOML) with the flow rate of the injection log LOG instead of its schedule.
 
     Model time 0 is the log's first stamp; the run ends at the log's last stamp unless --end
-    is given.  Between samples the rate is linear; each time step receives exactly the log's
-    volume over the step.  LOG is CSV with one header line, e.g.
+    is given (after the last sample the rate is 0).  Between samples the rate is linear; each
+    time step receives exactly the log's volume over the step.  LOG is a text table with one
+    header line, e.g.
 
     \b
-        time,flow_rate[L/min]
-        2015-03-12T10:00:00+01:00,0.0
-        2015-03-12T10:00:05+01:00,10.1
+        time,flow_rate[L/min],pressure[bar]
+        2015-03-12T10:00:00+01:00,0.0,12.1
+        2015-03-12T10:00:05+01:00,10.1,14.0
 
-    (or an elapsed[s] column instead of timestamps; '#' lines are comments).
+    Also read: ';' or tab separators with decimal commas, Latin-1 files, a second header row
+    of units, separate date and time columns, elapsed seconds or hh:mm:ss, local times (--tz),
+    times of day (--date, --tz).  The line 'log: ...' says what was detected.
     """
-    from ..io.injection_log import read_injection_log
+    from ..io.injection_log import CLI_OPTION_NAMES, read_injection_log
+    from ..io.replay import plan_replay
 
     scene_path = Path(scene_path)
     scene = load_scene(scene_path)
@@ -42,32 +44,21 @@ def replay(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, end,
                        f"replay drives the flow rate; use a scene with control = 'rate'")
     with reading(log_path):
         log = read_injection_log(log_path, flow_unit=flow_unit, pressure_unit=pressure_unit,
-                                 max_gap=max_gap, policy=policy)
+                                 max_gap=max_gap, policy=policy, date=log_date, tz=log_tz,
+                                 time_column=time_column, flow_column=flow_column,
+                                 pressure_column=pressure_column, option_names=CLI_OPTION_NAMES)
+    click.echo(f"log: {log.summary}")
     for w in log.warnings:
         click.echo(f"Warning: {w}", err=True)
-
-    t_end = float(end) if end is not None else log.duration
-    ts = scene.time
     with reading(scene_path):
-        scene = scene.replace(time=dataclasses.replace(ts, end=t_end, dt=min(ts.dt, t_end)))
+        plan = plan_replay(scene, log, end, end_name="--end")
+    for note in plan.notes:
+        click.echo(f"Warning: {note}", err=True)
 
-    # the samples the run uses: those inside [0, end] and the first one after it
-    n = int(np.searchsorted(log.time, t_end, side="left")) + 1
-    n = min(max(n, 2), log.time.size)
-    used = {"time": np.array(log.time[:n]), "flow_rate": np.array(log.flow_rate[:n])}
-    if log.pressure is not None:
-        used["pressure"] = np.array(log.pressure[:n])
-    start = t0 if t0 is not None else log.start
-    meta = {
-        "command": "replay",
-        "log_file": str(log_path),
-        "log_start": log.start.isoformat() if log.start is not None else None,
-        "log_policy": policy,
-        "log_max_gap": max_gap,
-        "log_warnings": list(log.warnings),
-        "log_volume": log.volume(0.0, t_end),
-    }
-    result, _ = run_scene(scene, scene_label=str(scene_path), out=out, plot_dir=plot_dir, events_path=events,
-                          start=start, quiet=quiet, injected_volume=lambda a, b: log.volume(a, b),
-                          meta=meta, extra={"log": used}, stem=scene_path.stem)
+    meta = {"command": "replay", "log_policy": policy, "log_max_gap": max_gap, **plan.meta,
+            "log_file": str(log_path)}
+    result, _ = run_scene(plan.scene, scene_label=str(scene_path), out=out, plot_dir=plot_dir,
+                          events_path=events, start=t0 if t0 is not None else log.start, quiet=quiet,
+                          injected_volume=plan.injected_volume, meta=meta, extra={"log": plan.log_arrays},
+                          stem=scene_path.stem)
     conclude(result, fail_on)

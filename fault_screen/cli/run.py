@@ -12,7 +12,8 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ._options import FILE, BadInput, reading, run_options, version_option
+from ..budget import fluid_budget
+from ._options import FILE, BadInput, check_size, reading, run_options, version_option
 from ._progress import Progress, format_duration
 from .screen import conclude, fail_on_option
 
@@ -30,17 +31,55 @@ def default_scene_path() -> Path:
 
 
 def load_scene(path: Path):
-    from ..scene import Scene
+    """The scene of ``path``; values outside their plausible range are printed as warnings."""
+    import warnings
 
-    with reading(path):
-        return Scene.from_toml(path)
+    from ..scene import Scene, SceneWarning
+
+    with reading(path), warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", SceneWarning)
+        scene = Scene.from_toml(path)
+    for w in caught:
+        if issubclass(w.category, SceneWarning):
+            click.echo(f"Warning: {path}: {w.message}", err=True)
+    return scene
 
 
-def load_events(path: Path, start: datetime | None):
+def load_events(path: Path, start: datetime | None, site=None):
     from ..io.events import read_events
 
     with reading(path):
-        return read_events(path, start)
+        return read_events(path, start, site=site)
+
+
+#: how the scene's log keys are named in messages about a scene's injection.log
+SCENE_LOG_NAMES = {"flow_unit": "injection.log_flow_unit", "max_gap": "injection.log_max_gap"}
+
+
+def read_scene_log(scene):
+    """The scene's own ``injection.log``, read as bad input (exit 2) when it is bad."""
+    from ..io.injection_log import read_injection_log
+
+    inj = scene.injection
+    with reading(inj.log):
+        return read_injection_log(inj.log, flow_unit=inj.log_flow_unit, max_gap=inj.log_max_gap,
+                                  policy=inj.log_policy, option_names=SCENE_LOG_NAMES)
+
+
+def events_report(catalog, t0: float, t1: float, start) -> list[str]:
+    """Lines for the terminal about a catalogue and the run's window [t0, t1] (s)."""
+    inside = int(np.count_nonzero((catalog.time >= t0) & (catalog.time <= t1)))
+    lines = []
+    if len(catalog) and inside == 0:
+        when = f" after {start.isoformat()}" if start is not None else " (event times relative " \
+               f"to the first event: give --t0 to place them)"
+        lines.append(f"Warning: none of the {len(catalog)} events of {catalog.source} is inside "
+                     f"the run ({t0:g} to {t1:g} s{when}); first event at "
+                     f"{float(catalog.time.min()):.6g} s, last at {float(catalog.time.max()):.6g} s")
+    elif not len(catalog):
+        lines.append(f"Warning: {catalog.source} holds no event with an origin time")
+    lines += [f"Note: {catalog.source}: {n}" for n in catalog.notes]
+    return lines
 
 
 def _check_outputs(out: Path, plot_dir: Path | None) -> None:
@@ -64,18 +103,14 @@ def run_scene(scene, *, scene_label: str, out: Path | None, plot_dir: Path | Non
 
     out = Path(out) if out is not None else Path.cwd() / f"{stem}.h5"
     _check_outputs(out, plot_dir)
-    catalog = load_events(events_path, start) if events_path is not None else None
+    check_size(scene, scene_label)
+    catalog = load_events(events_path, start, scene.site) if events_path is not None else None
 
     if not quiet:
         m = scene.mesh
         size = "graded mesh" if m.refinement is not None else f"{m.nx} x {m.ny} elements"
         click.echo(f"running {scene_label} ({scene.title}; {size}; "
                    f"0 to {scene.time.end:g} s, dt {scene.time.dt:g} s)")
-    if injected_volume is None and scene.injection.log is not None:
-        from ..api import scene_injected_volume
-
-        with reading(scene.injection.log):
-            injected_volume = scene_injected_volume(scene)
     progress = None if quiet else Progress(sys.stdout)
     try:
         result = simulate(scene, progress=progress, injected_volume=injected_volume)
@@ -91,7 +126,9 @@ def run_scene(scene, *, scene_label: str, out: Path | None, plot_dir: Path | Non
     if catalog is not None:
         result.meta["events_file"] = str(events_path)
         result.meta["events_start"] = catalog.start.isoformat() if catalog.start else None
-        result.extra["events"] = {"time": catalog.time, "magnitude": catalog.magnitude}
+        result.extra["events"] = catalog.to_arrays(float(result.time[0]), float(result.time[-1]))
+        for line in events_report(catalog, float(result.time[0]), float(result.time[-1]), start):
+            click.echo(line, err=line.startswith("Warning"))
     screen_result(result, events=catalog)  # /screening/ with the events read
     result.save(out)
 
@@ -133,13 +170,20 @@ def _summary(result, out: Path, figures, catalog) -> None:
         rows.append(("stopped", stopped))
     rows += [
         ("injected volume", f"{volume:.5g} L"),
+        ("injected fluid went to", fluid_budget(result).summary()),
         ("steps", f"{len(result.time) - 1}"),
         ("wall time", format_duration(float(result.meta.get("wall_time", float("nan"))))),
         ("result", str(out)),
     ]
     if catalog is not None:
-        inside = int(np.count_nonzero((catalog.time >= result.time[0]) & (catalog.time <= result.time[-1])))
-        rows.append(("seismic events", f"{len(catalog)} read, {inside} within the run"))
+        inside = (catalog.time >= result.time[0]) & (catalog.time <= result.time[-1])
+        rows.append(("seismic events", f"{len(catalog)} read, {int(inside.sum())} within the run"))
+        d = catalog.distance_to_injection
+        if d is not None and np.any(np.isfinite(d[inside])):
+            rows.append(("nearest event in the run", f"{np.nanmin(d[inside]):.4g} m from the "
+                                                     f"injection point"))
+        elif d is None:
+            rows.append(("event distances", "need a [site] table in the scene"))
     for f in figures:
         rows.append(("figure", str(f)))
     click.echo("summary:")
@@ -160,6 +204,22 @@ def run(scene_path, out, plot_dir, events, t0, quiet, fail_on):
     """
     path = Path(scene_path) if scene_path is not None else default_scene_path()
     scene = load_scene(path)
+    volume, extra, meta, start = None, None, {"command": "run"}, t0
+    if scene.injection.log is not None and scene.injection.control == "rate":
+        # read here, so that a bad log is bad input (exit 2) and the samples go to /log
+        from ..io.replay import plan_replay
+
+        log = read_scene_log(scene)
+        click.echo(f"log: {log.summary}")
+        for w in log.warnings:
+            click.echo(f"Warning: {w}", err=True)
+        plan = plan_replay(scene, log, scene.time.end, end_name="time.end")
+        for note in plan.notes:
+            click.echo(f"Warning: {note}", err=True)
+        volume, extra = log.volume, {"log": plan.log_arrays}
+        meta.update(plan.meta)
+        start = t0 if t0 is not None else log.start
     result, _ = run_scene(scene, scene_label=str(path), out=out, plot_dir=plot_dir, events_path=events,
-                          start=t0, quiet=quiet, stem=path.stem, meta={"command": "run"})
+                          start=start, quiet=quiet, stem=path.stem, meta=meta, injected_volume=volume,
+                          extra=extra)
     conclude(result, fail_on)

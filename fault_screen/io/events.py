@@ -1,23 +1,44 @@
-"""Seismic event catalogues (QuakeML and the other formats obspy reads).
+"""Seismic event catalogues: QuakeML (and the other formats obspy reads), CSV and FDSN text.
 
-:func:`read_events` returns the origin times of the events as seconds relative to a reference
-date-time (model time 0: the injection log's first stamp) and their magnitudes.  obspy is
-imported only when a catalogue is read.
+:func:`read_events` returns the events' origin times as seconds relative to a reference
+date-time (model time 0: the injection log's first stamp), their magnitudes with the magnitude
+type kept per event (ML and mb are different scales), and their locations where the catalogue
+has them.  With a ``site`` (the scene's ``[site]`` table: the injection point in the
+catalogue's frame and the fault's strike and dip) each event also gets its distance to the
+injection point and to the modelled fault plane.
+
+CSV catalogues: one header line, separator detected as for injection logs.  Columns (case and
+accents ignored, units in brackets or parentheses): time ``isotime``, ``time``,
+``origin_time``, ``datetime`` (ISO 8601; without an offset the time is UTC, the seismological
+convention); magnitude ``mag``/``magnitude`` (or ``ml``, ``mw``, ``mb``...: the column name is
+then the type) with ``mag_type``/``magnitude_type``/``magtype``; location either
+``latitude``/``longitude`` (degrees) with ``depth`` (km unless the header gives a unit, as in
+USGS and FDSN exports), or local ``x``/``y``/``z`` in metres (x east, y north, z up; or
+``depth`` in metres, positive down).  FDSN text (``#EventID|Time|Latitude|Longitude|Depth/km|
+...|MagType|Magnitude|...``) is recognised by its header.  obspy is imported only for QuakeML
+and the other obspy formats.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timedelta, timezone
+from pathlib import Path
 from typing import Optional, Tuple
 
 import numpy as np
 
-__all__ = ["EventCatalog", "EventsError", "read_events"]
+from .. import units as _units
+
+__all__ = ["EventCatalog", "EventsError", "read_events", "fault_normal"]
 
 
 class EventsError(ValueError):
     """A catalogue that cannot be read; the message names the file."""
+
+
+_ARRAYS = ("time", "magnitude", "latitude", "longitude", "depth", "x", "y", "z",
+           "distance_to_injection", "distance_to_fault")
 
 
 @dataclass(frozen=True, eq=False)
@@ -25,11 +46,17 @@ class EventCatalog:
     """Events sorted by origin time.
 
     time : float64 array, s relative to ``start`` (negative before it)
-    magnitude : float64 array, NaN where an event has no magnitude
+    magnitude : float64 array, NaN where an event has no magnitude (negative values are normal:
+        micro-seismicity)
     magnitude_type : str per event ("" if unknown)
     start : aware UTC datetime of ``time == 0`` (None for an empty catalogue without a start)
     source : the file read
     skipped : number of events without an origin time (not included)
+    latitude, longitude (degrees), depth (m, positive down) : geographic locations, or
+    x, y, z (m, local frame, z up) : local locations; NaN where unknown, None if the
+        catalogue has no such columns
+    distance_to_injection, distance_to_fault : m, NaN where unknown, None without a site
+    notes : what the reader assumed or could not do (for the user)
     """
 
     time: np.ndarray
@@ -38,6 +65,15 @@ class EventCatalog:
     start: Optional[datetime] = None
     source: str = ""
     skipped: int = 0
+    latitude: Optional[np.ndarray] = None
+    longitude: Optional[np.ndarray] = None
+    depth: Optional[np.ndarray] = None
+    x: Optional[np.ndarray] = None
+    y: Optional[np.ndarray] = None
+    z: Optional[np.ndarray] = None
+    distance_to_injection: Optional[np.ndarray] = None
+    distance_to_fault: Optional[np.ndarray] = None
+    notes: Tuple[str, ...] = field(default=())
 
     def __len__(self) -> int:
         return int(self.time.size)
@@ -48,12 +84,25 @@ class EventCatalog:
             return []
         return [self.start + timedelta(seconds=float(t)) for t in self.time]
 
+    def _subset(self, keep) -> "EventCatalog":
+        arrays = {k: getattr(self, k)[keep] for k in _ARRAYS if getattr(self, k) is not None}
+        types = tuple(m for m, k in zip(self.magnitude_type, keep) if k)
+        return replace(self, magnitude_type=types, **arrays)
+
     def window(self, t0: float, t1: float) -> "EventCatalog":
         """The events with ``t0 <= time <= t1`` (s)."""
-        keep = (self.time >= t0) & (self.time <= t1)
-        return EventCatalog(self.time[keep], self.magnitude[keep],
-                            tuple(m for m, k in zip(self.magnitude_type, keep) if k),
-                            self.start, self.source, self.skipped)
+        return self._subset((self.time >= t0) & (self.time <= t1))
+
+    def to_arrays(self, t0: float, t1: float) -> dict:
+        """The ``/events`` group of a result: every event read, ``in_run`` 1 for those with
+        ``t0 <= time <= t1`` (s), locations and distances where known (NaN otherwise)."""
+        out = {"time": self.time, "magnitude": self.magnitude,
+               "magnitude_type": np.array([m.encode() for m in self.magnitude_type], dtype="S16"),
+               "in_run": ((self.time >= t0) & (self.time <= t1)).astype(np.uint8)}
+        for k in _ARRAYS[2:]:
+            if getattr(self, k) is not None:
+                out[k] = getattr(self, k)
+        return out
 
 
 def _to_utc(dt: datetime) -> datetime:
@@ -62,54 +111,279 @@ def _to_utc(dt: datetime) -> datetime:
     return dt.astimezone(timezone.utc)
 
 
-def read_events(path, start: Optional[datetime] = None, *, format: Optional[str] = None
-                ) -> EventCatalog:
-    """Read an event catalogue (QuakeML by default detection) with obspy.
+# ---- site geometry -----------------------------------------------------------------------
+def fault_normal(strike_deg: float, dip_deg: float) -> np.ndarray:
+    """Unit normal (east, north, up) of a plane of strike (clockwise from north) and dip (down
+    to the right of the strike direction)."""
+    s, d = math.radians(strike_deg), math.radians(dip_deg)
+    # strike (sin s, cos s, 0) and down-dip (cos d cos s, -cos d sin s, -sin d) span the plane
+    return np.array([math.sin(d) * math.cos(s), -math.sin(d) * math.sin(s), math.cos(d)])
 
-    ``start``: timezone-aware datetime of model time 0; event times are seconds after it.
-    Without ``start`` the times are relative to the earliest event (which is then at 0 s).
-    Each event's preferred origin (else its first origin) and preferred magnitude (else its
-    first magnitude) are used; events without any origin time are skipped and counted.
-    Raises ``FileNotFoundError`` for a missing file and :class:`EventsError` otherwise.
-    """
+
+def _site_frame(site) -> Optional[str]:
+    if site is None:
+        return None
+    if getattr(site, "latitude", None) is not None:
+        return "geographic"
+    if getattr(site, "x", None) is not None:
+        return "local"
+    return None
+
+
+def _offsets(cat: EventCatalog, site) -> Tuple[Optional[np.ndarray], str]:
+    """(n, 3) east/north/up offsets (m) of the events from the injection point, or None and
+    why not."""
+    frame = _site_frame(site)
+    if frame is None:
+        return None, "event distances need the injection point's location: add a [site] table " \
+                     "(latitude/longitude/depth or x/y/z in the catalogue's frame)"
+    up0 = -float(site.depth) if getattr(site, "depth", None) is not None else float(getattr(site, "z", 0.0) or 0.0)
+    if frame == "geographic":
+        if cat.latitude is None:
+            return None, "the catalogue has no latitude/longitude but [site] is geographic: " \
+                         "distances left empty"
+        from pyproj import Geod
+
+        n = len(cat)
+        lat0 = np.full(n, float(site.latitude))
+        lon0 = np.full(n, float(site.longitude))
+        az, _, dist = Geod(ellps="WGS84").inv(lon0, lat0, cat.longitude, cat.latitude)
+        az, dist = np.asarray(az, float), np.asarray(dist, float)
+        up = -cat.depth if cat.depth is not None else np.full(n, np.nan)
+        return np.column_stack([dist * np.sin(np.radians(az)), dist * np.cos(np.radians(az)),
+                                up - up0]), ""
+    if cat.x is None:
+        return None, "the catalogue has no local x/y but [site] gives x/y: distances left empty"
+    up = cat.z if cat.z is not None else (-cat.depth if cat.depth is not None
+                                          else np.full(len(cat), np.nan))
+    return np.column_stack([cat.x - float(site.x), cat.y - float(site.y), up - up0]), ""
+
+
+def with_distances(cat: EventCatalog, site) -> EventCatalog:
+    """The catalogue with its distances to the injection point (straight line, m) and to the
+    fault plane through it (m, needs ``site.strike`` and ``site.dip``)."""
+    off, why = _offsets(cat, site)
+    if off is None:
+        return replace(cat, notes=cat.notes + (why,))
+    d_inj = np.sqrt(np.sum(off ** 2, axis=1))
+    notes = cat.notes
+    if getattr(site, "strike", None) is not None and getattr(site, "dip", None) is not None:
+        d_fault = np.abs(off @ fault_normal(float(site.strike), float(site.dip)))
+    else:
+        d_fault = np.full(len(cat), np.nan)
+        notes += ("distances to the fault plane need [site] strike and dip",)
+    return replace(cat, distance_to_injection=d_inj, distance_to_fault=d_fault, notes=notes)
+
+
+# ---- readers -------------------------------------------------------------------------------
+_TIME = ("isotime", "time", "origin_time", "origintime", "datetime", "date_time", "event_time")
+_MAG = ("mag", "magnitude", "preferred_magnitude")
+_MAG_NAMED = ("ml", "mw", "mb", "ms", "md", "mc", "mwr", "mlv", "mlhc")
+_MAG_TYPE = ("mag_type", "magtype", "magnitude_type", "magnitudetype", "type_mag")
+_LAT, _LON = ("latitude", "lat"), ("longitude", "lon", "long", "lng")
+
+
+def _parse_time(cell: str) -> Optional[datetime]:
+    from .injection_log import _parse_stamp
+
+    dt = _parse_stamp(cell) if cell else None
+    if dt is None:
+        return None
+    return dt.replace(tzinfo=timezone.utc) if dt.utcoffset() is None else dt.astimezone(timezone.utc)
+
+
+def _read_table(p: Path, src: str):
+    """(header, rows, kind) of a CSV or FDSN text catalogue."""
+    from .injection_log import InjectionLogError, _decode, _delimiter, _split
+
+    try:
+        text, _ = _decode(p.read_bytes(), src)
+    except InjectionLogError as exc:
+        raise EventsError(f"{src}: {exc.problem}") from None
+    lines = [ln for ln in text.splitlines() if ln.strip()]
+    if lines and lines[0].lstrip().lower().startswith("#eventid"):
+        header = [c.strip() for c in lines[0].lstrip()[1:].split("|")]
+        rows = [[c.strip() for c in ln.split("|")] for ln in lines[1:] if not ln.startswith("#")]
+        return header, rows, "FDSN text"
+    lines = [ln for ln in lines if not ln.lstrip().startswith("#")]
+    if not lines:
+        raise EventsError(f"{src}: empty catalogue (no header line)")
+    delim = _delimiter(lines[0], lines[1:6])
+    return _split(lines[0], delim), [_split(ln, delim) for ln in lines[1:]], "CSV"
+
+
+def _read_csv(p: Path, src: str):
+    """Per-event lists from a CSV/FDSN text catalogue (times as aware UTC datetimes)."""
+    from .injection_log import _norm
+
+    header, rows, kind = _read_table(p, src)
+    cols = {}
+    for i, h in enumerate(header):
+        base, unit = _units.parse_header(h)
+        name = _norm(base)
+        if name.startswith("depth_"):        # FDSN "Depth/km"
+            name, unit = "depth", unit or h.split("/", 1)[-1].strip()
+        cols.setdefault(name, (i, unit, h))
+
+    def find(names):
+        return next((cols[n] for n in names if n in cols), None)
+
+    tcol = find(_TIME)
+    if tcol is None:
+        raise EventsError(f"{src}: no origin-time column in the header ({', '.join(header)}); "
+                          f"expected one of: {', '.join(_TIME[:4])}")
+    mcol = find(_MAG)
+    mtype_fixed = ""
+    if mcol is None:
+        named = next((n for n in _MAG_NAMED if n in cols), None)
+        if named is not None:
+            mcol, mtype_fixed = cols[named], cols[named][2]
+    tycol = find(_MAG_TYPE)
+    lat, lon = find(_LAT), find(_LON)
+    xc, yc, zc = cols.get("x"), cols.get("y"), cols.get("z")
+    dc = cols.get("depth")
+    geographic = lat is not None and lon is not None
+    local = xc is not None and yc is not None
+    notes = []
+
+    def factor(col, default, quantity="length"):
+        if col is None or col[1] is None:
+            return default
+        try:
+            return _units.factor(col[1], quantity)
+        except _units.UnitError as exc:
+            raise EventsError(f"{src}: column {col[2]}: {exc}") from None
+
+    depth_f = factor(dc, 1e3 if geographic else 1.0)
+    if geographic and dc is not None and dc[1] is None:
+        notes.append(f"depth column '{dc[2]}' without a unit taken in km (USGS/FDSN convention)")
+    xyz_f = factor(xc, 1.0)
+
+    def num(cells, col, what, line):
+        if col is None or col[0] >= len(cells) or cells[col[0]] == "":
+            return math.nan
+        try:
+            return float(cells[col[0]])
+        except ValueError:
+            raise EventsError(f"{src} row {line}, column {col[2]}: not a number "
+                              f"{cells[col[0]]!r} ({what})") from None
+
+    out = {k: [] for k in ("time", "mag", "mtype", "lat", "lon", "depth", "x", "y", "z")}
+    skipped = 0
+    naive = False
+    for line, cells in enumerate(rows, start=2):
+        cell = cells[tcol[0]] if tcol[0] < len(cells) else ""
+        when = _parse_time(cell)
+        if when is None:
+            if cell:
+                raise EventsError(f"{src} row {line}, column {tcol[2]}: not an ISO 8601 time "
+                                  f"{cell!r}")
+            skipped += 1
+            continue
+        naive |= not any(c in cell[10:] for c in "Zz+-")
+        out["time"].append(when)
+        out["mag"].append(num(cells, mcol, "magnitude", line))
+        typ = cells[tycol[0]] if tycol is not None and tycol[0] < len(cells) else mtype_fixed
+        out["mtype"].append(typ)
+        if geographic:
+            out["lat"].append(num(cells, lat, "latitude", line))
+            out["lon"].append(num(cells, lon, "longitude", line))
+        if local:
+            out["x"].append(num(cells, xc, "x", line) * xyz_f)
+            out["y"].append(num(cells, yc, "y", line) * xyz_f)
+            out["z"].append(num(cells, zc, "z", line) * factor(zc, 1.0))
+        out["depth"].append(num(cells, dc, "depth", line) * depth_f)
+    if naive:
+        notes.append("origin times without a zone taken as UTC")
+    if mcol is None:
+        notes.append("no magnitude column: magnitudes left empty")
+    locs = {}
+    if geographic:
+        locs.update(latitude=out["lat"], longitude=out["lon"], depth=out["depth"])
+    elif local:
+        locs.update(x=out["x"], y=out["y"])
+        if zc is not None:
+            locs["z"] = out["z"]
+        elif dc is not None:
+            locs["depth"] = out["depth"]
+    return out["time"], out["mag"], out["mtype"], locs, skipped, notes, kind
+
+
+def _read_obspy(p: Path, src: str, format):
     import obspy
-    from pathlib import Path
 
-    p = Path(path)
-    if not p.exists():
-        raise FileNotFoundError(2, "No such file or directory", str(path))
-    if start is not None:
-        start = _to_utc(start)
     try:
         cat = obspy.read_events(str(p), format=format)
     except Exception as exc:  # obspy raises TypeError/ValueError/XML errors for bad files
         why = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise EventsError(f"{path}: cannot read as an event catalogue (QuakeML): {why}") from None
-
-    origins, mags, mtypes, skipped = [], [], [], 0
+        raise EventsError(f"{src}: cannot read as an event catalogue (QuakeML, CSV or FDSN "
+                          f"text): {why}") from None
+    times, mags, mtypes, lat, lon, dep, skipped = [], [], [], [], [], [], 0
     for ev in cat:
         org = ev.preferred_origin() or (ev.origins[0] if ev.origins else None)
         if org is None or org.time is None:
             skipped += 1
             continue
         mag = ev.preferred_magnitude() or (ev.magnitudes[0] if ev.magnitudes else None)
-        origins.append(org.time)
+        times.append(org.time.datetime.replace(tzinfo=timezone.utc))
         if mag is not None and mag.mag is not None and math.isfinite(float(mag.mag)):
             mags.append(float(mag.mag))
             mtypes.append(mag.magnitude_type or "")
         else:
             mags.append(math.nan)
             mtypes.append("")
+        lat.append(math.nan if org.latitude is None else float(org.latitude))
+        lon.append(math.nan if org.longitude is None else float(org.longitude))
+        dep.append(math.nan if org.depth is None else float(org.depth))   # QuakeML: m
+    locs = {}
+    if any(math.isfinite(v) for v in lat):
+        locs = {"latitude": lat, "longitude": lon, "depth": dep}
+    return times, mags, mtypes, locs, skipped, [], "QuakeML"
 
-    order = sorted(range(len(origins)), key=lambda i: origins[i])
-    origins = [origins[i] for i in order]
-    mags = np.array([mags[i] for i in order], dtype=np.float64)
-    mtypes = tuple(mtypes[i] for i in order)
-    if start is None and origins:
-        start = origins[0].datetime.replace(tzinfo=timezone.utc)
+
+def _looks_like_xml(p: Path) -> bool:
+    with open(p, "rb") as fh:
+        head = fh.read(512).lstrip(b"\xef\xbb\xbf \t\r\n")
+    return head.startswith(b"<")
+
+
+def read_events(path, start: Optional[datetime] = None, *, format: Optional[str] = None,
+                site=None) -> EventCatalog:
+    """Read an event catalogue: QuakeML (and obspy's formats), CSV or FDSN text.
+
+    ``start``: timezone-aware datetime of model time 0; event times are seconds after it.
+    Without ``start`` the times are relative to the earliest event (which is then at 0 s).
+    QuakeML: each event's preferred origin (else its first) and preferred magnitude (else its
+    first).  Events without an origin time are skipped and counted.  ``site``: anything with
+    the attributes of the scene's ``[site]`` table (latitude, longitude, depth, x, y, z,
+    strike, dip); with it each event gets its distances (see :func:`with_distances`).
+    ``format``: "CSV", "FDSN text" or an obspy format name; detected when None.
+    Raises ``FileNotFoundError`` for a missing file and :class:`EventsError` otherwise.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(2, "No such file or directory", str(path))
+    if p.is_dir():
+        raise EventsError(f"{path}: is a directory, expected a catalogue file")
     if start is not None:
-        ref = obspy.UTCDateTime(start.replace(tzinfo=None))   # start is UTC here
-        times = np.array([float(o - ref) for o in origins], dtype=np.float64)
+        start = _to_utc(start)
+    src = str(path)
+    if format in ("CSV", "FDSN text") or (format is None and not _looks_like_xml(p)):
+        times, mags, mtypes, locs, skipped, notes, kind = _read_csv(p, src)
     else:
-        times = np.zeros(0)
-    return EventCatalog(times, mags, mtypes, start, str(path), skipped)
+        times, mags, mtypes, locs, skipped, notes, kind = _read_obspy(p, src, format)
+
+    order = sorted(range(len(times)), key=lambda i: times[i])
+    if start is None and times:
+        start = times[order[0]]
+    if start is not None:
+        t = np.array([(times[i] - start).total_seconds() for i in order], dtype=np.float64)
+    else:
+        t = np.zeros(0)
+    arrays = {k: np.array([v[i] for i in order], dtype=np.float64) for k, v in locs.items()}
+    cat = EventCatalog(t, np.array([mags[i] for i in order], dtype=np.float64),
+                       tuple(mtypes[i] for i in order), start, src, skipped,
+                       notes=tuple(notes), **arrays)
+    if site is not None or locs:
+        cat = with_distances(cat, site)
+    return cat

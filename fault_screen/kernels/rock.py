@@ -88,3 +88,40 @@ def body_force(Nu, w, force_density):
             f[2 * b] += w[q] * Nu[q, b] * force_density[0]
             f[2 * b + 1] += w[q] * Nu[q, b] * force_density[1]
     return f
+
+
+# ---- every element of a group in one compiled pass (arguments per element: leading axis e)
+@kernel
+def elastic_stiffness_all(gu, w, D):
+    n, nb = gu.shape[0], gu.shape[2]
+    out = np.empty((n, 2 * nb, 2 * nb))
+    for e in range(n):
+        out[e] = elastic_stiffness(gu[e], w[e], D[e])
+    return out
+
+
+@kernel
+def biot_coupling_all(gu, Np, w, biot_coefficient):
+    n = gu.shape[0]
+    out = np.empty((n, 2 * gu.shape[2], Np.shape[2]))
+    for e in range(n):
+        out[e] = biot_coupling(gu[e], Np[e], w[e], biot_coefficient[e])
+    return out
+
+
+@kernel
+def darcy_conductance_all(gp, w, mobility):
+    n, nb = gp.shape[0], gp.shape[2]
+    out = np.empty((n, nb, nb))
+    for e in range(n):
+        out[e] = darcy_conductance(gp[e], w[e], mobility[e])
+    return out
+
+
+@kernel
+def pore_storage_all(Np, w, inverse_biot_modulus):
+    n, nb = Np.shape[0], Np.shape[2]
+    out = np.empty((n, nb, nb))
+    for e in range(n):
+        out[e] = pore_storage(Np[e], w[e], inverse_biot_modulus[e])
+    return out

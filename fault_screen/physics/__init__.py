@@ -16,6 +16,7 @@ Which file holds which equation (Schwartzkopff et al. 2020):
 ``contact.py``                 Eq. 17-27, 32: penalty contact, Coulomb or rate(-and-state)
                                friction, dilation
 ``injection.py``               Eq. 10 (source), Eq. 29 (NoF): rate or pressure control
+``leak_off_mesh.py``           leak-off resolved across the fault: mesh graded normal to it
 =============================  =================================================================
 """
 from __future__ import annotations
@@ -28,6 +29,7 @@ from .fault_flow import (ConstantApertureConduction, EvolvingApertureConduction,
                          FaultStorage, OpeningStorage)
 from .in_situ import GravityInSituState, InSituState
 from .injection import PressureInjection, RateInjection
+from .leak_off_mesh import LeakOffGrading
 from .rock import BiotCoupling, DamageZone, DarcyRock, Elasticity, LeakOff
 
 __all__ = ["Physics", "Term", "ConstantMatrices", "terms_for", "BLOCK_ORDER"]
@@ -62,6 +64,13 @@ class Physics:
     def injection(self):
         return self.find(RateInjection) or self.find(PressureInjection)
 
+    def refine_mesh(self, scene, mesh):
+        """The scene's mesh as the terms need it (e.g. graded across the fault)."""
+        zones = self.zones(scene) + tuple(scene.zones)
+        for t in self.terms:
+            mesh = t.refine_mesh(scene, mesh, zones)
+        return mesh
+
     def names(self) -> list[str]:
         return [type(t).__name__ for t in self.terms]
 
@@ -81,6 +90,7 @@ def terms_for(scene) -> Physics:
     if ef.fault:
         if ef.leak_off:
             terms.append(LeakOff())
+            terms.append(LeakOffGrading(scene, mechanics=ef.mechanics))
         line = not ef.leak_off  # the fault's own pressure line, else the rock pressure's trace
         if ef.fault_flow:
             terms.append(FaultStorage(scene, line))

@@ -43,6 +43,10 @@ class Term:
         """Material zones this term adds to the scene's own (``scene.Zone`` objects)."""
         return ()
 
+    def refine_mesh(self, scene, mesh, zones):
+        """The mesh the term needs, given the scene's (``zones``: every material zone)."""
+        return mesh
+
     def assemble_bulk(self, disc, group, out: ConstantMatrices) -> None:
         """Add the term's constant matrices over one element group (``disc.element_groups``)."""
 
@@ -61,6 +65,16 @@ class Term:
     def previous_step(self, disc, x_n, time_weight, residual) -> None:
         """Known part at the start of the step of a time-weighted nonlinear term."""
 
+    def check(self, disc) -> None:
+        """Refuse (SceneError) a discretised scene this term cannot start from."""
+
+    def stored_volume_weights(self, disc) -> np.ndarray | None:
+        """Weights w (n_dofs,) with stored volume = w . x (m^3 per m of thickness), for a term
+        whose stored fluid is linear in the unknowns (every store today): the recorder forms
+        them once instead of integrating the fields every step. None: not linear."""
+        return None
+
     def stored_volume(self, disc, x) -> float:
         """Fluid volume (m^3 per m of thickness) this term stores since the in-situ state."""
-        return 0.0
+        w = self.stored_volume_weights(disc)
+        return 0.0 if w is None else float(w @ x)

@@ -80,6 +80,18 @@ class RateStateFriction(FrictionLaw):
         self.params[kc.STATE_B] = f.state_parameter if state_evolution else 0.0
 
 
+def failure_state(disc, mu0: float) -> dict:
+    """The in-situ state of the fault at the injection point (SI; stresses compression +):
+    total normal stress, pore pressure, effective normal stress, shear stress, mu0, and the
+    overpressure that brings it to failure, (mu0 sigma'_n0 - |tau0|) / mu0."""
+    g = disc.injection.nearest_point
+    alpha = disc.el_alpha[disc.cut_elements[disc.fault.gp_element[g]]]
+    sigma_n0, tau0, p0 = disc.in_situ.fault_tractions(disc, disc.injection.xy[None, :], np.array([alpha]))
+    sn, tau, p = float(sigma_n0[0]), float(tau0[0]), float(p0[0])
+    return {"total_normal_stress": sn + p, "pore_pressure": p, "effective_normal_stress": sn,
+            "shear_stress": tau, "friction": mu0, "overpressure_to_failure": (mu0 * sn - abs(tau)) / mu0}
+
+
 class Contact(Term):
     """Penalty contact on the Heaviside DOFs (Eq. 19-27): the change of contact traction from
     the in-situ state, int N^T [(tau - tau0) t - (sigma_n - sigma_n0) n] ds, N per m; the walls
@@ -99,6 +111,37 @@ class Contact(Term):
 
     def nonlinear_dofs(self, disc):
         return np.arange(disc.blocks.a.start, disc.blocks.a.stop)
+
+    def check(self, disc):
+        """A fault that the in-situ state puts beyond failure at t = 0 cannot start from rest."""
+        fp = disc.fault_points
+        mu0 = self.law.params[kc.MU0]
+        if not len(fp.s):
+            return
+        # beyond failure: shear above the strength by more than round-off (a stress-free fault,
+        # 0 <= 0, is at rest; a fault in tension is not)
+        excess = np.abs(fp.tau0) - mu0 * fp.sigma_n0
+        scale = np.maximum(np.abs(fp.tau0), np.abs(fp.sigma_n0))
+        beyond = excess > 1e-12 * scale
+        if not beyond.any():
+            return
+        worst = int(np.argmax(np.where(beyond, excess / np.maximum(scale, 1.0), -np.inf)))
+        from ..scene import SceneError
+
+        st = failure_state(disc, mu0)
+        if st["overpressure_to_failure"] < 0:
+            where = "at the injection point"
+            tau, sn = abs(st["shear_stress"]), st["effective_normal_stress"]
+        else:
+            where = f"at s = {fp.s[worst]:.4g} m along the fault"
+            tau, sn = abs(fp.tau0[worst]), fp.sigma_n0[worst]
+        ratio = f"{tau / sn:.3g}" if sn > 0 else "inf (no effective normal stress)"
+        raise SceneError(
+            f"the in-situ state puts the fault beyond failure at t = 0 {where}: |tau0| = "
+            f"{tau / 1e6:.4g} MPa, sigma'_n0 = {sn / 1e6:.4g} MPa, |tau0| / sigma'_n0 = {ratio} > "
+            f"mu0 = {mu0:g} (initial.stress_kind = {disc.in_situ.stress_kind!r}); check the kind of "
+            f"stress the numbers are (total stresses minus the pore pressure give the fault's "
+            f"effective stress) and the values")
 
     def residual(self, disc, x, history, dt, time_weight, residual, point):
         fp = disc.fault_points

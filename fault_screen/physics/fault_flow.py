@@ -35,8 +35,12 @@ class FaultStorage(Term):
                        for g in range(len(fp.s))])
         out.C.add(Sf, fp.p_dofs, fp.p_dofs)
 
-    def stored_volume(self, disc, x):
-        return float(np.sum(disc.fault_points.weight * self.storativity * disc.fault_overpressure(x)))
+    def stored_volume_weights(self, disc):
+        fp = disc.fault_points
+        w = np.zeros(disc.n_dofs)
+        ok = fp.p_dofs >= 0
+        np.add.at(w, fp.p_dofs[ok], ((fp.weight * self.storativity)[:, None] * fp.Np)[ok])
+        return w
 
 
 class OpeningStorage(Term):
@@ -47,9 +51,17 @@ class OpeningStorage(Term):
     def assemble(self, disc, out):
         out.C.add(_opening_coupling(disc), disc.fault_points.p_dofs, disc.fault_points.jump_dofs)
 
-    def stored_volume(self, disc, x):
-        _, opening = disc.fault_jump(x)
-        return float(np.sum(disc.fault_points.weight * opening))
+    def stored_volume_weights(self, disc):
+        fp = disc.fault_points
+        n = disc.fault.normal
+        # opening = sum_i N_i (a_ix n_x + a_iy n_y) at each point (kernels.contact.fault_jumps)
+        local = np.empty(fp.jump_dofs.shape)
+        local[:, 0::2] = (fp.weight[:, None] * fp.N) * n[0]
+        local[:, 1::2] = (fp.weight[:, None] * fp.N) * n[1]
+        w = np.zeros(disc.n_dofs)
+        ok = fp.jump_dofs >= 0
+        np.add.at(w, fp.jump_dofs[ok], local[ok])
+        return w
 
 
 class FaultPressureOnWalls(Term):

@@ -13,19 +13,34 @@ from ..scene import EDGES, SceneError
 from .base import Term
 
 
+#: pore-pressure coefficient k of each stress kind: total stress sigma = given - k p0 I
+def _kind_coefficient(kind: str, alpha: float) -> float:
+    return {"total": 0.0, "biot_effective": alpha, "fault_effective": 1.0}[kind]
+
+
 class InSituState(Term):
-    """Uniform in-situ effective stress and pore pressure (no gravity)."""
+    """Uniform in-situ stress and pore pressure (no gravity).
+
+    The scene's stress is total, Biot-effective or fault-effective (``initial.stress_kind``);
+    it is held here as the rock's Biot-effective stress sigma' = sigma + alpha p0 (intact rock's
+    alpha), so the fault starts at sigma'_n0 = -sigma_nn - p0 whatever the kind."""
 
     def __init__(self, scene):
         self.initial = scene.initial
+        given, kind = scene.initial.stress_and_kind
+        alpha = scene.rock.biot_coefficient
+        self.stress_kind = kind
+        # Biot-effective at the reference point: given + (alpha - k) p0 on the normal components
+        shift = (alpha - _kind_coefficient(kind, alpha)) * scene.initial.pore_pressure
+        self.effective_stress = np.array(given, dtype=float) + np.array([shift, shift, 0.0])
 
     body_force = np.zeros(2)
     """Body force density rho g (N/m^3); zero without gravity."""
 
     def state(self, disc, xy: np.ndarray):
-        """In-situ effective stress (n, 3: sxx', syy', sxy', Pa, tension +) and pore pressure
-        (n,) at points ``xy``."""
-        sig = np.broadcast_to(np.array(self.initial.effective_stress, dtype=float), (len(xy), 3)).copy()
+        """In-situ Biot-effective stress (n, 3: sxx', syy', sxy', Pa, tension +) and pore
+        pressure (n,) at points ``xy``."""
+        sig = np.broadcast_to(self.effective_stress, (len(xy), 3)).copy()
         return sig, np.full(len(xy), self.initial.pore_pressure)
 
     def fault_tractions(self, disc, xy, alpha):
@@ -86,6 +101,10 @@ class InSituState(Term):
         keep[disc.blocks.a.start + 2 * h] = keep[disc.blocks.a.start + 2 * h + 1] = True
         keep &= ~disc.fixed
         return float(np.linalg.norm(r[keep])), float(np.linalg.norm(scale[keep]))
+
+    def check(self, disc):
+        if disc.has("u"):
+            self.check_equilibrium(disc)
 
     def check_equilibrium(self, disc, rtol: float = 1e-8):
         """Refuse a scene whose in-situ state is not in equilibrium (the solution is written in

@@ -13,21 +13,10 @@ from ..scene import Zone
 from .base import Term
 
 
-def per_element(fn, *args):
-    """Call a kernel element by element; every argument is per element."""
-    n = args[0].shape[0]
-    if n == 0:
-        return np.zeros((0, 1, 1))
-    first = fn(*[a[0] for a in args])
-    out = np.empty((n,) + first.shape)
-    out[0] = first
-    for e in range(1, n):
-        out[e] = fn(*[a[e] for a in args])
-    return out
-
-
-def _gather(x, dofs):
-    return np.where(dofs >= 0, x[np.maximum(dofs, 0)], 0.0)
+def _scatter(w, dofs, local):
+    """w[dofs] += local over the entries with an unknown (dofs >= 0), duplicates summed."""
+    ok = dofs >= 0
+    np.add.at(w, dofs[ok], local[ok])
 
 
 class Elasticity(Term):
@@ -36,7 +25,7 @@ class Elasticity(Term):
     blocks = ("u",)
 
     def assemble_bulk(self, disc, g, out):
-        out.A.add(per_element(rock.elastic_stiffness, g.grad_u, g.w, disc.el_D[g.elements]), g.umap, g.umap)
+        out.A.add(rock.elastic_stiffness_all(g.grad_u, g.w, disc.el_D[g.elements]), g.umap, g.umap)
 
 
 class BiotCoupling(Term):
@@ -47,19 +36,19 @@ class BiotCoupling(Term):
     fluid_store = "rock"
 
     def assemble_bulk(self, disc, g, out):
-        Q = per_element(rock.biot_coupling, g.grad_u, g.Np, g.w, disc.el_alpha[g.elements])
+        Q = rock.biot_coupling_all(g.grad_u, g.Np, g.w, disc.el_alpha[g.elements])
         out.A.add(Q, g.umap, g.pmap, scale=-1.0)
         out.C.add(np.transpose(Q, (0, 2, 1)), g.pmap, g.umap)
 
-    def stored_volume(self, disc, x):
-        vol = 0.0
+    def stored_volume_weights(self, disc):
+        w = np.zeros(disc.n_dofs)
         for g in disc.element_groups:
-            u = _gather(x, g.umap)  # (ne, 2 nb)
-            ux, uy = u[:, 0::2], u[:, 1::2]
-            eps_v = (np.einsum("eqb,eb->eq", g.grad_u[..., 0], ux)
-                     + np.einsum("eqb,eb->eq", g.grad_u[..., 1], uy))
-            vol += np.sum(g.w * disc.el_alpha[g.elements][:, None] * eps_v)
-        return float(vol)
+            wa = g.w * disc.el_alpha[g.elements][:, None]  # (ne, nq)
+            local = np.empty(g.umap.shape)
+            local[:, 0::2] = np.einsum("eq,eqb->eb", wa, g.grad_u[..., 0])  # d eps_v / d ux
+            local[:, 1::2] = np.einsum("eq,eqb->eb", wa, g.grad_u[..., 1])
+            _scatter(w, g.umap, local)
+        return w
 
 
 class DarcyRock(Term):
@@ -71,15 +60,15 @@ class DarcyRock(Term):
 
     def assemble_bulk(self, disc, g, out):
         els = g.elements
-        out.C.add(per_element(rock.pore_storage, g.Np, g.w, disc.el_inv_M[els]), g.pmap, g.pmap)
-        out.Hf.add(per_element(rock.darcy_conductance, g.grad_p, g.w, disc.el_mobility[els]), g.pmap, g.pmap)
+        out.C.add(rock.pore_storage_all(g.Np, g.w, disc.el_inv_M[els]), g.pmap, g.pmap)
+        out.Hf.add(rock.darcy_conductance_all(g.grad_p, g.w, disc.el_mobility[els]), g.pmap, g.pmap)
 
-    def stored_volume(self, disc, x):
-        vol = 0.0
+    def stored_volume_weights(self, disc):
+        w = np.zeros(disc.n_dofs)
         for g in disc.element_groups:
-            pq = np.einsum("eqb,eb->eq", g.Np, _gather(x, g.pmap))
-            vol += np.sum(g.w * disc.el_inv_M[g.elements][:, None] * pq)
-        return float(vol)
+            wm = g.w * disc.el_inv_M[g.elements][:, None]
+            _scatter(w, g.pmap, np.einsum("eq,eqb->eb", wm, g.Np))
+        return w
 
 
 class LeakOff(Term):
@@ -95,10 +84,7 @@ class DamageZone(Term):
 
     def __init__(self, scene):
         dz = scene.damage_zone
-        over = {k: v for k, v in (("youngs_modulus", dz.youngs_modulus),
-                                  ("poissons_ratio", dz.poissons_ratio),
-                                  ("permeability", dz.permeability)) if v is not None}
-        self.zone = Zone(name="damage zone", band=dz.width, rock=over)
+        self.zone = Zone(name="damage zone", band=dz.width, rock=dz.rock_overrides())
 
     def zones(self, scene):
         return (self.zone,)

@@ -68,7 +68,9 @@ def _stored_events(result):
     ev = (getattr(result, "extra", None) or {}).get("events")
     if not ev or "time" not in ev:
         return None
-    return Events(ev["time"], ev["magnitude"], ev.get("distance"))
+    # the results' /events group names it distance_to_injection (outputs.SCHEMA)
+    distance = ev.get("distance_to_injection", ev.get("distance"))
+    return Events(ev["time"], ev["magnitude"], distance)
 
 
 def screen_result(result, spec=None, events=None, *, store: bool = True) -> Screening:

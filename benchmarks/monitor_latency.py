@@ -1,0 +1,130 @@
+"""Latency of the live monitor: from a log line being appended to the alert being handed to the
+alert hook.
+
+    python benchmarks/monitor_latency.py [--lines 300] [--rate 1] [--poll 0.5]
+
+A writer thread appends the bundled Rustrel stand-in log, resampled to one sample per second of
+log time, at --rate lines per second of wall time (1 = real time) to a file that the monitor
+service (csv source, real stepper, scene configs/rustrel-2015-calibrated.toml) follows.  So that
+every step raises an alert, the screener of this benchmark toggles green/yellow at each step
+(the real rules raise few alerts); the latency of a step is the wall time from the append of the
+line that completed it (the first sample at or after the step's end) to its alert reaching the
+hook.  Prints the median and 99th percentile with the poll interval and the mean wall time of a
+step.  Goal: median well under one step's wall time plus the poll interval.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(1, str(ROOT / "plugins"))
+
+from fault_screen import Scene  # noqa: E402
+from fault_screen.io.injection_log import read_injection_log  # noqa: E402
+from fault_screen.monitor.service import MonitorConfig, MonitorService  # noqa: E402
+
+
+class Toggle:
+    """A screener whose level flips at every step (one alert per step)."""
+
+    def __init__(self):
+        self.level = 0
+
+    def update(self, time_, metrics, events=()):
+        new = 1 - self.level
+        tr = {"time": time_, "previous": self.level, "level": new, "rule": "benchmark toggle",
+              "action": ""}
+        self.level = new
+        return [tr]
+
+
+class Hook:
+    """Alert sink recording when each alert arrives."""
+
+    def __init__(self):
+        self.arrived = {}
+
+    def deliver(self, alert):
+        self.arrived[alert["model_time"]] = time.perf_counter()
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--lines", type=int, default=300, help="log lines to append [300]")
+    ap.add_argument("--rate", type=float, default=1.0, help="lines per second of wall time [1]")
+    ap.add_argument("--poll", type=float, default=0.5, help="poll interval, s [0.5]")
+    ap.add_argument("--simulation", default=None,
+                    help="MODULE:CLASS of the stepper [fault_screen.Simulation]")
+    a = ap.parse_args(argv)
+    logging.getLogger("fault_screen").setLevel(logging.ERROR)   # one alert per step: quiet
+
+    scene = Scene.from_toml(ROOT / "configs" / "rustrel-2015-calibrated.toml")
+    log = read_injection_log(ROOT / "configs" / "logs" / "rustrel-2015-standin.csv")
+    t = np.arange(0.0, min(log.duration, a.lines - 1) + 0.5, 1.0)
+    q = log.rate_at(t)
+    sim_class = None
+    if a.simulation:
+        mod, _, name = a.simulation.partition(":")
+        sim_class = getattr(importlib.import_module(mod), name)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "live.csv"
+        path.write_text("elapsed[s],flow_rate[m3/s]\n")
+        cfg = MonitorConfig(follow=str(path), idle_exit=max(3.0, 5 * a.poll + 2.0 / a.rate),
+                            poll_interval=a.poll, outbox=Path(tmp) / "box.sqlite",
+                            checkpoint_every=10**9)
+        hook = Hook()
+        service = MonitorService(scene, cfg, sinks={"bench": hook}, simulation_class=sim_class,
+                                 screener=Toggle(), metrics=lambda row, sc: {})
+        sim = service.stage.sim
+        advance, steps_wall = sim.advance, []
+
+        def timed_advance(*args, **kw):
+            w0 = time.perf_counter()
+            n = advance(*args, **kw)
+            if n:
+                steps_wall.append((time.perf_counter() - w0) / n)
+            return n
+        sim.advance = timed_advance
+        appended = np.zeros(t.size)
+
+        def writer():
+            t0 = time.perf_counter()
+            with open(path, "a") as fh:
+                for k in range(t.size):
+                    time.sleep(max(0.0, t0 + k / a.rate - time.perf_counter()))
+                    fh.write(f"{float(t[k])!r},{float(q[k])!r}\n")
+                    fh.flush()
+                    appended[k] = time.perf_counter()
+
+        th = threading.Thread(target=writer)
+        th.start()
+        service.run()
+        th.join()
+    lat = []
+    for t_step, arrived in hook.arrived.items():
+        k = int(np.searchsorted(t, t_step - 1e-9))   # the sample that completed the step
+        # the final partial step is taken only at the idle exit: not a following latency
+        if 0 < k < t.size - 1:
+            lat.append(arrived - appended[k])
+    lat = np.array(lat[1:])        # the first step includes start-up
+    steps = np.array(steps_wall)
+    print(f"{lat.size} alerts from {t.size} lines at {a.rate:g} line/s, poll {a.poll:g} s")
+    print(f"latency line appended -> alert handed to the hook: median {np.median(lat) * 1e3:.1f} ms, "
+          f"p99 {np.percentile(lat, 99) * 1e3:.1f} ms, max {lat.max() * 1e3:.1f} ms")
+    if steps.size:
+        print(f"wall time of a model step: median {np.median(steps) * 1e3:.2f} ms "
+              f"({steps.size} calls)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,208 @@
+"""The performance table of issue 15, measured in one run on this machine.
+
+    python benchmarks/performance.py                 # every row (several minutes on 2 cores)
+    python benchmarks/performance.py --skip fine tests refined   # leave out the longest rows
+
+Every case runs in its own process (peak memory is that process's max RSS). "now" is the figure
+the issue measured before the work on it; "measured" is this run. The machine's load (1-minute
+load average) is printed before and after: on a shared machine every wall time grows with it,
+so compare rows of one run, and rerun when the load was high.
+
+Rows (keys for --skip in brackets):
+- [replay] the calibrated Rustrel scene (280 steps of 5 s), warm: a new process with numba's
+  cache in place, Simulation built, run and its Result made; median wall per step from the
+  stepper's progress callback; peak memory of that process.
+- [cold] the first `fault-screen run` (bundled scene, result written) in a new process with an
+  empty numba cache (JIT compilation included), then the second one with that cache.
+- [busy] the warm replay again while two CPU-bound processes run (3 processes on 2 cores), with
+  the default BLAS threading (no OPENBLAS_NUM_THREADS set).
+- [slip] each fluid-driven-slip verification scene at bundled resolution, warm, and its slip
+  error against the reference (relative L2 at the end, as tests/test_verification_*.py).
+- [refined] Rustrel on a 200 x 201 mesh (4x refinement), whole run.
+- [fine] the 30 deg T = 0.7 scene at half its element size, whole run.
+- [tests] `python -m pytest -q` (the README's test command), wall time.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+RUSTREL = ROOT / "configs" / "rustrel-2015-calibrated.toml"
+SLIP_SCENES = ["fluid-driven-slip-T0.4-horizontal", "fluid-driven-slip-T0.4-dip30",
+               "fluid-driven-slip-T0.7-horizontal", "fluid-driven-slip-T0.7-dip30"]
+#: a case that runs longer than this is stopped and reported as such (s)
+CASE_TIMEOUT = 600
+
+
+# ------------------------------------------------------------------ cases (in a child process)
+def _scene(case: str):
+    from fault_screen import Scene
+
+    if case == "rustrel":
+        return Scene.from_toml(RUSTREL)
+    if case == "rustrel-200x201":
+        s = Scene.from_toml(RUSTREL)
+        return s.replace(mesh=replace(s.mesh, nx=200, ny=201))
+    if case == "fine-T0.7-dip30":
+        from verification_cost import scaled_scene
+
+        return scaled_scene("fluid-driven-slip-T0.7-dip30", 0.5)
+    return Scene.from_toml(ROOT / "configs" / "verification" / f"{case}.toml")
+
+
+def run_case(case: str) -> dict:
+    import numpy as np
+
+    from fault_screen import Simulation
+
+    scene = _scene(case)
+    walls = []
+    t0 = time.perf_counter()
+    sim = Simulation(scene)
+    sim.advance(scene.time.end, progress=lambda step, t, end, wall: walls.append(time.perf_counter()))
+    result = sim.result()
+    total = time.perf_counter() - t0
+    out = dict(case=case, wall=total, dofs=sim.disc.n_dofs, steps=len(result.time) - 1,
+               newton=int(result.solver["iterations"].sum()),
+               step_ms=1e3 * float(np.median(np.diff(walls))) if len(walls) > 1 else float("nan"),
+               peak_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
+    if case.startswith("fluid-driven-slip") or case == "fine-T0.7-dip30":
+        from verification_cost import error_against_reference
+
+        name = "fluid-driven-slip-T0.7-dip30" if case == "fine-T0.7-dip30" else case
+        out["error"] = error_against_reference(name, scene, result, sim.disc, [])[1]
+    return out
+
+
+def child(case: str, env=None, timeout=CASE_TIMEOUT) -> dict:
+    try:
+        out = subprocess.run([sys.executable, __file__, "--case", case], capture_output=True,
+                             text=True, cwd=ROOT, env=env, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return dict(case=case, timeout=timeout)
+    if out.returncode != 0:
+        raise RuntimeError(f"{case}: {out.stderr.strip()[-2000:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def cli_run(env) -> tuple[float, float]:
+    """Wall time (s) and peak memory (MB) of `fault-screen run` of the bundled scene."""
+    with tempfile.TemporaryDirectory() as tmp:
+        code = ("import atexit, resource, sys; atexit.register(lambda: print('MAXRSS', resource.getrusage("
+                "resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)); from fault_screen.cli import main; "
+                "sys.argv[0] = 'fault-screen'; main()")
+        t0 = time.perf_counter()
+        out = subprocess.run([sys.executable, "-c", code, "run", "--out", str(Path(tmp) / "r.h5"), "--quiet"],
+                             capture_output=True, text=True, cwd=tmp, env=env, timeout=CASE_TIMEOUT)
+        wall = time.perf_counter() - t0
+    if out.returncode != 0:
+        raise RuntimeError(out.stderr)
+    rss = [line.split()[1] for line in out.stderr.splitlines() if line.startswith("MAXRSS")]
+    return wall, float(rss[-1]) / 1024.0
+
+
+def _env(**extra):
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    env.update(extra)
+    return env
+
+
+# ------------------------------------------------------------------ table
+def _s(seconds):
+    return f"{seconds:.2f} s"
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--skip", nargs="*", default=[],
+                    choices=["replay", "cold", "busy", "slip", "refined", "fine", "tests"])
+    ap.add_argument("--case", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.case:
+        print(json.dumps(run_case(args.case)))
+        return
+    rows = []
+
+    def row(what, now, target, measured):
+        rows.append((what, now, target, measured))
+        print(f"  {what}: {measured}", file=sys.stderr, flush=True)
+
+    load0 = os.getloadavg()[0]
+    started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    env = _env()
+    child("rustrel", env)  # numba's cache in place for the warm rows
+    if "replay" not in args.skip:
+        r = min((child("rustrel", env) for _ in range(3)), key=lambda r: r["wall"])
+        row("calibrated Rustrel replay, warm, 1 process", "2.9 s", "<= 1.0 s",
+            f"{_s(r['wall'])} ({r['dofs']} unknowns, {r['steps']} steps, {r['newton']} Newton)")
+        row("median wall per step, Rustrel", "~10 ms", "<= 3 ms", f"{r['step_ms']:.1f} ms")
+        row("peak memory of the process, Rustrel (compilation included)", "264 MB", "<= 300 MB",
+            f"{r['peak_mb']:.0f} MB warm")
+        isolated = r["wall"]
+    if "cold" not in args.skip:
+        with tempfile.TemporaryDirectory() as cache:
+            cold, cold_mb = cli_run(_env(NUMBA_CACHE_DIR=cache))
+            second, _ = cli_run(_env(NUMBA_CACHE_DIR=cache))
+        row("cold: first `fault-screen run` in a fresh process (JIT included)", "~10 s",
+            "<= 10 s; <= 3 s from the second process on", f"{_s(cold)}; second process {_s(second)}")
+        if "replay" not in args.skip:
+            rows[2] = rows[2][:3] + (f"{cold_mb:.0f} MB cold (`fault-screen run`); {r['peak_mb']:.0f} MB warm",)
+    if "busy" not in args.skip and "replay" not in args.skip:
+        hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
+        try:
+            time.sleep(0.5)
+            b = child("rustrel", env)
+        finally:
+            for h in hogs:
+                h.kill()
+                h.wait()
+        row("Rustrel warm with 2 competing CPU-bound processes (default BLAS threads)", "8.6-41 s",
+            "<= 2.5x the isolated time", f"{_s(b['wall'])} = {b['wall'] / isolated:.1f}x isolated")
+    if "slip" not in args.skip:
+        for name in SLIP_SCENES:
+            s = child(name, env)
+            short = name.replace("fluid-driven-slip-", "")
+            if "timeout" in s:
+                row(f"fluid-driven slip {short}, bundled resolution", "7-45 s", "<= 5 s, same accuracy",
+                    f"> {s['timeout']} s (stopped)")
+                continue
+            row(f"fluid-driven slip {short}, bundled resolution", "7-45 s", "<= 5 s, same accuracy",
+                f"{_s(s['wall'])}, slip L2 error {100 * s['error']:.2f} % ({s['dofs']} unknowns)")
+    if "refined" not in args.skip:
+        s = child("rustrel-200x201", env)
+        row("Rustrel at 4x refinement (200 x 201)", "-", "<= 20 s, <= 1 GB",
+            f"> {s['timeout']} s (stopped)" if "timeout" in s else
+            f"{_s(s['wall'])}, {s['peak_mb']:.0f} MB ({s['dofs']} unknowns)")
+    if "fine" not in args.skip:
+        s = child("fine-T0.7-dip30", env)
+        row("fine inclined fault (30 deg T = 0.7, half element size)", "151 s, 1.4 GB", "<= 30 s, <= 500 MB",
+            f"> {s['timeout']} s (stopped)" if "timeout" in s else
+            f"{_s(s['wall'])}, {s['peak_mb']:.0f} MB ({s['dofs']} unknowns), slip L2 error {100 * s['error']:.2f} %")
+    if "tests" not in args.skip:
+        t0 = time.perf_counter()
+        out = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider"],
+                             capture_output=True, text=True, cwd=ROOT, env=env)
+        wall = time.perf_counter() - t0
+        tail = out.stdout.strip().splitlines()[-1] if out.stdout.strip() else "no output"
+        row("`python -m pytest -q` on 2 cores", "13.5 min", "<= 3 min", f"{wall / 60:.1f} min ({tail.strip('= ')})")
+    print(f"Measured {started} on {os.cpu_count()} cores; load average {load0:.1f} at the start, "
+          f"{os.getloadavg()[0]:.1f} at the end\n")
+    print("| what | now | target | measured |\n|---|---|---|---|")
+    for what, now, target, measured in rows:
+        print(f"| {what} | {now} | {target} | {measured} |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,385 @@
+"""What accuracy costs: a ladder of discretisations (and effects switched off) of one scene, each
+rung's cost and the error of the quantities an operator screens on.
+
+Rungs: element size near the fault x2, x1, x1/2, ... (``levels`` of them; the graded mesh's
+fine size, or nx and ny), time step x2, x1, x1/2, ... (dt and dt_max), and the scene with each
+switchable effect off in turn (where the rest is a valid scene). The reference of a ladder is
+the exact solution when the scene is one whose solution is known in closed form (see
+``exact_family``), otherwise Richardson extrapolation from its three finest rungs with the
+observed order of convergence. Effect rungs are compared with the full scene.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .ensemble import Runner, Variant, default_summary
+from .scene import Scene, SceneError
+
+#: screened quantities (default_summary keys) and what they are
+QUANTITIES = {
+    "peak_overpressure": "peak injection overpressure (Pa)",
+    "injection_slip": "slip at the injection point at the end (m)",
+    "slipping_length": "length of fault slipping at the end (m)",
+    "peak_slip_rate": "peak slip rate on the fault (m/s)",
+    "max_utilisation": "peak |tau| / (mu0 sigma_n') on the fault, from the screening layer (-)",
+    "time_first_yellow": "time the traffic light first turns yellow (s; empty if never)",
+    "time_first_red": "time the traffic light first turns red (s; empty if never)",
+}
+#: quantities of the exact family (along-fault diffusion)
+EXACT_QUANTITIES = {
+    "fault_overpressure_l2": "fault overpressure profile at the end, L2 error relative to dp",
+    "injection_flow_rate": "injection flow rate at the end (m^3/s)",
+}
+SWITCHABLE = ("fault_flow", "leak_off", "rate_friction", "state_evolution", "dilation",
+              "aperture_evolution", "gravity", "damage_zone", "poroelastic")
+
+
+# ---- the exact family ------------------------------------------------------------------------------
+def exact_family(scene: Scene) -> str | None:
+    """'fault_diffusion' when the scene is along-fault diffusion with a closed-form solution:
+    rigid impermeable rock (mechanics, poroelastic and leak-off off), a constant overpressure
+    held at the injection point from t = 0, constant aperture and a given fault storativity,
+    an infinite fault in practice (the front sqrt(4 alpha t_end) well inside the domain).
+    Then p = dp erfc(|x| / sqrt(4 alpha t)) and the injected rate is 2 T dp / sqrt(pi alpha t)
+    (T the fault transmissivity, alpha = T / S). None otherwise."""
+    e, inj, f = scene.effects, scene.injection, scene.fault
+    if (e.mechanics or e.poroelastic or e.leak_off or not e.fault_flow or e.aperture_evolution
+            or inj.control != "pressure" or len(inj.schedule) != 1 or inj.schedule[0][0] != 0.0
+            or f.storativity is None or f.storativity <= 0 or inj.log is not None):
+        return None
+    alpha = _diffusivity(scene)
+    front = math.sqrt(4 * alpha * scene.time.end)
+    half = 0.5 * (scene.mesh.lx if f.angle % 180 == 0 else min(scene.mesh.lx, scene.mesh.ly))
+    return "fault_diffusion" if 3 * front < half else None
+
+
+def _diffusivity(scene):
+    f = scene.fault
+    transmissivity = f.hydraulic_aperture ** 3 / (12 * scene.fluid.viscosity * f.kappa)
+    return transmissivity / f.storativity
+
+
+def exact_summary(result) -> dict:
+    """The exact family's quantities: relative L2 error of the end profile (computed here, where
+    the profile is) and the end injection rate (compared with the exact rate later)."""
+    from scipy.special import erfc
+
+    scene = result.scene
+    dp = scene.injection.schedule[0][1]
+    t = result.time[-1]
+    alpha = _diffusivity(scene)
+    exact = dp * erfc(np.abs(result.fault_x) / math.sqrt(4 * alpha * t))
+    w = result.fault_weights
+    err = math.sqrt(np.sum(w * (result.fault["overpressure"][-1] - exact) ** 2) / np.sum(w * dp ** 2))
+    return {"fault_overpressure_l2": err, "injection_flow_rate": float(result.injection["flow_rate"][-1])}
+
+
+def exact_values(scene: Scene) -> dict:
+    """Exact reference of each exact-family quantity (the L2 error's reference is 0 error)."""
+    f = scene.fault
+    transmissivity = f.hydraulic_aperture ** 3 / (12 * scene.fluid.viscosity * f.kappa)
+    alpha = _diffusivity(scene)
+    dp = scene.injection.schedule[0][1]
+    rate = 2 * transmissivity * dp / math.sqrt(math.pi * alpha * scene.time.end)
+    return {"injection_flow_rate": rate * scene.injection.number_of_fractures}
+
+
+def rung_summary(result) -> dict:
+    out = default_summary(result)
+    out["element_size"] = _element_size(result.scene)
+    if exact_family(result.scene):
+        out.update(exact_summary(result))
+    return out
+
+
+def _element_size(scene) -> float:
+    """Element size along the fault (m): the graded mesh's fine size, or the uniform spacing
+    in the direction closest to the fault's."""
+    m = scene.mesh
+    if m.refinement is not None:
+        return m.refinement.size
+    a = math.radians(scene.fault.angle)
+    return m.lx / m.nx if abs(math.cos(a)) >= abs(math.sin(a)) else m.ly / m.ny
+
+
+# ---- the ladder --------------------------------------------------------------------------------------
+@dataclass
+class Rung:
+    name: str
+    kind: str
+    """'space', 'time' or 'effect' (the base scene is the x1 rung of both ladders)."""
+    overrides: dict
+    factor: float = 1.0
+    effect_off: str = ""
+
+
+def _same_parity(x: float, n: int) -> int:
+    """Nearest integer to x >= 1 with the parity of n (keeps the fault in the middle of an
+    element row and the injection point on an element edge, as the scene placed them)."""
+    lo = max(1, int(math.floor(x)))
+    cands = [k for k in (lo - 1, lo, lo + 1, lo + 2) if k >= 1 and k % 2 == n % 2]
+    return min(cands, key=lambda k: (abs(k - x), -k))
+
+
+def ladder(scene: Scene, levels: int = 3, effects: bool = True,
+           kinds=("space", "time")) -> tuple[list, list]:
+    """(rungs, skipped): factors 2, 1, 1/2, ... (``levels`` of them) on the element size and on
+    the time step, and each effect that is on turned off in turn. ``skipped`` lists (effect,
+    reason) for effects whose removal leaves an invalid scene."""
+    if levels < 2:
+        raise ValueError(f"levels = {levels}: need at least 2 rungs per ladder")
+    factors = [2.0 ** (1 - k) for k in range(levels)]
+    rungs = [Rung("base", "space", {}, 1.0)]
+    m, t = scene.mesh, scene.time
+    for f in factors if "space" in kinds else ():
+        if f == 1.0:
+            continue
+        if m.refinement is not None:
+            over = {"mesh.refinement.size": m.refinement.size * f}
+        else:
+            over = {"mesh.nx": _same_parity(m.nx / f, m.nx), "mesh.ny": _same_parity(m.ny / f, m.ny)}
+        rungs.append(Rung(f"h x{_fmt(f)}", "space", over, f))
+    for f in factors if "time" in kinds else ():
+        if f == 1.0:
+            continue
+        over = {"time.dt": min(t.dt * f, t.end)}
+        if t.dt_max is not None:
+            over["time.dt_max"] = max(t.dt_max * f, over["time.dt"])
+        rungs.append(Rung(f"dt x{_fmt(f)}", "time", over, f))
+    skipped = []
+    if effects:
+        from .ensemble import scene_with
+
+        for name in SWITCHABLE:
+            if not getattr(scene.effects, name):
+                continue
+            over = {f"effects.{name}": False}
+            try:
+                scene_with(scene, over)
+            except SceneError as exc:
+                skipped.append((name, str(exc)))
+                continue
+            rungs.append(Rung(f"no {name}", "effect", over, 1.0, name))
+    return rungs, skipped
+
+
+def _fmt(f):
+    return f"{f:g}" if f >= 1 else f"1/{1 / f:g}"
+
+
+# ---- Richardson extrapolation ------------------------------------------------------------------------
+@dataclass
+class Extrapolation:
+    value: float
+    order: float
+    asymptotic: bool
+    note: str = ""
+
+
+def richardson(h, q) -> Extrapolation:
+    """From three (h, Q) pairs (any ratios): the order p with
+    (Q1 - Q2) / (Q2 - Q3) = (h1^p - h2^p) / (h2^p - h3^p) and the extrapolated Q at h = 0.
+    ``asymptotic`` is False when the differences change sign (oscillating), when they are at
+    round-off, or when p falls outside [0.5, 6]."""
+    h = np.asarray(h, dtype=float)
+    q = np.asarray(q, dtype=float)
+    order = np.argsort(-h)
+    h, q = h[order], q[order]
+    d1, d2 = q[0] - q[1], q[1] - q[2]
+    scale = max(abs(q).max(), 1e-300)
+    if abs(d1) <= 1e-12 * scale and abs(d2) <= 1e-12 * scale:
+        return Extrapolation(float(q[2]), float("nan"), True, "converged to round-off")
+    if d2 == 0 or d1 / d2 <= 0:
+        return Extrapolation(float(q[2]), float("nan"), False, "differences change sign: not asymptotic")
+    ratio = d1 / d2
+
+    def g(p):
+        return (h[0] ** p - h[1] ** p) / (h[1] ** p - h[2] ** p) - ratio
+
+    from scipy.optimize import brentq
+
+    lo, hi = 0.05, 12.0
+    if g(lo) * g(hi) > 0:
+        return Extrapolation(float(q[2]), float("nan"), False, f"no order in [{lo}, {hi}]")
+    p = brentq(g, lo, hi, xtol=1e-10)
+    value = q[2] - d2 * h[2] ** p / (h[1] ** p - h[2] ** p)
+    ok = 0.5 <= p <= 6.0
+    return Extrapolation(float(value), float(p), ok, "" if ok else f"observed order {p:.2f} outside [0.5, 6]")
+
+
+# ---- the study ---------------------------------------------------------------------------------------
+@dataclass
+class Study:
+    rows: list
+    """One dict per rung: rung, kind, element_size, dt, effect_off, wall_s, peak_memory_mb,
+    unknowns, steps, newton_iterations, error_<quantity> (NaN: empty), failed error text."""
+    quantities: list
+    reference: str
+    """'exact (<family>)' or 'richardson'."""
+    orders: dict
+    """(ladder, quantity) -> Extrapolation (Richardson) or observed order from the exact errors."""
+    skipped: list
+    warnings: list = field(default_factory=list)
+
+    def cheapest(self, target: float):
+        """The rung of least wall time whose errors (non-empty) are all <= target, among the
+        space and time rungs; None if none."""
+        ok = [r for r in self.rows if r["kind"] in ("space", "time") and not r.get("failed")
+              and all(not np.isfinite(r[f"error_{q}"]) or r[f"error_{q}"] <= target for q in self.quantities)
+              and any(np.isfinite(r[f"error_{q}"]) for q in self.quantities)]
+        return min(ok, key=lambda r: r["wall_s"]) if ok else None
+
+
+def run_study(scene: Scene, runner: Runner, *, levels: int = 3, quantities=None, effects: bool = True,
+              kinds=("space", "time"), progress=None, out=None) -> Study:
+    family = exact_family(scene)
+    if quantities is None:
+        quantities = list(EXACT_QUANTITIES) if family else list(QUANTITIES)
+    known = set(QUANTITIES) | (set(EXACT_QUANTITIES) if family else set())
+    bad = [q for q in quantities if q not in known]
+    if bad:
+        raise ValueError(f"unknown quantity {bad[0]!r} for this scene; known: {', '.join(sorted(known))}")
+    rungs, skipped = ladder(scene, levels, effects, kinds)
+    outs = runner.run(scene, [Variant(r.name, r.overrides) for r in rungs], summarise=rung_summary,
+                      warm=True, progress=progress, out=out)
+    rows = []
+    for r, o in zip(rungs, outs):
+        row = {"rung": r.name, "kind": r.kind, "factor": r.factor,
+               "element_size": o.summary.get("element_size", float("nan")),
+               "dt": r.overrides.get("time.dt", scene.time.dt), "effect_off": r.effect_off,
+               "wall_s": o.wall_s, "peak_memory_mb": o.peak_memory_mb,
+               "unknowns": o.summary.get("unknowns", 0), "steps": o.summary.get("steps", 0),
+               "newton_iterations": o.summary.get("newton_iterations", 0),
+               "failed": "" if o.ok else o.error, "values": o.summary}
+        rows.append(row)
+    base = rows[0]
+    orders, warnings = {}, []
+    exact = exact_values(scene) if family else {}
+    for ladder_kind in kinds:
+        lad = [base] + [r for r in rows if r["kind"] == ladder_kind and r is not base]
+        lad = [r for r in lad if not r["failed"]]
+        lad.sort(key=lambda r: -r["factor"])
+        x = [r["element_size"] if ladder_kind == "space" else r["dt"] for r in lad]
+        for q in quantities:
+            vals = [r["values"].get(q, float("nan")) for r in lad]
+            if family:
+                if q == "fault_overpressure_l2":
+                    errs = vals  # already an error against the exact profile
+                else:
+                    ref = exact.get(q, float("nan"))
+                    errs = [abs(v - ref) / abs(ref) if ref else float("nan") for v in vals]
+                for r, e in zip(lad, errs):
+                    _set_error(r, q, e)
+                orders[(ladder_kind, q)] = _fitted_order(x[-3:], errs[-3:])
+            else:
+                if len(lad) < 3 or not all(np.isfinite(vals[-3:])):
+                    ref = Extrapolation(float("nan"), float("nan"), False, "fewer than three finite rungs")
+                else:
+                    ref = richardson(x[-3:], vals[-3:])
+                orders[(ladder_kind, q)] = ref
+                if not ref.asymptotic:
+                    warnings.append(f"{ladder_kind} ladder, {q}: {ref.note}; its errors are against "
+                                    f"the finest rung")
+                for r, v in zip(lad, vals):
+                    _set_error(r, q, abs(v - ref.value) / abs(ref.value)
+                               if np.isfinite(ref.value) and ref.value != 0 and np.isfinite(v) else float("nan"))
+    # effect rungs: the change from the full scene
+    for r in rows:
+        if r["kind"] != "effect":
+            continue
+        for q in quantities:
+            v, b = r["values"].get(q, float("nan")), base["values"].get(q, float("nan"))
+            r[f"error_{q}"] = abs(v - b) / abs(b) if np.isfinite(v) and np.isfinite(b) and b != 0 else float("nan")
+    for r in rows:
+        for q in quantities:
+            r.setdefault(f"error_{q}", float("nan"))
+    return Study(rows, list(quantities), f"exact ({family})" if family else "richardson", orders, skipped, warnings)
+
+
+def _set_error(row, q, e):
+    """The base rung sits on both ladders: it keeps the larger of its two errors."""
+    old = row.get(f"error_{q}", float("nan"))
+    row[f"error_{q}"] = e if not np.isfinite(old) else (max(old, e) if np.isfinite(e) else old)
+
+
+def _fitted_order(x, errs):
+    """Observed order from errors against an exact solution: slope of log error on log size."""
+    x, e = np.asarray(x, float), np.asarray(errs, float)
+    good = np.isfinite(e) & (e > 0)
+    if good.sum() < 2:
+        return Extrapolation(float("nan"), float("nan"), False, "fewer than two nonzero errors")
+    p = float(np.polyfit(np.log(x[good]), np.log(e[good]), 1)[0])
+    return Extrapolation(0.0, p, 0.5 <= p <= 6.0, "")
+
+
+CSV_FIXED = ["rung", "kind", "element_size", "dt", "effect_off", "wall_s", "peak_memory_mb", "unknowns",
+             "steps", "newton_iterations"]
+
+
+def write_csv(study: Study, path) -> None:
+    import csv
+
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(CSV_FIXED + [f"error_{q}" for q in study.quantities] + ["failed"])
+        for r in study.rows:
+            cells = [r["rung"], r["kind"], f"{r['element_size']:.6g}", f"{r['dt']:.6g}", r["effect_off"],
+                     f"{r['wall_s']:.4g}", f"{r['peak_memory_mb']:.4g}", r["unknowns"], r["steps"],
+                     r["newton_iterations"]]
+            cells += ["" if not np.isfinite(r[f"error_{q}"]) else f"{r[f'error_{q}']:.4g}" for q in study.quantities]
+            w.writerow(cells + [r["failed"]])
+
+
+def pareto(rows, quantities):
+    """Rungs not dominated in (wall time, largest error): no other rung is as fast and as accurate."""
+    pts = []
+    for r in rows:
+        errs = [r[f"error_{q}"] for q in quantities if np.isfinite(r[f"error_{q}"])]
+        if errs and np.isfinite(r["wall_s"]):
+            pts.append((r["wall_s"], max(errs), r))
+    front = [p for p in pts if not any(o[0] <= p[0] and o[1] <= p[1] and (o[0] < p[0] or o[1] < p[1]) for o in pts)]
+    return sorted(front, key=lambda p: p[0])
+
+
+def plot_study(study: Study, path, title: str = "") -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    disc = [r for r in study.rows if r["kind"] in ("space", "time") and not r["failed"]]
+    for i, q in enumerate(study.quantities):
+        for kind, marker in (("space", "o"), ("time", "s")):
+            # in ladder order (coarse to fine), so the curve shows the refinement path
+            pts = [(r["wall_s"], r[f"error_{q}"]) for r in sorted(disc, key=lambda r: -r["factor"])
+                   if (r["kind"] == kind or r["rung"] == "base") and np.isfinite(r[f"error_{q}"])
+                   and r[f"error_{q}"] > 0]
+            if pts:
+                ax.plot(*zip(*pts), marker=marker, ls="-" if kind == "space" else "--", color=f"C{i}",
+                        label=f"{q} ({kind})", ms=4)
+    front = pareto(disc, study.quantities)
+    if front:
+        ax.plot([p[0] for p in front], [p[1] for p in front], "k:", lw=1)
+        ax.scatter([p[0] for p in front], [p[1] for p in front], s=80, facecolors="none", edgecolors="k",
+                   label="Pareto front (largest error)")
+        for p in front:
+            ax.annotate(p[2]["rung"], (p[0], p[1]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("wall time per run (s)")
+    ax.set_ylabel(f"relative error ({study.reference})")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=6, loc="best")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def with_scene_changes(scene: Scene, **sections) -> Scene:
+    """Convenience for tests and scripts: replace fields of sections (``time={"end": 10}``)."""
+    return scene.replace(**{k: dataclasses.replace(getattr(scene, k), **v) for k, v in sections.items()})

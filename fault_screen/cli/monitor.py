@@ -1,0 +1,151 @@
+"""``fault-screen monitor SCENE --follow LOG|-``: the live-monitoring service."""
+from __future__ import annotations
+
+import logging
+import sys
+from pathlib import Path
+
+import click
+
+from ._options import (DIR, FILE, BadInput, _positive_callback, _t0_callback, _unit_callback,
+                       check_size, reading, version_option)
+from .run import load_scene
+
+
+def _sta_lta_callback(ctx, param, value):
+    if value is None:
+        return {}
+    try:
+        sta, lta, on, off = (float(x) for x in value.split(","))
+    except ValueError:
+        raise BadInput(f"--sta-lta {value!r}: expected STA_S,LTA_S,ON,OFF "
+                       f"(e.g. 0.5,10,3.5,1)") from None
+    if not (0 < sta < lta and on > off > 0):
+        raise BadInput(f"--sta-lta {value!r}: need 0 < STA < LTA and ON > OFF > 0")
+    return {"sta": sta, "lta": lta, "on": on, "off": off}
+
+
+def _count_callback(ctx, param, value):
+    if value is not None and value < 1:
+        raise BadInput(f"--{param.name.replace('_', '-')} {value!r}: must be >= 1")
+    return value
+
+
+@click.command("monitor")
+@click.argument("scene_path", type=FILE, metavar="SCENE")
+@click.option("--follow", "follow", required=True, metavar="LOG|-",
+              help="Injection log to follow as it grows (CSV, the replay format), or '-' to "
+                   "read it from standard input.")
+@click.option("--events", type=FILE, default=None, metavar="CATALOG",
+              help="Seismic catalogue (QuakeML, CSV or FDSN text) polled as it grows.")
+@click.option("--waveforms", type=DIR, default=None, metavar="SDS_DIR",
+              help="SDS waveform archive: classic STA/LTA detections as it fills.")
+@click.option("--state", type=FILE, default=None, metavar="STATE.h5",
+              help="Checkpoint file: written every --checkpoint-every steps and on "
+                   "SIGINT/SIGTERM; an existing one is resumed.")
+@click.option("--out", "-o", type=FILE, default=None, metavar="RESULT.h5",
+              help="HDF5 result file written when the monitor stops.")
+@click.option("--idle-exit", type=float, default=None, metavar="SECONDS",
+              callback=_positive_callback,
+              help="Stop cleanly (state and results written) after this long without a new "
+                   "sample; without it, run until SIGINT/SIGTERM.")
+@click.option("--alert", "alerts", multiple=True, metavar="NAME[:CONFIG]",
+              help="Alert plugin (repeatable): jsonl:FILE, webhook:url=URL,secret_env=VAR, "
+                   "command:[\"prog\",\"arg\"]; 'fault-screen plugins' lists them.")
+@click.option("--source", default=None, metavar="NAME",
+              help="Source plugin [default: csv, or stdin for '--follow -'].")
+@click.option("--poll", "poll_interval", type=float, default=0.5, show_default=True,
+              metavar="S", callback=_positive_callback, help="Polling interval (s).")
+@click.option("--checkpoint-every", type=int, default=50, show_default=True, metavar="N",
+              callback=_count_callback, help="Steps between checkpoints.")
+@click.option("--outbox", type=FILE, default=None, metavar="FILE",
+              help="Alert outbox (SQLite) [default: STATE.h5.outbox.sqlite, or next to --out].")
+@click.option("--flow-unit", default=None, metavar="U", callback=_unit_callback("flow_rate"),
+              help="Unit of the flow-rate column when its header has none.")
+@click.option("--pressure-unit", default=None, metavar="U", callback=_unit_callback("pressure"),
+              help="Unit of the pressure column when its header has none.")
+@click.option("--max-gap", type=float, default=600.0, show_default=True, metavar="S",
+              callback=_positive_callback, help="Longest accepted interval between samples (s).")
+@click.option("--policy", type=click.Choice(["stop", "skip", "hold"]), default="stop",
+              show_default=True, help="On a bad line or gap: stop, skip the row, or hold the "
+                                      "last good value (as replay).")
+@click.option("--date", "log_date", default=None, metavar="YYYY-MM-DD",
+              help="Day of the first row of a log whose stamps are times of day (as replay).")
+@click.option("--tz", "log_tz", default=None, metavar="ZONE",
+              help="Time zone of stamps written without an offset (IANA name, as replay).")
+@click.option("--time-column", default=None, metavar="NAME|N",
+              help="The log's time column, by header or 1-based position [default: detected].")
+@click.option("--flow-column", default=None, metavar="NAME|N",
+              help="The log's flow-rate column, by header or 1-based position.")
+@click.option("--pressure-column", default=None, metavar="NAME|N",
+              help="The log's pressure column, by header or 1-based position.")
+@click.option("--t0", type=str, default=None, metavar="ISO", callback=_t0_callback,
+              help="Date-time of model time 0 when the log has elapsed times (places events).")
+@click.option("--sta-lta", "sta_lta", default=None, metavar="STA,LTA,ON,OFF",
+              callback=_sta_lta_callback,
+              help="STA/LTA windows (s) and trigger thresholds [default: 0.5,10,3.5,1].")
+@click.option("--quiet", "-q", is_flag=True, help="Only warnings and errors on stderr.")
+@version_option
+def monitor(scene_path, follow, events, waveforms, state, out, idle_exit, alerts, source,
+            poll_interval, checkpoint_every, outbox, flow_unit, pressure_unit, max_gap, policy,
+            log_date, log_tz, time_column, flow_column, pressure_column, t0, sta_lta, quiet):
+    """Follow a growing injection log with the model of SCENE, screen every step, and alert.
+
+    The model advances only as far as the samples allow (whole steps ending at or before the
+    last sample, each receiving the log's exact volume), so a monitor run over a complete log
+    takes the same steps as 'fault-screen replay' of that log.  Level changes of the scene's
+    [monitor] rules go to the --alert plugins through a durable outbox (retried, also after a
+    restart).  Example:
+
+    \b
+        fault-screen monitor configs/rustrel-2015-calibrated.toml --follow live.csv \\
+            --state live-state.h5 --out live.h5 --alert jsonl:alerts.jsonl --idle-exit 30
+    """
+    from ..io.injection_log import CLI_OPTION_NAMES, InjectionLogError
+    from ..monitor.plugins import PluginError
+    from ..monitor.service import MonitorConfig, MonitorInputError, MonitorService
+
+    logging.basicConfig(level=logging.WARNING if quiet else logging.INFO, stream=sys.stderr,
+                        format="%(asctime)s %(levelname)s %(message)s")
+    scene_path = Path(scene_path)
+    scene = load_scene(scene_path)
+    check_size(scene, str(scene_path))
+    if scene.injection.control != "rate":
+        raise BadInput(f"{scene_path}: injection.control = {scene.injection.control!r}: the "
+                       f"monitor drives the flow rate; use a scene with control = 'rate'")
+    if follow != "-" and Path(follow).is_dir():
+        raise BadInput(f"--follow {follow}: is a directory, expected a log file")
+    for opt, p in (("--out", out), ("--state", state)):
+        if p is not None and not (p.parent if str(p.parent) else Path(".")).is_dir():
+            raise BadInput(f"{opt} {p}: directory {p.parent} does not exist")
+    if events is not None and not events.is_file():
+        raise BadInput(f"--events {events}: file not found")
+    if waveforms is not None and not waveforms.is_dir():
+        raise BadInput(f"--waveforms {waveforms}: folder not found")
+    cfg = MonitorConfig(follow=follow, state=state, out=out, events=events, waveforms=waveforms,
+                        idle_exit=idle_exit, alerts=list(alerts), source=source,
+                        poll_interval=poll_interval, checkpoint_every=checkpoint_every,
+                        outbox=outbox, flow_unit=flow_unit, pressure_unit=pressure_unit,
+                        max_gap=max_gap, policy=policy, t0=t0, sta_lta=sta_lta,
+                        label=str(scene_path),
+                        log_options=dict(date=log_date, tz=log_tz, time_column=time_column,
+                                         flow_column=flow_column, pressure_column=pressure_column,
+                                         option_names=CLI_OPTION_NAMES))
+    try:
+        service = MonitorService(scene, cfg)
+    except (PluginError, InjectionLogError) as exc:
+        raise BadInput(str(exc)) from None
+    except (ValueError, OSError) as exc:
+        with reading(state):
+            raise exc
+    service.install_signal_handlers()
+    try:
+        summary = service.run()
+    except (InjectionLogError, MonitorInputError) as exc:
+        raise BadInput(str(exc)) from None
+    if not quiet:
+        click.echo(f"monitor stopped ({summary['ended']}): {summary['steps']} steps to "
+                   f"t = {summary['time']:g} s from {summary['samples']} samples; level "
+                   f"{summary['level']}, {summary['alerts']} alert(s)"
+                   + (f", {summary['pending_alerts']} still pending"
+                      if summary["pending_alerts"] else ""))

@@ -1,0 +1,718 @@
+"""The live-monitoring stage: samples and events in; model state, level changes and alerts out.
+
+Embedding it::
+
+    from fault_screen.monitor import Stage
+    stage = Stage(scene, start=datetime_of_model_time_0)
+    upd = stage.feed_samples([0.0, 5.0, 10.0], [0.0, 1.7e-4, 1.7e-4])   # s, m3/s [, Pa]
+    stage.feed_events(events)                  # SeismicEvent list (model seconds)
+    upd.steps, upd.time, upd.state, upd.transitions, upd.alerts
+    stage.checkpoint("state.h5"); stage, _ = Stage.restore("state.h5")
+    stage.finish()                             # last partial step, as a replay ends
+    stage.result()                             # fault_screen.Result so far
+
+Stepping.  The model never runs ahead of the data: after each batch of samples the stepper is
+asked for the whole steps of the scene's own step sequence that end at or before the last
+sample (``Simulation.advance(t_last, volume=..., align=True, max_steps=1)`` until it takes no
+more), each receiving the log's exact
+volume over it (linear rate between samples, the trapezoidal integral computed the way
+:class:`~fault_screen.io.injection_log.InjectionLog` computes it, so a replay of the complete
+log sees the same floating-point volumes).  The model time is therefore the same whether the
+samples come one by one, in chunks or all at once, and after a restart.  ``finish()`` takes the
+final partial step to the last sample, as ``fault-screen replay`` ends at the log's last stamp.
+
+Screening.  After every step the screening metrics of the new row plus the event metrics
+(``event_magnitude``, ``event_distance``, ``event_rate``) go to the screener; each level
+change it returns becomes an alert (:func:`alert_payload`) with a stable id.
+
+Events.  An event whose origin time lies in a step enters that step's metrics if it is known
+by then; one reported after the model passed its time enters the next step (associated with
+the state at the end of the step that contains its time, if still kept).  ``event_magnitude`` is the largest magnitude
+among the events entering the step (NaN if none), ``event_distance`` that event's distance to
+the injection point (m, NaN without a site), ``event_rate`` the number of known events with
+origin time in the last ``event_window`` seconds, per hour.
+"""
+from __future__ import annotations
+
+import base64
+import bisect
+import hashlib
+import json
+import math
+import os
+import pickle
+from collections import deque
+from dataclasses import dataclass, field
+from datetime import datetime, timedelta, timezone
+from pathlib import Path
+from typing import List, Optional, Sequence
+
+import numpy as np
+
+from .seismicity import SeismicEvent, Site, associate, utilisation
+
+__all__ = ["Stage", "Update", "SampleBuffer", "alert_payload", "alert_id", "LEVELS"]
+
+LEVELS = ("green", "yellow", "red")
+_STATE_ATTR = "fault_screen_monitor"
+#: what an event association reads from a recorded row
+_ROW_KEYS = ("time", "slip_rate", "contact_state", "shear_traction", "effective_normal_stress")
+
+
+# ---------------------------------------------------------------------------------------------
+# samples
+# ---------------------------------------------------------------------------------------------
+class SampleBuffer:
+    """The samples not yet behind the model, with the cumulative volume at each.
+
+    ``volume(t0, t1)`` is the exact integral of the piecewise-linear rate (0 before the first
+    sample), evaluated with the same operations as ``InjectionLog.volume`` so that results
+    agree bit for bit with a replay.  Samples wholly behind the model are dropped (memory stays
+    bounded); the cumulative volume is kept absolute.
+    """
+
+    def __init__(self):
+        self.t: List[float] = []
+        self.q: List[float] = []
+        self.p: List[Optional[float]] = []
+        self.cum: List[float] = []
+        self.count = 0            # samples accepted since the start of the run
+
+    @property
+    def last_time(self) -> Optional[float]:
+        return self.t[-1] if self.t else None
+
+    def append(self, t: float, q: float, p: Optional[float]) -> None:
+        if self.t:
+            # same operations as np.cumsum(0.5 * (q[1:] + q[:-1]) * np.diff(t))
+            self.cum.append(self.cum[-1] + 0.5 * (q + self.q[-1]) * (t - self.t[-1]))
+        else:
+            self.cum.append(0.0)
+        self.t.append(t)
+        self.q.append(q)
+        self.p.append(p)
+        self.count += 1
+
+    def _cumulative(self, ta: float) -> float:
+        tt, qq, cum = self.t, self.q, self.cum
+        if ta >= tt[-1]:
+            return cum[-1]
+        if len(tt) < 2:
+            return cum[0]
+        i = min(max(bisect.bisect_right(tt, ta) - 1, 0), len(tt) - 2)
+        tc = min(max(ta, tt[0]), tt[-1])
+        dt = tc - tt[i]
+        slope = (qq[i + 1] - qq[i]) / (tt[i + 1] - tt[i])
+        return cum[i] + dt * (qq[i] + 0.5 * slope * dt)
+
+    def volume(self, t0: float, t1: float) -> float:
+        """m3 injected between t0 and t1 (s); t1 must not pass the last sample."""
+        if not self.t:
+            raise ValueError("no samples yet")
+        if t1 > self.t[-1] * (1 + 1e-12) + 1e-9:
+            raise ValueError(f"volume asked up to {t1!r} s, beyond the last sample "
+                             f"{self.t[-1]!r} s: the model may not run ahead of the data")
+        return self._cumulative(t1) - self._cumulative(t0)
+
+    def rate_at(self, t: float) -> float:
+        if not self.t or t < self.t[0] or t > self.t[-1]:
+            return 0.0
+        return float(np.interp(t, self.t, self.q))
+
+    def drop_before(self, t: float) -> None:
+        """Forget samples wholly before ``t`` (keep the one at or just before it)."""
+        k = bisect.bisect_right(self.t, t) - 1
+        if k > 0:
+            for a in (self.t, self.q, self.p, self.cum):
+                del a[:k]
+
+    def state(self) -> dict:
+        return {"t": self.t, "q": self.q, "p": self.p, "cum": self.cum, "count": self.count}
+
+    @classmethod
+    def from_state(cls, s: dict) -> "SampleBuffer":
+        b = cls()
+        b.t, b.q, b.p, b.cum = list(s["t"]), list(s["q"]), list(s["p"]), list(s["cum"])
+        b.count = int(s["count"])
+        return b
+
+
+# ---------------------------------------------------------------------------------------------
+# alerts
+# ---------------------------------------------------------------------------------------------
+def _level_name(v) -> str:
+    if isinstance(v, str):
+        return v
+    return LEVELS[int(v)] if v is not None and 0 <= int(v) < len(LEVELS) else str(v)
+
+
+def _level_code(v) -> Optional[int]:
+    if v is None:
+        return None
+    if isinstance(v, str):
+        return LEVELS.index(v) if v in LEVELS else None
+    return int(v)
+
+
+def alert_id(run_key: str, model_time: float, previous, level, rule) -> str:
+    """Stable idempotency key of an alert: the same level change of the same run (scene and
+    log origin) always gets the same id, also when a restarted monitor recomputes it."""
+    text = json.dumps([run_key, repr(float(model_time)), _level_name(previous),
+                       _level_name(level), str(rule)])
+    return "fs_" + hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
+def _finite(v):
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return v
+    return f if math.isfinite(f) else None    # JSON has no NaN/inf: unknown -> null
+
+
+def alert_payload(*, run_key: str, transition: dict, metrics: dict, start: Optional[datetime],
+                  label: str = "") -> dict:
+    """The alert handed to the plugins (JSON-able): ``id`` (idempotency key), ``level`` and
+    ``previous_level`` (green/yellow/red) with their codes (0/1/2), ``rule``, ``action``,
+    ``metrics`` (SI; null where unknown), ``model_time`` (s), ``model_datetime`` (ISO, when the
+    log has stamps), ``wall_time`` (ISO UTC), ``scene``."""
+    t = float(transition["time"])
+    prev, lev = transition.get("previous"), transition.get("level")
+    return {
+        "id": alert_id(run_key, t, prev, lev, transition.get("rule", "")),
+        "level": _level_name(lev), "level_code": _level_code(lev),
+        "previous_level": _level_name(prev) if prev is not None else None,
+        "previous_level_code": _level_code(prev),
+        "rule": str(transition.get("rule", "")), "action": str(transition.get("action", "")),
+        "metrics": {k: _finite(v) for k, v in metrics.items()},
+        "model_time": t,
+        "model_datetime": (start + timedelta(seconds=t)).isoformat() if start else None,
+        "wall_time": datetime.now(timezone.utc).isoformat(),
+        "scene": label,
+    }
+
+
+def _transition_dict(tr) -> dict:
+    """A screener's transition (object or mapping) as a dict with time/previous/level/rule/
+    action."""
+    get = (lambda k: tr.get(k)) if isinstance(tr, dict) else (lambda k: getattr(tr, k, None))
+    first = lambda *ks: next((get(k) for k in ks if get(k) is not None), None)  # noqa: E731
+    return {"time": first("time"), "previous": first("previous", "from_level", "from_", "old"),
+            "level": first("level", "to_level", "to", "new"), "rule": first("rule", "reason") or "",
+            "action": first("action") or ""}
+
+
+# ---------------------------------------------------------------------------------------------
+# the stage
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class Update:
+    """What one call to the stage did: ``steps`` taken, model ``time`` (s) after them, ``state``
+    (the newest recorded row), ``metrics`` of the newest step, level ``transitions`` (dicts) and
+    the ``alerts`` (payload dicts) they raised, ``level`` now."""
+
+    steps: int = 0
+    time: float = 0.0
+    state: Optional[dict] = None
+    metrics: dict = field(default_factory=dict)
+    transitions: list = field(default_factory=list)
+    alerts: list = field(default_factory=list)
+    level: int = 0
+
+
+class Stage:
+    """Follow injection samples and seismic events with the model and the screening rules.
+
+    ``scene``: a rate-controlled :class:`~fault_screen.Scene`.  ``start``: aware date-time of
+    model time 0 (the log's first stamp; needed to place events and for alert times).
+    ``simulation``: a stepper with the ``fault_screen.Simulation`` interface (default: a new
+    one for ``scene``).  ``screener``: object with ``update(time, metrics, events=...) -> list
+    of transitions`` (default: the scene's rules through ``fault_screen.screening``, when that
+    module is present); ``metrics``: function ``(row, scene) -> dict`` of the screening metrics
+    of a recorded row.  ``site``: :class:`~fault_screen.monitor.seismicity.Site` to place
+    hypocentres (default: the scene's ``[site]``).  ``event_window``: seconds over which
+    ``event_rate`` counts events (default: ``[monitor] event_rate_window``).
+    """
+
+    def __init__(self, scene, *, start: Optional[datetime] = None, simulation=None,
+                 screener=None, metrics=None, site: Optional[Site] = None,
+                 event_window: Optional[float] = None, label: str = "", history: int = 16):
+        if getattr(scene.injection, "control", "rate") != "rate":
+            raise ValueError(f"injection.control = {scene.injection.control!r}: the monitor "
+                             f"drives the flow rate; use a scene with control = 'rate'")
+        if event_window is None:      # the scene's [monitor] event_rate_window, else 1 h
+            event_window = getattr(getattr(scene, "monitor", None), "event_rate_window", 3600.0)
+        if not event_window > 0:
+            raise ValueError(f"event_window must be > 0 s, got {event_window!r}")
+        self.scene = scene
+        self.start = start
+        self.label = label
+        self.site = site if site is not None else _site_of(scene)
+        self.event_window = float(event_window)
+        self.sim = simulation if simulation is not None else _new_simulation(scene)
+        self.screener, self.metrics_fn = _screening(scene, screener, metrics)
+        self.samples = SampleBuffer()
+        self.ignored = 0                  # samples at or before the last one (replays, repeats)
+        self.steps = 0
+        self.level = 0
+        self.pending_events: List[SeismicEvent] = []
+        self.event_times: deque = deque()   # origin times of known events, for event_rate
+        self._event_ids: set = set()
+        self.associations: List[dict] = []
+        self.transitions: List[dict] = []
+        self.alerts_raised = 0
+        self._rows: deque = deque(maxlen=max(1, int(history)))
+        self._geometry = None
+
+    # -- identity ---------------------------------------------------------------------------
+    @property
+    def run_key(self) -> str:
+        """Hash of the scene and the log origin: the namespace of this run's alert ids."""
+        text = self.scene.to_toml() if hasattr(self.scene, "to_toml") else repr(self.scene)
+        origin = self.start.isoformat() if self.start else ""
+        return hashlib.sha256((text + "\n" + origin).encode()).hexdigest()[:16]
+
+    @property
+    def time(self) -> float:
+        """Model time (s)."""
+        return float(self.sim.time)
+
+    @property
+    def last_sample_time(self) -> Optional[float]:
+        return self.samples.last_time
+
+    # -- input ------------------------------------------------------------------------------
+    def feed_samples(self, time, rate, pressure=None) -> Update:
+        """Add injection samples (``time`` s of model time, ``rate`` m3/s of the whole interval,
+        ``pressure`` Pa or None; scalars or sequences) and advance the model as far as they
+        allow.  Samples at or before the last one are ignored and counted in ``ignored`` (a
+        restarted source replays its log from the start); the log's own checks (stamps going
+        backwards, duplicates, gaps) and policies are the source's, as in a replay."""
+        t = np.atleast_1d(np.asarray(time, dtype=np.float64))
+        q = np.atleast_1d(np.asarray(rate, dtype=np.float64))
+        p = None if pressure is None else np.atleast_1d(np.asarray(pressure, dtype=object))
+        if q.shape != t.shape or (p is not None and p.shape != t.shape):
+            raise ValueError("time, rate and pressure must have the same length")
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(q)) and np.all(q >= 0)):
+            raise ValueError("sample times and rates must be finite, rates >= 0")
+        for k in range(t.size):
+            tk = float(t[k])
+            last = self.samples.last_time
+            if last is not None and tk <= last:
+                self.ignored += 1
+                continue
+            pk = None if p is None or p[k] is None else float(p[k])
+            self.samples.append(tk, float(q[k]), pk)
+        return self._advance(align=True)
+
+    def feed_events(self, events: Sequence[SeismicEvent]) -> None:
+        """Add seismic events or detections (model seconds); they enter the metrics of the step
+        that contains their time, or the next step if the model is already past it."""
+        for ev in events:
+            key = ev.id or f"{ev.kind}@{ev.time!r}"
+            if key in self._event_ids:      # a catalogue read again after a restart
+                continue
+            self._event_ids.add(key)
+            self.pending_events.append(ev)
+            self.event_times.append(float(ev.time))
+        self.pending_events.sort(key=lambda e: e.time)
+        self.event_times = deque(sorted(self.event_times))
+
+    def finish(self) -> Update:
+        """Take the final partial step to the last sample (as a replay ends at its last stamp).
+        Events reported after the model passed their time and not yet associated are associated
+        with the newest state (recorded in the results; no step is left to screen them).
+        After it the stage should not be fed again (its step sequence left the scene's)."""
+        upd = self._advance(align=False)
+        late = [e for e in self.pending_events if e.time <= self.time]
+        if late and self._rows:
+            self.pending_events = [e for e in self.pending_events if e.time > self.time]
+            self.associations.extend(self._associate(e).to_dict() for e in late)
+        return upd
+
+    # -- stepping ---------------------------------------------------------------------------
+    def _advance(self, align: bool) -> Update:
+        upd = Update(time=self.time, level=self.level)
+        t_last = self.samples.last_time
+        if t_last is None or t_last <= self.time:
+            return upd
+        # one step per call: each step is screened (and its alerts raised) as soon as it is done;
+        # the stepper's sequence state makes this the same steps as one call
+        while True:
+            n = int(self.sim.advance(t_last, volume=self.samples.volume, align=align,
+                                     max_steps=1) or 0)
+            if n == 0:
+                break
+            self._screen_step(dict(self.sim.last_row), upd)
+            upd.steps += 1
+            self.steps += 1
+        if upd.steps:
+            self.samples.drop_before(self.time)
+        upd.time, upd.level = self.time, self.level
+        return upd
+
+    def _screen_step(self, row: dict, upd: Update) -> None:
+        t = float(row["time"])
+        if self._geometry is None:
+            self._geometry = _fault_geometry(self.sim)
+            if hasattr(self.metrics_fn, "bind"):
+                self.metrics_fn.bind(self._geometry, self.scene)
+        # the last few states, for events reported after the model passed their time
+        self._rows.append({k: row[k] for k in _ROW_KEYS if k in row})
+        metrics = dict(self.metrics_fn(row, self.scene)) if self.metrics_fn else {}
+        due = [e for e in self.pending_events if e.time <= t]
+        if due:
+            self.pending_events = [e for e in self.pending_events if e.time > t]
+        assoc = [self._associate(e) for e in due]
+        self.associations.extend(a.to_dict() for a in assoc)
+        metrics.update(self._event_metrics(t, assoc))
+        upd.metrics, upd.state = metrics, row
+        if self.screener is None:
+            return
+        events = {"time": [a.event.time for a in assoc],
+                  "magnitude": [a.event.magnitude for a in assoc],
+                  "distance": [a.distance_injection for a in assoc]} if assoc else None
+        # the screening layer adds its own event metrics to ``metrics`` (same definitions)
+        for tr in self.screener.update(t, metrics, events=events) or ():
+            d = _transition_dict(tr)
+            if d["time"] is None:
+                d["time"] = t
+            self.transitions.append(d)
+            upd.transitions.append(d)
+            code = _level_code(d["level"])
+            if code is not None:
+                self.level = code
+            alert = alert_payload(run_key=self.run_key, transition=d, metrics=metrics,
+                                  start=self.start, label=self.label)
+            self.alerts_raised += 1
+            upd.alerts.append(alert)
+
+    def _associate(self, ev: SeismicEvent):
+        geo = self._geometry
+        # the state at the end of the step containing the event (the current row for a timely
+        # event; the oldest kept one for an event older than the kept history)
+        row = next((r for r in self._rows if r["time"] >= ev.time), self._rows[0])
+        return associate(ev, row, site=self.site, fault_xy=geo.xy, injection_xy=geo.injection_xy,
+                         friction=float(self.scene.fault.friction))
+
+    def _event_metrics(self, t: float, assoc) -> dict:
+        while self.event_times and self.event_times[0] <= t - self.event_window:
+            self.event_times.popleft()
+        n = sum(1 for x in self.event_times if x <= t)
+        out = {"event_magnitude": math.nan, "event_distance": math.nan,
+               "event_rate": n / (self.event_window / 3600.0)}
+        if assoc:
+            with_mag = [a for a in assoc if math.isfinite(a.event.magnitude)]
+            top = max(with_mag, key=lambda a: a.event.magnitude) if with_mag else assoc[0]
+            out["event_magnitude"] = top.event.magnitude
+            out["event_distance"] = top.distance_injection
+        return out
+
+    # -- output -----------------------------------------------------------------------------
+    def result(self):
+        """The model's :class:`~fault_screen.Result` so far, with the live level changes
+        (``extra["monitor_transitions"]``), the events with the model state each was associated
+        with (``extra["events"]``, the layout run and replay use) and ``/screening/``."""
+        res = self.sim.result()
+        extra = dict(getattr(res, "extra", {}) or {})
+        if self.transitions:
+            extra["monitor_transitions"] = {
+                "time": np.array([d["time"] for d in self.transitions], dtype=float),
+                "from": np.array([_level_code(d["previous"]) if d["previous"] is not None
+                                  else -1 for d in self.transitions], dtype=np.int64),
+                "to": np.array([_level_code(d["level"]) for d in self.transitions],
+                               dtype=np.int64),
+                "rule": np.array([str(d["rule"]) for d in self.transitions], dtype="S"),
+            }
+        if self.associations:
+            # /events as run and replay write it (plot and screen read it), plus the model
+            # state each event was associated with
+            a = self.associations
+            ev = {"time": [x["time"] for x in a], "magnitude": [x["magnitude"] for x in a],
+                  "latitude": [x["latitude"] for x in a], "longitude": [x["longitude"] for x in a],
+                  "depth": [x["depth"] for x in a],
+                  "distance_to_injection": [x["distance_injection"] for x in a],
+                  "model_time": [x["model_time"] for x in a],
+                  "distance_to_slipping": [x["distance_slipping"] for x in a],
+                  "slip_rate": [x["slip_rate"] for x in a],
+                  "utilisation": [x["utilisation"] for x in a]}
+            ev = {k: np.array([_nan(v) for v in vals], dtype=float) for k, vals in ev.items()}
+            ev["kind"] = np.array([x["kind"] for x in a], dtype="S")
+            extra["events"] = ev
+        res.extra = extra
+        if _is_layer_screener(self.screener):
+            # /screening/ as replay and run write it: the rules over the whole result, with the
+            # associated events at their origin times
+            from ..screening import Events, screen_result
+
+            a = self.associations
+            screen_result(res, events=Events([x["time"] for x in a],
+                                             [_nan(x["magnitude"]) for x in a],
+                                             [_nan(x["distance_injection"]) for x in a]))
+        meta = dict(getattr(res, "meta", {}) or {})
+        meta.update(monitor_samples=self.samples.count, monitor_ignored_samples=self.ignored,
+                    monitor_alerts=self.alerts_raised)
+        res.meta = meta
+        return res
+
+    # -- checkpoints ------------------------------------------------------------------------
+    def state(self) -> dict:
+        """The stage's own state (JSON-able; the stepper's is written by the stepper)."""
+        return {
+            "version": 1, "samples": self.samples.state(), "ignored": self.ignored,
+            "steps": self.steps, "level": self.level,
+            "pending_events": [e.to_dict() for e in self.pending_events],
+            "event_times": list(self.event_times), "event_ids": sorted(self._event_ids),
+            "associations": self.associations,
+            "transitions": self.transitions, "alerts_raised": self.alerts_raised,
+            "screener": _dump_screener(self.screener),
+            "metrics": _dump_screener(self.metrics_fn),
+            "start": self.start.isoformat() if self.start else None,
+            "event_window": self.event_window, "label": self.label,
+            "rows": [_row_json(r) for r in self._rows],
+        }
+
+    def checkpoint(self, path, extra: Optional[dict] = None) -> Path:
+        """Write the full state (stepper + stage + ``extra``, e.g. the source's position)
+        atomically to ``path``: a temporary file renamed over the old one, so a kill during the
+        write leaves the previous checkpoint intact."""
+        import h5py
+
+        path = Path(path)
+        tmp = path.with_name(path.name + ".tmp")
+        try:
+            self.sim.checkpoint(tmp)
+            state = self.state()
+            state["extra"] = extra or {}
+            with h5py.File(tmp, "a") as h5:
+                h5.attrs[_STATE_ATTR] = json.dumps(state, default=_json_default)
+            with open(tmp, "rb+") as fh:
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+            _fsync_dir(path.parent)
+        finally:
+            if tmp.exists():
+                tmp.unlink()
+        return path
+
+    @staticmethod
+    def _saved_state(path) -> dict:
+        import h5py
+
+        with h5py.File(path, "r") as h5:
+            if _STATE_ATTR not in h5.attrs:
+                raise ValueError(f"{path}: not a monitor state file (no {_STATE_ATTR} record)")
+            return json.loads(h5.attrs[_STATE_ATTR])
+
+    @classmethod
+    def saved_extra(cls, path) -> dict:
+        """The ``extra`` dict saved with a checkpoint (without restoring the model)."""
+        return cls._saved_state(path).get("extra", {})
+
+    @classmethod
+    def restore(cls, path, *, scene=None, simulation_class=None, screener=None, metrics=None,
+                site: Optional[Site] = None):
+        """A stage continuing exactly from the checkpoint ``path``; returns ``(stage, extra)``.
+        ``simulation_class`` (default ``fault_screen.Simulation``) provides ``restore(path)``."""
+        state = cls._saved_state(path)
+        if simulation_class is None:
+            simulation_class = _simulation_class()
+        sim = simulation_class.restore(path)
+        if scene is not None and hasattr(scene, "to_toml") and scene.to_toml() != sim.scene.to_toml():
+            raise ValueError(f"{path}: this state was written for another scene; start with "
+                             f"the scene it was written for, or without --state")
+        scene = scene if scene is not None else sim.scene
+        start = datetime.fromisoformat(state["start"]) if state["start"] else None
+        st = cls(scene, start=start, simulation=sim, screener=screener, metrics=metrics,
+                 site=site, event_window=state["event_window"], label=state["label"])
+        if state["screener"] is not None:
+            st.screener = _load_screener(state["screener"])
+        if state.get("metrics") is not None:
+            st.metrics_fn = _load_screener(state["metrics"])
+        st.samples = SampleBuffer.from_state(state["samples"])
+        st.ignored, st.steps, st.level = state["ignored"], state["steps"], state["level"]
+        st.pending_events = [SeismicEvent(**_event_args(e)) for e in state["pending_events"]]
+        st.event_times = deque(state["event_times"])
+        st._event_ids = set(state["event_ids"])
+        st.associations, st.transitions = state["associations"], state["transitions"]
+        st.alerts_raised = state["alerts_raised"]
+        st._rows.extend(_row_from_json(r) for r in state["rows"])
+        return st, state.get("extra", {})
+
+
+# ---------------------------------------------------------------------------------------------
+# adapters to the stepper and the screening layer
+# ---------------------------------------------------------------------------------------------
+def _simulation_class():
+    try:
+        from .. import Simulation
+    except ImportError:
+        raise RuntimeError("the stepper (fault_screen.Simulation) is not available in this "
+                           "build; the monitor needs it") from None
+    return Simulation
+
+
+def _new_simulation(scene):
+    return _simulation_class()(scene)
+
+
+@dataclass(frozen=True)
+class _Geometry:
+    """The model's fault points: along-fault position ``x`` (m, 0 at the injection point),
+    coordinates ``xy`` (n, 2), quadrature ``weights`` (m), and the injection point (x, y)."""
+
+    x: np.ndarray
+    xy: np.ndarray
+    weights: np.ndarray
+    injection_xy: tuple
+
+
+def _fault_geometry(sim) -> _Geometry:
+    res = sim.result()          # once per stage: the geometry does not change
+    xy = np.asarray(res.fault_xy, dtype=float).reshape(-1, 2)
+    x = np.asarray(res.fault_x, dtype=float)
+    inj = (0.0, 0.0)
+    if xy.size:
+        k = int(np.argmin(np.abs(x)))
+        inj = (float(xy[k, 0]), float(xy[k, 1]))
+    return _Geometry(x, xy, np.asarray(res.fault_weights, dtype=float), inj)
+
+
+def _is_layer_screener(screener) -> bool:
+    """Is ``screener`` the screening layer's (whose rules can re-screen a whole result)?"""
+    try:
+        from ..screening import Screener
+    except ImportError:
+        return False
+    return isinstance(screener, Screener)
+
+
+def _screening(scene, screener, metrics):
+    """The screener and the metrics function: given, or the scene's ``[monitor]`` rules through
+    ``fault_screen.screening`` when that layer is present (else none, and basic metrics)."""
+    if screener is not None or metrics is not None:
+        return screener, metrics or _basic_metrics
+    try:
+        from .. import screening
+    except ImportError:
+        return None, _basic_metrics
+    return screening.Screener(scene.monitor), _LayerMetrics()
+
+
+class _LayerMetrics:
+    """The screening layer's metrics of a stepper row, through its ``MetricsTracker`` (which
+    keeps the reference of ``delta_cff`` and the induced slip so far: part of the state)."""
+
+    def __init__(self):
+        self.tracker = None
+        self.point = 0
+
+    def bind(self, geometry: "_Geometry", scene) -> None:
+        from ..screening import MetricsTracker
+
+        if self.tracker is None:
+            self.tracker = MetricsTracker(geometry.x, geometry.weights, scene.fault.friction)
+            self.point = self.tracker.point
+
+    def __call__(self, row: dict, scene) -> dict:
+        from ..screening.metrics import FAULT_FIELDS
+
+        g = self.point
+        point = {"overpressure": row["inj_overpressure"], "slip": row["inj_slip"],
+                 "shear_traction": _at(row["shear_traction"], g),
+                 "effective_normal_stress": _at(row["effective_normal_stress"], g)}
+        return self.tracker.update({k: row[k] for k in FAULT_FIELDS}, point)
+
+
+def _at(values, k):
+    a = np.asarray(values, dtype=float).reshape(-1)
+    return float(a[k]) if a.size else 0.0
+
+
+def _basic_metrics(row: dict, scene) -> dict:
+    """Metrics of a row without the screening layer: peak slip rate and max utilisation."""
+    out = {}
+    if "slip_rate" in row:
+        out["peak_slip_rate"] = float(np.max(np.abs(np.asarray(row["slip_rate"], dtype=float))))
+    if "shear_traction" in row and "effective_normal_stress" in row:
+        u = utilisation(row["shear_traction"], row["effective_normal_stress"],
+                        float(scene.fault.friction))
+        out["max_utilisation"] = float(np.max(u)) if np.size(u) else 0.0
+    return out
+
+
+def _site_of(scene) -> Optional[Site]:
+    return Site.from_spec(getattr(scene, "site", None))
+
+
+def _dump_screener(screener):
+    """A JSON-able record of a screener or metrics object (its own ``state()``/``from_state``,
+    else a pickle), or None for None or an object that cannot be pickled (e.g. a lambda: the
+    one given at restore is used)."""
+    if screener is None:
+        return None
+    if hasattr(screener, "state") and hasattr(type(screener), "from_state"):
+        return {"class": f"{type(screener).__module__}:{type(screener).__qualname__}",
+                "state": screener.state()}
+    # pickled: the state file is the monitor's own, never read from elsewhere
+    try:
+        return {"pickle": base64.b64encode(pickle.dumps(screener)).decode()}
+    except (pickle.PicklingError, AttributeError, TypeError):
+        return None
+
+
+def _load_screener(d):
+    if "pickle" in d:
+        return pickle.loads(base64.b64decode(d["pickle"]))
+    import importlib
+
+    mod, _, name = d["class"].partition(":")
+    obj = importlib.import_module(mod)
+    for part in name.split("."):
+        obj = getattr(obj, part)
+    return obj.from_state(d["state"])
+
+
+def _row_json(row: dict) -> dict:
+    return {k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v)
+            for k, v in row.items()}
+
+
+def _row_from_json(row: dict) -> dict:
+    return {k: (np.asarray(v) if isinstance(v, list) else v) for k, v in row.items()}
+
+
+def _event_args(d: dict) -> dict:
+    keys = ("time", "magnitude", "latitude", "longitude", "depth", "kind", "id", "offset",
+            "distance")
+    out = {k: d[k] for k in keys if k in d}
+    if out.get("magnitude") is None:
+        out["magnitude"] = math.nan
+    if out.get("offset") is not None:
+        out["offset"] = tuple(out["offset"])
+    return out
+
+
+def _nan(v):
+    return math.nan if v is None else float(v)
+
+
+def _json_default(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)
+
+
+def _fsync_dir(folder: Path) -> None:
+    try:
+        fd = os.open(str(folder), os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)

@@ -1,0 +1,154 @@
+"""fault-screen accuracy: observed orders against an exact solution, Richardson extrapolation,
+--target, the CSV and bad options.
+
+Along-fault diffusion (rigid impermeable rock, constant injection pressure) has the exact
+solution dp erfc(|x| / sqrt(4 alpha t)). Theory for the fault overpressure profile's L2 error:
+p = 2 in space (linear interpolation along the fault of a smooth profile; the time error made
+negligible with Crank-Nicolson) and p = 1 in time (backward Euler, first order; the mesh fine
+enough that the time error dominates).
+"""
+from __future__ import annotations
+
+import csv
+import dataclasses
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import analytical as an
+from conftest import VERIFICATION
+from fault_screen import Scene, simulate
+from fault_screen.accuracy import CSV_FIXED, exact_family, ladder, richardson, run_study
+from fault_screen.cli import main
+from fault_screen.ensemble import Runner, scene_with
+
+DIFFUSION = VERIFICATION / "fault-diffusion.toml"
+
+
+def diffusion(nx=200, **time):
+    s = Scene.from_toml(DIFFUSION)
+    return s.replace(mesh=dataclasses.replace(s.mesh, nx=nx), time=dataclasses.replace(s.time, **time))
+
+
+def test_exact_family_is_recognised():
+    assert exact_family(Scene.from_toml(DIFFUSION)) == "fault_diffusion"
+    rate = Scene.from_toml(DIFFUSION)
+    rate = rate.replace(injection=dataclasses.replace(rate.injection, control="rate",
+                                                      schedule=((0.0, 1e-4),)))
+    assert exact_family(rate) is None
+    assert exact_family(Scene.from_toml(VERIFICATION / "fluid-driven-slip-T0.4-horizontal.toml")) is None
+
+
+def test_space_order_is_two():
+    scene = diffusion(nx=50, dt=1e-4, dt_max=1e-2, theta=0.5)
+    with Runner(0) as runner:
+        study = run_study(scene, runner, levels=3, effects=False, kinds=("space",))
+    assert study.reference == "exact (fault_diffusion)"
+    assert study.orders[("space", "fault_overpressure_l2")].order == pytest.approx(2.0, abs=0.2)
+    errs = [r["error_fault_overpressure_l2"] for r in sorted(study.rows, key=lambda r: -r["element_size"])]
+    assert errs[0] > errs[1] > errs[2]
+
+
+@pytest.fixture(scope="module")
+def time_study():
+    with Runner(0) as runner:
+        return run_study(diffusion(), runner, levels=3, effects=False, kinds=("time",))
+
+
+def test_time_order_is_one(time_study):
+    study = time_study
+    for q in ("fault_overpressure_l2", "injection_flow_rate"):
+        assert study.orders[("time", q)].order == pytest.approx(1.0, abs=0.15), q
+
+
+def test_target_picks_a_rung_that_meets_it_against_the_exact_solution(time_study):
+    scene, study = diffusion(), time_study
+    target = 0.003
+    best = study.cheapest(target)
+    assert best is not None
+    # rerun the chosen rung and measure it against the reference formula (tests/analytical.py)
+    r = simulate(scene_with(scene, {"time.dt": best["dt"], "time.dt_max": scene.time.dt_max * best["dt"] / scene.time.dt}))
+    dp = scene.injection.schedule[0][1]
+    f = scene.fault
+    alpha = f.hydraulic_aperture ** 3 / (12 * scene.fluid.viscosity * f.kappa) / f.storativity
+    exact = an.fault_diffusion_pressure(r.fault_x, r.time[-1], dp=dp, alpha=alpha)
+    w = r.fault_weights
+    l2 = np.sqrt(np.sum(w * (r.fault["overpressure"][-1] - exact) ** 2) / np.sum(w * dp ** 2))
+    assert l2 <= target
+    transmissivity = f.hydraulic_aperture ** 3 / (12 * scene.fluid.viscosity * f.kappa)
+    q_exact = 2 * transmissivity * dp / np.sqrt(np.pi * alpha * r.time[-1])
+    assert abs(r.injection["flow_rate"][-1] - q_exact) / q_exact <= target
+    # and a rung that misses the target is never named
+    assert study.cheapest(1e-6) is None
+
+
+def test_richardson_recovers_order_and_limit():
+    h = np.array([3.0, 1.7, 0.8])           # uneven ratios, as parity-kept meshes give
+    ex = richardson(h, 2.5 + 0.7 * h ** 1.6)
+    assert ex.order == pytest.approx(1.6, abs=1e-8) and ex.value == pytest.approx(2.5, abs=1e-9)
+    assert ex.asymptotic
+    osc = richardson(h, [1.0, 1.2, 1.1])
+    assert not osc.asymptotic and "sign" in osc.note
+
+
+def test_ladder_keeps_parity_and_skips_invalid_effects():
+    s = Scene.from_toml(VERIFICATION.parent / "rustrel-2015-calibrated-paper-units.toml")
+    rungs, skipped = ladder(s, levels=4)
+    space = {r.name: r.overrides for r in rungs if r.kind == "space" and r.overrides}
+    assert space["h x2"] == {"mesh.nx": 26, "mesh.ny": 25}            # 50 -> 25 -> even 26; 51 -> 25.5 -> odd 25
+    assert space["h x1/4"] == {"mesh.nx": 200, "mesh.ny": 205}
+    time = {r.name: r.overrides for r in rungs if r.kind == "time"}
+    assert time["dt x1/4"] == {"time.dt": 1.25}
+    effects = {r.effect_off for r in rungs if r.kind == "effect"}
+    assert "damage_zone" in effects and "fault_flow" not in effects
+    assert dict(skipped)["poroelastic"].startswith("effects.leak_off")
+
+
+@pytest.fixture(scope="module")
+def cli_run(tmp_path_factory):
+    d = tmp_path_factory.mktemp("acc")
+    path = d / "diffusion.toml"
+    path.write_text(diffusion(nx=100).to_toml())
+    r = CliRunner().invoke(main, ["accuracy", str(path), "--workers", "0", "--out", str(d), "--target", "1%", "-q"])
+    return r, d, path
+
+
+def test_accuracy_command_csv(cli_run):
+    r, d, _ = cli_run
+    assert r.exit_code == 0, r.output
+    rows = list(csv.DictReader(open(d / "accuracy.csv")))
+    assert list(rows[0]) == CSV_FIXED + ["error_fault_overpressure_l2", "error_injection_flow_rate", "failed"]
+    assert [x["rung"] for x in rows] == ["base", "h x2", "h x1/2", "dt x2", "dt x1/2"]
+    assert all(float(x["wall_s"]) > 0 and int(x["unknowns"]) > 0 for x in rows)
+    assert "cheapest rung within 1%" in r.output
+    assert (d / "accuracy.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_zero_reference_gives_an_empty_cell(tmp_path):
+    """Rigid rock never slips: the slip quantities have a zero reference, so no error."""
+    s = diffusion(nx=40, end=0.3)
+    s = s.replace(injection=dataclasses.replace(s.injection, control="rate", schedule=((0.0, 1e-4),)))
+    path = tmp_path / "s.toml"
+    path.write_text(s.to_toml())
+    r = CliRunner().invoke(main, ["accuracy", str(path), "--workers", "0", "--out", str(tmp_path), "-q",
+                                  "--quantities", "peak_overpressure,injection_slip"])
+    assert r.exit_code == 0, r.output
+    rows = list(csv.DictReader(open(tmp_path / "accuracy.csv")))
+    assert all(x["error_injection_slip"] == "" for x in rows)
+    assert all(x["error_peak_overpressure"] != "" for x in rows)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--levels", "2"], "--levels 2: must be >= 3"),
+    (["--target", "five"], "--target 'five'"),
+    (["--target", "-5%"], "must be a positive relative error"),
+    (["--quantities", "peak_overpressure"], "unknown peak_overpressure"),
+    (["--workers", "-2"], "--workers -2"),
+    (["--set", "mesh.nz=3"], "unknown scene key 'mesh.nz'"),
+    (["--set", "mesh.nx"], "expected KEY=VALUE"),
+])
+def test_accuracy_bad_options(cli_run, args, message):
+    _, _, path = cli_run
+    r = CliRunner().invoke(main, ["accuracy", str(path), *args])
+    assert r.exit_code == 2 and message in r.output, r.output

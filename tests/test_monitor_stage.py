@@ -1,0 +1,206 @@
+"""The monitor stage's data handling, driven through a fake stepper (tests/monitor_fakes.py):
+steps never run ahead of the data, every step receives exactly a replay's volume, chunking and
+restarts change nothing, alerts keep their ids."""
+from __future__ import annotations
+
+import dataclasses
+import math
+from datetime import timedelta
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fault_screen import Scene
+from fault_screen.io.injection_log import read_injection_log
+from fault_screen.monitor import SeismicEvent, Site, Stage
+from fault_screen.monitor.stage import SampleBuffer, alert_id
+from monitor_fakes import V_FAIL, FakeSimulation, ThresholdScreener
+
+ROOT = Path(__file__).resolve().parents[1]
+LOG = ROOT / "configs" / "logs" / "rustrel-2015-standin.csv"
+
+
+@pytest.fixture(scope="module")
+def scene():
+    s = Scene.from_toml(ROOT / "configs" / "rustrel-2015-calibrated.toml")
+    return s.replace(time=dataclasses.replace(s.time, dt=7.0))
+
+
+@pytest.fixture(scope="module")
+def log():
+    return read_injection_log(LOG)
+
+
+def make_stage(scene, log, **kw):
+    return Stage(scene, start=log.start, simulation=FakeSimulation(scene),
+                 screener=ThresholdScreener(), **kw)
+
+
+def run_in_chunks(stage, log, sizes):
+    k = 0
+    for n in sizes:
+        stage.feed_samples(log.time[k:k + n], log.flow_rate[k:k + n])
+        assert stage.time <= stage.last_sample_time            # never ahead of the data
+        assert stage.last_sample_time - stage.time < stage.sim.dt   # but every whole step taken
+        k += n
+        if k >= log.time.size:
+            break
+    return stage
+
+
+def step_volumes(stage):
+    rows = stage.sim.rows
+    return np.array([r["time"] for r in rows]), np.diff([r["volume"] for r in rows])
+
+
+def test_sample_buffer_volumes_are_a_replays_bit_for_bit(log):
+    buf = SampleBuffer()
+    rng = np.random.default_rng(3)
+    for t, q in zip(log.time, log.flow_rate):
+        buf.append(float(t), float(q), None)
+    a = np.sort(rng.uniform(0, log.duration, 200))
+    b = np.minimum(a + rng.uniform(0, 40, 200), log.duration)
+    got = np.array([buf.volume(x, y) for x, y in zip(a, b)])
+    want = np.array([log.volume(x, y) for x, y in zip(a, b)])
+    assert np.array_equal(got, want)
+    with pytest.raises(ValueError, match="beyond the last sample"):
+        buf.volume(0.0, log.duration + 1.0)
+
+
+def test_steps_and_volumes_equal_a_replay_whatever_the_chunking(scene, log):
+    dt = scene.time.dt
+    n_whole = int(math.floor(log.duration / dt))
+    t_replay = np.append(np.arange(n_whole + 1) * dt, log.duration)
+    v_replay = log.step_volumes(t_replay)
+    rng = np.random.default_rng(7)
+    runs = {
+        "one by one": [1] * log.time.size,
+        "random chunks": list(rng.integers(1, 12, size=log.time.size)),
+        "all at once": [log.time.size],
+    }
+    for name, sizes in runs.items():
+        st = run_in_chunks(make_stage(scene, log), log, sizes)
+        assert st.steps == n_whole, name
+        st.finish()
+        t, v = step_volumes(st)
+        assert np.array_equal(t, t_replay), name
+        assert np.array_equal(v, v_replay), name           # bit for bit
+    # the total is the log's: 950.63 L (configs/logs/README.md)
+    assert abs(v.sum() - 0.95063) < 5e-6
+
+
+def test_levels_change_when_the_logged_volume_crosses_the_thresholds(scene, log):
+    st = make_stage(scene, log)
+    alerts = []
+    for k in range(log.time.size):
+        alerts += st.feed_samples(log.time[k], log.flow_rate[k]).alerts
+    alerts += st.finish().alerts
+    # fake fault: utilisation 0.5 + V / V_FAIL at the injection point -> yellow at V = 0.2 m3,
+    # red at V = 0.25 m3; the first step end at which the log's volume passes each
+    t_steps = np.array([r["time"] for r in st.sim.rows])
+    vol = np.array([log.volume(0.0, t) for t in t_steps])
+    t_yellow = t_steps[np.argmax(vol >= (0.9 - 0.5) * V_FAIL)]
+    t_red = t_steps[np.argmax(vol >= (1.0 - 0.5) * V_FAIL)]
+    assert [(a["previous_level"], a["level"], a["model_time"]) for a in alerts] == [
+        ("green", "yellow", t_yellow), ("yellow", "red", t_red)]
+    assert alerts[1]["action"] == "stop injection"
+    assert alerts[1]["model_datetime"] == (log.start + timedelta(seconds=t_red)).isoformat()
+    assert alerts[1]["metrics"]["max_utilisation"] >= 1.0
+    assert st.level == 2
+    # stable ids: another run computes the same ones; a different log origin changes them
+    again = make_stage(scene, log)
+    ids = [a["id"] for a in again.feed_samples(log.time, log.flow_rate).alerts]
+    assert ids == [a["id"] for a in alerts] and len(set(ids)) == 2
+    other = Stage(scene, start=log.start + timedelta(hours=1), simulation=FakeSimulation(scene),
+                  screener=ThresholdScreener())
+    assert other.run_key != st.run_key
+
+
+def test_restart_from_a_checkpoint_equals_an_uninterrupted_run(scene, log, tmp_path):
+    ref = make_stage(scene, log)
+    ref.feed_samples(log.time, log.flow_rate)
+    for cut in (1, 37, 100):
+        st = make_stage(scene, log)
+        got = []
+        for k in range(cut):
+            got += st.feed_samples(log.time[k], log.flow_rate[k]).alerts
+        st.checkpoint(tmp_path / "state.h5")
+        # a kill after more samples: those after the checkpoint are lost with the process
+        st.feed_samples(log.time[cut:cut + 20], log.flow_rate[cut:cut + 20])
+        back, _ = Stage.restore(tmp_path / "state.h5", simulation_class=FakeSimulation)
+        # the restarted source replays the log from its start: earlier samples are ignored
+        for k in range(log.time.size):
+            got += back.feed_samples(log.time[k], log.flow_rate[k]).alerts
+        assert back.ignored == cut
+        assert back.samples.count == log.time.size
+        t, v = step_volumes(back)
+        t_ref, v_ref = step_volumes(ref)
+        assert np.array_equal(t, t_ref) and np.array_equal(v, v_ref), cut
+        assert back.transitions == ref.transitions, cut
+        assert [a["id"] for a in got] == [
+            alert_id(ref.run_key, d["time"], d["previous"], d["level"], d["rule"])
+            for d in ref.transitions], cut
+
+
+def test_checkpoint_is_atomic(scene, log, tmp_path):
+    st = make_stage(scene, log)
+    st.feed_samples(log.time[:30], log.flow_rate[:30])
+    path = tmp_path / "state.h5"
+    st.checkpoint(path)
+    before = path.read_bytes()
+    st.feed_samples(log.time[30:60], log.flow_rate[30:60])
+
+    def dies_while_writing(p):
+        Path(p).write_bytes(b"half a file")
+        raise KeyboardInterrupt
+    st.sim.checkpoint = dies_while_writing
+    with pytest.raises(KeyboardInterrupt):
+        st.checkpoint(path)
+    assert path.read_bytes() == before
+    assert not list(tmp_path.glob("*.tmp"))
+    back, _ = Stage.restore(path, simulation_class=FakeSimulation)
+    assert back.samples.count == 30
+
+
+def test_samples_must_be_finite_and_non_negative(scene, log):
+    st = make_stage(scene, log)
+    with pytest.raises(ValueError, match="finite"):
+        st.feed_samples([0.0, 1.0], [0.0, -1e-4])
+    with pytest.raises(ValueError, match="same length"):
+        st.feed_samples([0.0, 1.0], [0.0])
+    cfg = scene.replace(injection=dataclasses.replace(scene.injection, control="pressure"))
+    with pytest.raises(ValueError, match="control"):
+        Stage(cfg, simulation=FakeSimulation(scene))
+
+
+def test_events_enter_the_step_containing_them(scene, log):
+    site = Site(latitude=43.9, longitude=5.5, depth=280.0, azimuth=90.0)
+    st = make_stage(scene, log, site=site, event_window=600.0)
+    # 0.01 deg north of the injection point and 100 m deeper: 1111.95 m and 100 m away
+    north = math.radians(0.01) * 6_371_000.0
+    ev = [SeismicEvent(time=30.0, magnitude=0.4, latitude=43.91, longitude=5.5, depth=380.0,
+                       id="a"),
+          SeismicEvent(time=33.0, magnitude=2.3, latitude=43.9, longitude=5.5, depth=280.0,
+                       id="b"),
+          SeismicEvent(time=300.0, magnitude=-0.5, id="c")]
+    st.feed_events(ev)
+    st.feed_events(ev[:1])                     # the same event again: counted once
+    metrics = {}
+    for k in range(log.time.size):
+        upd = st.feed_samples(log.time[k], log.flow_rate[k])
+        for row in [upd.state] if upd.state else []:
+            metrics[row["time"]] = upd.metrics
+        if st.time > 320:
+            break
+    # dt = 7 s: events at 30 s and 33 s fall in the step ending at 35 s
+    m35 = metrics[35.0]
+    assert m35["event_magnitude"] == 2.3
+    assert m35["event_distance"] == pytest.approx(0.0, abs=1e-9)
+    assert m35["event_rate"] == pytest.approx(2 / (600 / 3600))
+    a = {d["id"]: d for d in st.associations}
+    assert a["a"]["distance_injection"] == pytest.approx(math.hypot(north, 100.0), rel=1e-9)
+    assert a["a"]["model_time"] == 35.0
+    assert math.isnan(metrics[28.0]["event_magnitude"])
+    # the level went red through the magnitude rule at 35 s
+    assert st.transitions[0]["rule"] == "event_magnitude >= 2" and st.transitions[0]["time"] == 35.0
