@@ -720,6 +720,7 @@ RANGES: dict[str, tuple[str, tuple, tuple]] = {
     "injection.number_of_fractures": ("-", (1.0, 1e4), (1.0, 100.0)),
     # the same bound as an injection log's flow rate (fault_screen.io.injection_log)
     "injection.schedule.rate": ("m3/s", (0.0, 10.0), (0.0, 1.0)),
+    "injection.schedule.flowback_rate": ("m3/s", (-10.0, 10.0), (-1.0, 1.0)),
     "injection.schedule.pressure": ("Pa", (-1e9, 1e9), (-1e8, 1e8)),
     "injection.log_max_gap": ("s", (0.0, 1e9), (1.0, 86400.0)),
     "time.end": ("s", (0.0, 1e12), (1e-3, 3.2e9)),
@@ -857,6 +858,8 @@ def _validate(s: Scene, sink: list | None = None):
         _in_range("boundary.traction", getattr(s.boundary, edge).traction,
                   f"boundary.{edge}.traction", sink)
     which = "rate" if s.injection.control == "rate" else "pressure"
+    if which == "rate" and any(v < 0 for _, v in s.injection.schedule):
+        which = "flowback_rate"  # the sign is checked with injection.allow_flowback below
     _in_range(f"injection.schedule.{which}", tuple(v for _, v in s.injection.schedule),
               "injection.schedule", sink)
     _validate_site(s.site)
