@@ -12,6 +12,7 @@ in-situ state, which is in equilibrium on its own.
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,6 +23,10 @@ from .mesh import build_mesh
 from .physics import Physics
 from .physics.base import BLOCK_ORDER
 from .scene import EDGES, RockSpec, Scene, SceneError
+
+
+class FaultShiftWarning(UserWarning):
+    """The fault was moved off mesh nodes by a tiny documented amount (xfem.NODE_CLEARANCE)."""
 
 
 @dataclass(frozen=True)
@@ -106,8 +111,18 @@ class Discretisation:
                           if self.has_fault else xfem.no_fault(self.mesh))
         except ValueError as exc:
             raise SceneError(f"fault.point = {scene.fault_point}, fault.angle = {scene.fault.angle}: {exc}") from None
-        self.injection_xy = (np.asarray(scene.fault_point, dtype=float)
-                             + scene.injection.position * self.fault.tangent)
+        if self.fault.shift:
+            warnings.warn(f"fault.point = {scene.fault_point}, fault.angle = {scene.fault.angle}: the fault "
+                          f"passes through mesh nodes; it is moved {self.fault.shift:.3g} m along its normal "
+                          f"(xfem.NODE_CLEARANCE of an element) so that every node lies on one side",
+                          FaultShiftWarning, stacklevel=3)
+        if self.has_fault and "pf" in physics.blocks:  # the fault's own pressure line: a node at the source
+            try:
+                self.fault = xfem.with_node_at(self.fault, scene.injection.position)
+            except ValueError as exc:
+                raise SceneError(f"injection.position = {scene.injection.position!r}: {exc}") from None
+        origin = self.fault.point if self.has_fault else np.asarray(scene.fault_point, dtype=float)
+        self.injection_xy = origin + scene.injection.position * self.fault.tangent
         self.in_situ = physics.in_situ
         self._materials()
         self._number_unknowns(physics.blocks)
@@ -396,11 +411,11 @@ class Discretisation:
             raise SceneError(f"injection.position = {s_inj!r}: {exc}") from None
         r0, r1 = f.segment_ref[k]
         xi, eta = r0 + lam * (r1 - r0)
-        nodes = self.elements[self.cut_elements[k]]
+        e = self.cut_elements[f.segment_element[k]]
+        nodes = self.elements[e]
         Ng = basis.shape(xi, eta)
         jump_dofs = self._a_map(nodes[None, :])[0] if self.has("a") else -np.ones(8, dtype=np.int64)
         if self.fault_pressure_is_trace:
-            e = self.cut_elements[k]
             hx, hy = self.mesh.element_sizes[e]
             Nl, _ = basis.level_set_basis(Ng, basis.shape_gradient(xi, eta, hx, hy), f.node_phi[nodes])
             Np = np.concatenate([Ng, Nl])

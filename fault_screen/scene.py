@@ -256,6 +256,10 @@ class InjectionSpec:
     """Longest gap between log samples before it counts as a problem (s)."""
     log_policy: str = "stop"
     """What to do with a bad log line: 'stop', 'skip' or 'hold' (see README)."""
+    allow_flowback: bool = False
+    """Accept negative flow rates (fluid produced back from the interval: flowback after
+    shut-in) in the schedule and in volumes passed to the stepper; refused otherwise, so that a
+    sign error in a schedule is caught."""
 
 
 @_spec
@@ -280,6 +284,13 @@ class SolverSpec:
     max_iterations: int = 30
     max_step_cuts: int = 8
     """A step whose Newton iteration fails is halved and retried at most this often."""
+    unstable_slip_rate: float = 1e-3
+    """Slip rate beyond which the fault counts as unstable (m/s): the quasi-static model cannot
+    follow dynamic slip, so the run stops there, keeps every result up to that moment and says
+    so (``Result.meta["stopped"]``; the CLI exits with code 3). 1 mm/s is the usual onset of
+    seismic slip in earthquake-cycle models (e.g. the SCEC SEAS benchmarks, Erickson et al.
+    2020), the same figure as the screening default ``monitor.slip_rate_red``. This is a limit of
+    the model, not a screening threshold."""
 
 
 @_spec
@@ -709,6 +720,7 @@ RANGES: dict[str, tuple[str, tuple, tuple]] = {
     "injection.number_of_fractures": ("-", (1.0, 1e4), (1.0, 100.0)),
     # the same bound as an injection log's flow rate (fault_screen.io.injection_log)
     "injection.schedule.rate": ("m3/s", (0.0, 10.0), (0.0, 1.0)),
+    "injection.schedule.flowback_rate": ("m3/s", (-10.0, 10.0), (-1.0, 1.0)),
     "injection.schedule.pressure": ("Pa", (-1e9, 1e9), (-1e8, 1e8)),
     "injection.log_max_gap": ("s", (0.0, 1e9), (1.0, 86400.0)),
     "time.end": ("s", (0.0, 1e12), (1e-3, 3.2e9)),
@@ -846,6 +858,8 @@ def _validate(s: Scene, sink: list | None = None):
         _in_range("boundary.traction", getattr(s.boundary, edge).traction,
                   f"boundary.{edge}.traction", sink)
     which = "rate" if s.injection.control == "rate" else "pressure"
+    if which == "rate" and any(v < 0 for _, v in s.injection.schedule):
+        which = "flowback_rate"  # the sign is checked with injection.allow_flowback below
     _in_range(f"injection.schedule.{which}", tuple(v for _, v in s.injection.schedule),
               "injection.schedule", sink)
     _validate_site(s.site)
@@ -906,9 +920,9 @@ def _validate(s: Scene, sink: list | None = None):
     times = [t for t, _ in inj.schedule]
     _check(all(b > a for a, b in zip(times, times[1:])), "injection.schedule", inj.schedule,
            "times must increase strictly")
-    if inj.control == "rate":
+    if inj.control == "rate" and not inj.allow_flowback:
         _check(all(v >= 0 for _, v in inj.schedule), "injection.schedule", inj.schedule,
-               "flow rates must be >= 0 m^3/s")
+               "flow rates must be >= 0 m^3/s (set injection.allow_flowback = true for flowback)")
     _check(inj.log_policy in ("stop", "skip", "hold"), "injection.log_policy", inj.log_policy,
            "must be 'stop', 'skip' or 'hold'")
     _check(inj.log_max_gap > 0, "injection.log_max_gap", inj.log_max_gap, "must be > 0 s")
@@ -926,6 +940,7 @@ def _validate(s: Scene, sink: list | None = None):
     _check(0 < sv.tolerance < 1, "solver.tolerance", sv.tolerance, "must be in (0, 1)")
     _check(sv.max_iterations >= 1, "solver.max_iterations", sv.max_iterations, "must be >= 1")
     _check(sv.max_step_cuts >= 0, "solver.max_step_cuts", sv.max_step_cuts, "must be >= 0")
+    _check(sv.unstable_slip_rate > 0, "solver.unstable_slip_rate", sv.unstable_slip_rate, "must be > 0 m/s")
     ef = s.effects
     for key in ("rate_parameter", "state_parameter", "dilation_angle", "asperity_height_std"):
         _check(getattr(f, key) >= 0, f"fault.{key}", getattr(f, key), "must be >= 0")

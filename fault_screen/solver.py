@@ -26,6 +26,10 @@ from .discretisation import Discretisation
 from .physics import ConstantMatrices, Term
 
 
+#: The damped (line-search) Newton iteration may take this many times solver.max_iterations.
+DAMPED_ITERATION_FACTOR = 4
+
+
 #: the dense condensation W = B^-1 L_BN (rows: linear unknowns, columns: nonlinear ones) is kept
 #: up to this size (bytes); beyond, each Newton iteration solves with the sparse LU twice
 KEEP_CONDENSATION_BYTES = 64 * 2 ** 20
@@ -250,20 +254,25 @@ class NewtonSolver:
         out[N] = dxN
         return out
 
-    def step(self, x_n, history, dt, injection_value):
+    def step(self, x_n, history, dt, injection_value, damped=False, x0=None):
         """Advance from x_n over dt. ``injection_value``: the step's injected volume (m^3, whole
         interval; rate control) or the prescribed overpressure at the step's end (Pa; pressure
-        control); ignored without an injection term.
+        control); ignored without an injection term. ``damped``: globalise the Newton iteration
+        with a backtracking line search (see ``_line_search``); the stepper retries a failed step
+        so before it halves the step, because a sudden load (a pressure jump, a slip front
+        crossing many points at once) makes the full Newton step of the Coulomb return map
+        overshoot and cycle, and under pressure control a shorter step does not reduce the jump.
+        ``x0``: the first guess (default x_n).
 
         BLAS runs on one thread while the condensed block is small: its dense products and LU
         take a millisecond or less, where OpenBLAS's threads only add start-up and, on a busy
         machine, spin against the other processes (a 3-14x slow-down measured, issue 15)."""
         if len(self.N) > SINGLE_THREAD_BLAS_UP_TO:
-            return self._step(x_n, history, dt, injection_value)
+            return self._step(x_n, history, dt, injection_value, damped, x0)
         with _blas_controller().limit(limits=1, user_api="blas"):
-            return self._step(x_n, history, dt, injection_value)
+            return self._step(x_n, history, dt, injection_value, damped, x0)
 
-    def _step(self, x_n, history, dt, injection_value):
+    def _step(self, x_n, history, dt, injection_value, damped, x0):
         disc = self.disc
         th = self.time_weight
         self._prepare(dt, x_n, history)
@@ -282,13 +291,16 @@ class NewtonSolver:
             term.previous_step(disc, x_n, th, known)
         rhs -= known
         flow_known = np.abs(rhs - stored_n)  # sources and the known parts of the flow terms
-        x = x_n.copy()
+        x = x_n.copy() if x0 is None else x0.copy()  # x0: a better first guess (continuation)
         free = self.free
         ref0 = None
         dense = None
         last_vals = None
         n_fact = 0
-        for it in range(self.max_it + 1):
+        # the damped iteration lowers its merit at every step, so it may take longer: a slip
+        # front that must cross many fault points moves a few points per iteration
+        max_it = self.max_it * (DAMPED_ITERATION_FACTOR if damped else 1)
+        for it in range(max_it + 1):
             R = L @ x - rhs
             rows, cols, vals, point = self.nonlinear(x, history, dt, R)
             sR = scale * R
@@ -312,7 +324,7 @@ class NewtonSolver:
                     new_history = point.pop("history")
                     return StepOutcome(x, it, n_fact, point,
                                        history if new_history is None else new_history, reactions)
-            if it == self.max_it:
+            if it == max_it:
                 break
             if dense is None or len(vals) != len(last_vals) or np.any(vals != last_vals):
                 dense = self._condensed_system(rows, cols, vals)
@@ -321,9 +333,31 @@ class NewtonSolver:
             dx = scale * self._solve(sR, dense)
             if not np.all(np.isfinite(dx)):
                 raise StepFailed("non-finite Newton update")
+            if damped and it > 0:  # the first update solves the linear flow part: take it whole
+                dx *= self._line_search(x, dx, norms, ref, rhs, history, dt)
             x += dx
-        raise StepFailed(f"Newton did not converge in {self.max_it} iterations "
+        raise StepFailed(f"Newton did not converge in {max_it} iterations "
                          f"(scaled residuals {norms[0]:.3e}, {norms[1]:.3e})")
+
+    def _line_search(self, x, dx, norms, ref, rhs, history, dt, max_halvings=10):
+        """Step length along the Newton direction dx: the first of 1, 1/2, 1/4, ... that lowers
+        the merit (sum of the squared field residuals relative to their references) by the Armijo
+        fraction 1e-4; the last one tried if none does (the next iteration then re-linearises)."""
+        free, mf = self.free, self.mech_free
+        r0, r1 = max(ref[0], 1e-300), max(ref[1], 1e-300)
+        merit0 = (norms[0] / r0) ** 2 + (norms[1] / r1) ** 2
+        alpha = 1.0
+        for _ in range(max_halvings):
+            xt = x + alpha * dx
+            R = self.L @ xt - rhs
+            self.nonlinear(xt, history, dt, R)
+            sRf = (self.scale * R)[free]
+            with np.errstate(over="ignore", invalid="ignore"):
+                merit = (np.linalg.norm(sRf[mf]) / r0) ** 2 + (np.linalg.norm(sRf[~mf]) / r1) ** 2
+            if merit <= (1.0 - 1e-4 * alpha) * merit0:
+                break
+            alpha *= 0.5
+        return alpha
 
     def _condensed_system(self, rows, cols, vals):
         """Dense LU of the condensed system: Schur complement plus scaled nonlinear tangent."""

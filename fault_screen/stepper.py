@@ -36,6 +36,20 @@ from .solver import NewtonSolver, StepFailed, fault_at_rest
 
 CHECKPOINT_FORMAT = 1
 
+#: After a step that converged only with the damped Newton, this many steps are damped from the
+#: start instead of first failing the full Newton iteration (30 wasted iterations each).
+DAMPED_AHEAD = 5
+
+#: After a step that had to be cut, clean steps grow back by at least this factor until they
+#: reach the size that failed (the scene's own growth may be 1: without it a single cut would
+#: shrink every later step for good). When that size fails again, the next try waits
+#: RECOVERY_HOLD clean steps, then twice as many, and so on.
+RECOVERY_GROWTH = 1.5
+RECOVERY_HOLD = 10
+
+#: Stages of the load continuation, the last resort before a step is halved.
+CONTINUATION_STAGES = 4
+
 
 class SimulationError(RuntimeError):
     """The run could not continue (a step failed even after the allowed cuts)."""
@@ -59,6 +73,15 @@ class Simulation:
         self.dt = scene.time.dt          # size of the next step of the sequence (s)
         self.injected = 0.0              # m^3, whole interval, cumulative
         self.leaked = 0.0                # m^3 per m of thickness, cumulative
+        self.damped_retries = 0          # steps that needed the line search (solver diagnostics)
+        self.damped_ahead = 0            # further steps to take damped at once
+        self.continuation_steps = 0      # steps that needed the load continuation
+        self.dt_recover = 0.0            # step size to grow back to after cuts (s), 0: none
+        self.dt_failed = 0.0             # the last step size that had to be cut (s)
+        self.recovery_hold = 0           # clean steps to wait before growing back
+        self.stopped = None              # why the run stopped early (meta["stopped"]), or None
+        # a quasi-static instability can only be told from the slip rate of a rate-dependent law
+        self.watch_instability = contact is not None and contact.law.rate_dependent
         self.recorder = Recorder(self.disc)
         self.recorder.record(0.0, self.x, fault_at_rest(self.disc, self.x), slip_rate=0.0,
                              flow_rate=0.0, volume=0.0, leaked=0.0, iterations=0, cuts=0, dt=0.0)
@@ -88,11 +111,22 @@ class Simulation:
                 return lambda t0, t1: pressure(t1)
             return lambda t0, t1: float(pressure)
         if volume is None:
-            return self.schedule.volume
-        if callable(volume):
-            return volume
-        span = t_next - self.time
-        return lambda t0, t1: float(volume) * (t1 - t0) / span
+            fn = self.schedule.volume
+        elif callable(volume):
+            fn = volume
+        else:
+            span = t_next - self.time
+            fn = lambda t0, t1: float(volume) * (t1 - t0) / span  # noqa: E731
+        if self.scene.injection.allow_flowback:
+            return fn
+
+        def checked(t0, t1):
+            v = fn(t0, t1)
+            if v < 0:
+                raise ValueError(f"negative injected volume {v:.6g} m^3 over [{t0:.6g}, {t1:.6g}] s "
+                                 f"(flowback): set injection.allow_flowback = true to allow it")
+            return v
+        return checked
 
     def advance(self, t_next: float, *, volume=None, pressure=None, align: bool = False,
                 max_steps: int | None = None, progress: Callable | None = None,
@@ -111,10 +145,11 @@ class Simulation:
         dt_max = ts.dt_max if ts.dt_max is not None else ts.dt
         injection = self.physics.injection
         nof = scene.injection.number_of_fractures
+        contact = self.physics.contact
         wall0 = _time.perf_counter()
         taken = 0
         while self.time < t_next * (1 - 1e-12):
-            if max_steps is not None and taken >= max_steps:
+            if self.stopped is not None or (max_steps is not None and taken >= max_steps):
                 break
             t = self.time
             if align and t + self.dt > t_next * (1 + 1e-12):
@@ -126,7 +161,7 @@ class Simulation:
                 t1 = t + dt_try
                 step_value = value(t, t1)
                 try:
-                    out = self.solver.step(self.x, self.history, dt_try, step_value)
+                    out = self._step(dt_try, step_value)
                     break
                 except StepFailed as exc:
                     cuts += 1
@@ -153,12 +188,80 @@ class Simulation:
                 observer(t1, self.x, self.disc)
             if progress is not None:
                 progress(self.steps, t1, t_next, self.wall_time + _time.perf_counter() - wall0)
+            if self.watch_instability:
+                self._check_instability(t1, slip_rate)
             if cuts:
+                # grow back towards the size that failed; if that size fails again, wait longer
+                # (RECOVERY_HOLD clean steps, doubling) before the next try
+                tried_before = self.dt >= 0.999 * self.dt_failed > 0.0
+                self.recovery_hold = (max(RECOVERY_HOLD, 2 * self.recovery_hold) if tried_before else 0)
+                self.dt_recover = max(self.dt_recover, self.dt)
+                self.dt_failed = self.dt
                 self.dt = dt_try
             elif not shortened:
                 self.dt = min(dt_try * ts.growth, dt_max)
+                if self.recovery_hold > 0:
+                    self.recovery_hold -= 1
+                elif self.dt_recover > self.dt:  # after cuts: back to the sequence's size, not stuck
+                    self.dt = min(dt_try * max(ts.growth, RECOVERY_GROWTH), self.dt_recover)
+                if self.dt >= self.dt_recover:
+                    self.dt_recover = 0.0
+            if contact is not None:
+                limit = contact.law.max_step(slip_rate)
+                if limit < self.dt:
+                    self.dt_recover = max(self.dt_recover, self.dt)  # grow back once it slows
+                    self.dt = limit
         self.wall_time += _time.perf_counter() - wall0
         return taken
+
+    def _check_instability(self, t, slip_rate):
+        """Stop (``self.stopped``) once the peak slip rate exceeds ``solver.unstable_slip_rate``:
+        beyond it the fault slips dynamically, which a quasi-static model cannot follow. The step
+        that crossed the limit is kept, so the result shows the runaway."""
+        rate = np.abs(np.asarray(slip_rate, dtype=float))
+        limit = self.scene.solver.unstable_slip_rate
+        if rate.size and rate.max() > limit:
+            g = int(np.argmax(rate))
+            where = float(self.disc.fault_points.s[g] - self.disc.injection.s)
+            self.stopped = dict(
+                reason="unstable", time=float(t), slip_rate=float(rate[g]), x=where, limit=limit,
+                message=(f"fault became unstable at t = {t:.6g} s: slip rate {rate[g]:.3g} m/s at "
+                         f"x = {where:.4g} m exceeds solver.unstable_slip_rate = {limit:.3g} m/s"))
+
+    def _step(self, dt, step_value):
+        """One step of size dt: full Newton; if that fails a damped Newton (line search); if
+        that fails the load continuation; then the caller halves the step."""
+        if self.damped_ahead > 0:  # a recent step needed damping: its neighbours likely will
+            self.damped_ahead -= 1
+        else:
+            try:
+                return self.solver.step(self.x, self.history, dt, step_value)
+            except StepFailed:
+                self.damped_retries += 1
+                self.damped_ahead = DAMPED_AHEAD
+        try:
+            return self.solver.step(self.x, self.history, dt, step_value, damped=True)
+        except StepFailed:
+            return self._continuation(dt, step_value)
+
+    def _continuation(self, dt, step_value):
+        """The same step solved through intermediate loads: the step's injection value raised
+        from its neutral value (the held overpressure at the step's start under pressure control,
+        no volume under rate control) in CONTINUATION_STAGES stages, each damped Newton solve
+        starting from the last. Only the final solve is the step: the contact history is that
+        of the step's start throughout, so the result is the step's own solution. This is what
+        helps a jump of the held pressure, which a shorter step does not reduce."""
+        injection = self.physics.injection
+        if injection is None:
+            raise StepFailed("no load to continue in")
+        start = self.disc.injection_overpressure(self.x) if injection.control == "pressure" else 0.0
+        guess = None
+        for k in range(1, CONTINUATION_STAGES):
+            value = start + (step_value - start) * k / CONTINUATION_STAGES
+            guess = self.solver.step(self.x, self.history, dt, value, damped=True, x0=guess).x
+        out = self.solver.step(self.x, self.history, dt, step_value, damped=True, x0=guess)
+        self.continuation_steps += 1
+        return out
 
     # ------------------------------------------------------------------ results
     def result(self) -> Result:
@@ -167,7 +270,11 @@ class Simulation:
         meta = dict(wall_time=self.wall_time, build_time=self.build_time, version=__version__,
                     dofs=disc.n_dofs, dof_counts=disc.dof_counts(),
                     number_of_fractures=self.scene.injection.number_of_fractures,
-                    physics=self.physics.names(), factorizations=self.solver.factorizations)
+                    physics=self.physics.names(), factorizations=self.solver.factorizations,
+                    damped_retries=self.damped_retries, continuation_steps=self.continuation_steps,
+                    fault_shift=disc.fault.shift)
+        if self.stopped is not None:
+            meta["stopped"] = dict(self.stopped)
         return self.recorder.result(self.scene, meta)
 
     # ------------------------------------------------------------------ checkpoints
@@ -185,6 +292,12 @@ class Simulation:
                 h5.attrs["scene"] = self.scene.to_toml()
                 h5.attrs["state"] = json.dumps(dict(time=self.time, steps=self.steps, dt=self.dt,
                                                     injected=self.injected, leaked=self.leaked,
+                                                    damped_retries=self.damped_retries,
+                                                    damped_ahead=self.damped_ahead,
+                                                    continuation_steps=self.continuation_steps,
+                                                    stopped=self.stopped, dt_recover=self.dt_recover,
+                                                    dt_failed=self.dt_failed,
+                                                    recovery_hold=self.recovery_hold,
                                                     build_time=self.build_time, wall_time=self.wall_time))
                 h5["x"] = self.x
                 if self.history is not None:
@@ -215,6 +328,13 @@ class Simulation:
             state = json.loads(h5.attrs["state"])
             sim.time, sim.steps, sim.dt = state["time"], state["steps"], state["dt"]
             sim.injected, sim.leaked = state["injected"], state["leaked"]
+            sim.damped_retries = state.get("damped_retries", 0)
+            sim.damped_ahead = state.get("damped_ahead", 0)
+            sim.continuation_steps = state.get("continuation_steps", 0)
+            sim.stopped = state.get("stopped")
+            sim.dt_recover = state.get("dt_recover", 0.0)
+            sim.dt_failed = state.get("dt_failed", 0.0)
+            sim.recovery_hold = state.get("recovery_hold", 0)
             sim.build_time, sim.wall_time = state["build_time"], state["wall_time"]
             sim.x = h5["x"][()]
             sim.history = h5["history"][()] if "history" in h5 else None

@@ -45,10 +45,20 @@ def test_cut_areas_and_fault_length(angle, offset):
         assert plus == pytest.approx(approx, abs=5e-3 * sizes[k, 0] * sizes[k, 1])
 
 
-def test_a_fault_along_a_mesh_line_is_refused():
+def test_a_fault_along_a_mesh_line_is_moved_off_it_by_the_documented_clearance():
+    mesh = build_mesh(4, 4, 4.0, 4.0)
+    f = xfem.locate_fault(mesh, (2.0, 2.0), 0.0)
+    assert f.shift == pytest.approx(xfem.NODE_CLEARANCE * 1.0, rel=1e-12)
+    # the row below the line is cut (a sliver of 1e-6 of each element), every node on one side
+    assert len(f.cut_elements) == 4
+    assert np.min(np.abs(f.node_phi)) == pytest.approx(f.shift, rel=1e-9)
+    assert f.length == pytest.approx(4.0, rel=1e-12)
+
+
+def test_a_fault_missing_the_mesh_is_refused():
     mesh = build_mesh(4, 4, 4.0, 4.0)
     with pytest.raises(ValueError, match="does not cross"):
-        xfem.locate_fault(mesh, (2.0, 2.0), 0.0)
+        xfem.locate_fault(mesh, (2.0, 10.0), 0.0)
 
 
 def test_graded_line_keeps_the_focus_on_a_node_and_grows_geometrically():

@@ -8,6 +8,9 @@ fault that opened and closes again picks up contact where it lost it; the shear 
 incremental from the last converged step (predictor-corrector return map).
 
 No fastmath here: the stick / slip / open decisions are comparisons.
+
+numba's on-disk cache of these kernels does not notice a change of the friction kernels they
+call (kernels/friction.py): after changing those, touch this file (or clear __pycache__).
 """
 import numpy as np
 

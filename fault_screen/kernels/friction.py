@@ -13,6 +13,27 @@ import numpy as np
 from .._jit import kernel
 
 
+#: Small ``a`` (psi/a above 600, e.g. mu0/a = 6800 at a = 1e-4): exp(psi/a) overflows, so the law
+#: is evaluated in logarithms, and below V_FLOOR (m/s) it is continued linearly to mu = 0 at V = 0.
+#: There the regularised law is a step from 0 to mu0 + a ln(V/V0) at V ~ V0 exp(-psi/a), a rate
+#: below the smallest float, whose slope overflows; 1e-30 m/s (3e-23 m a year) is far below any
+#: creep the model could show. For the usual a (psi/a below 600) the closed form is used as is.
+V_FLOOR = 1e-30
+LARGE_PSI_OVER_A = 600.0
+
+
+@kernel
+def _regularised_log(V, psi, dpsi_dtheta, a, V0):
+    """(mu, dmu/dV, dmu/dtheta) of mu = a asinh(z), z = V exp(psi/a) / (2 V0), for V > 0, with z
+    in logarithms (z itself is moderate wherever the fault slides)."""
+    log_z = np.log(V) + psi / a - np.log(2.0 * V0)
+    if log_z > 20.0:  # asinh(z) = ln(2z) + O(z^-2): the unregularised law, to round-off
+        return a * (log_z + np.log(2.0)), a / V, dpsi_dtheta
+    z = np.exp(log_z)
+    root = np.sqrt(1.0 + z * z)
+    return a * np.arcsinh(z), a * (z / V) / root, z / root * dpsi_dtheta
+
+
 @kernel
 def rate_state_friction(V, theta, mu0, a, b, V0, Dc):
     """(mu, dmu/dV, dmu/dtheta) of the regularised law; theta is ignored when b == 0."""
@@ -21,6 +42,11 @@ def rate_state_friction(V, theta, mu0, a, b, V0, Dc):
     if b != 0.0:
         psi += b * np.log(V0 * theta / Dc)
         dpsi_dtheta = b / theta
+    if psi / a >= LARGE_PSI_OVER_A:
+        if V < V_FLOOR:  # linear to 0 below the floor: finite slope, still increasing
+            mu, _, dmu_dtheta = _regularised_log(V_FLOOR, psi, dpsi_dtheta, a, V0)
+            return mu * V / V_FLOOR, mu / V_FLOOR, dmu_dtheta * V / V_FLOOR
+        return _regularised_log(V, psi, dpsi_dtheta, a, V0)
     e = np.exp(psi / a) / (2.0 * V0)
     z = V * e
     mu = a * np.arcsinh(z)

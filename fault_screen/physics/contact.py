@@ -24,6 +24,10 @@ class FrictionLaw:
     """Parameters of a friction law as one plain array, and the kernel that applies it."""
 
     kernel = staticmethod(kc.coulomb_law)
+    #: Does the law have a slip-rate scale? Only then is the slip rate a state of the model
+    #: that can run away (a quasi-static instability); under rate-independent Coulomb friction
+    #: it is the loading's and the time step's (slip increment over dt).
+    rate_dependent = False
 
     def __init__(self, scene, *, dilation: bool):
         f = scene.fault
@@ -40,6 +44,10 @@ class FrictionLaw:
     def __call__(self, slip, opening, history, sigma_n0, dt):
         return self.kernel(self.params, slip, opening, history, sigma_n0, dt)
 
+    def max_step(self, slip_rate) -> float:
+        """Largest next step (s) the law allows after a step with these slip rates: no limit."""
+        return np.inf
+
 
 class CoulombFriction(FrictionLaw):
     """Constant friction mu0 (Eq. 17, 24-25)."""
@@ -50,6 +58,20 @@ class RateStateFriction(FrictionLaw):
     ``state_evolution``; regularised near V = 0 (kernels.friction)."""
 
     kernel = staticmethod(kc.rate_state_law)
+    rate_dependent = True
+    #: With state evolution a step may slip at most this fraction of Dc at the peak slip rate
+    #: (dt <= fraction Dc / V_max; Lapusta et al. 2000 use 0.25-0.5): a longer step averages the
+    #: state over a slip that changes it, and steps over the acceleration of a velocity-weakening
+    #: patch instead of following it to the instability.
+    STATE_SLIP_FRACTION = 0.5
+
+    def max_step(self, slip_rate) -> float:
+        """Largest next step (s) the law allows after a step with these slip rates (m/s)."""
+        b, dc = self.params[kc.STATE_B], self.params[kc.D_C]
+        v = float(np.max(np.abs(slip_rate))) if np.size(slip_rate) else 0.0
+        if b == 0.0 or v == 0.0:
+            return np.inf
+        return self.STATE_SLIP_FRACTION * dc / v
 
     def __init__(self, scene, *, dilation: bool, state_evolution: bool):
         super().__init__(scene, dilation=dilation)
