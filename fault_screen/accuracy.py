@@ -246,8 +246,17 @@ def run_study(scene: Scene, runner: Runner, *, levels: int = 3, quantities=None,
     rungs, skipped = ladder(scene, levels, effects, kinds)
     outs = runner.run(scene, [Variant(r.name, r.overrides) for r in rungs], summarise=rung_summary,
                       warm=True, progress=progress, out=out)
+    return analyse(scene, rungs, outs, quantities, kinds, skipped)
+
+
+def analyse(scene: Scene, rungs, outs, quantities, kinds=("space", "time"), skipped=()) -> Study:
+    """The study from the rungs' outcomes (a fresh run's, or ``ensemble.read_ensemble`` of a
+    stored ``runs.h5``: rungs without an outcome are left out)."""
+    family = exact_family(scene)
+    by_name = {o.name: o for o in outs}
+    pairs = [(r, by_name[r.name]) for r in rungs if r.name in by_name]
     rows = []
-    for r, o in zip(rungs, outs):
+    for r, o in pairs:
         row = {"rung": r.name, "kind": r.kind, "factor": r.factor,
                "element_size": o.summary.get("element_size", float("nan")),
                "dt": r.overrides.get("time.dt", scene.time.dt), "effect_off": r.effect_off,
@@ -284,9 +293,13 @@ def run_study(scene: Scene, runner: Runner, *, levels: int = 3, quantities=None,
                 if not ref.asymptotic:
                     warnings.append(f"{ladder_kind} ladder, {q}: {ref.note}; its errors are against "
                                     f"the finest rung")
+                # a reference at round-off of the values' scale is a zero reference: no relative error
+                zero = not np.isfinite(ref.value) or abs(ref.value) <= 1e-9 * np.nanmax(np.abs(vals))
                 for r, v in zip(lad, vals):
-                    _set_error(r, q, abs(v - ref.value) / abs(ref.value)
-                               if np.isfinite(ref.value) and ref.value != 0 and np.isfinite(v) else float("nan"))
+                    r.setdefault("partial", {})[(ladder_kind, q)] = (
+                        abs(v - ref.value) / abs(ref.value) if not zero and np.isfinite(v) else float("nan"))
+    if not family:
+        _total_errors(rows, base, quantities, kinds)
     # effect rungs: the change from the full scene
     for r in rows:
         if r["kind"] != "effect":
@@ -297,7 +310,24 @@ def run_study(scene: Scene, runner: Runner, *, levels: int = 3, quantities=None,
     for r in rows:
         for q in quantities:
             r.setdefault(f"error_{q}", float("nan"))
-    return Study(rows, list(quantities), f"exact ({family})" if family else "richardson", orders, skipped, warnings)
+    return Study(rows, list(quantities), f"exact ({family})" if family else "richardson", orders, list(skipped),
+                 warnings)
+
+
+def _total_errors(rows, base, quantities, kinds):
+    """A rung's error is its own ladder's (against that ladder's extrapolation) plus the other
+    ladder's error at x1, since a space rung keeps the base time step and a time rung the base
+    mesh (to first order the two errors add); the x1 rung gets both."""
+    for r in rows:
+        if r["kind"] not in kinds or "partial" not in r:
+            continue
+        for q in quantities:
+            parts = [r["partial"].get((r["kind"], q), float("nan"))]
+            for other in kinds:
+                if other != r["kind"]:
+                    parts.append(base.get("partial", {}).get((other, q), float("nan")))
+            finite = [e for e in parts if np.isfinite(e)]
+            r[f"error_{q}"] = sum(finite) if np.isfinite(parts[0]) else float("nan")
 
 
 def _set_error(row, q, e):
@@ -358,7 +388,7 @@ def plot_study(study: Study, path, title: str = "") -> None:
             # in ladder order (coarse to fine), so the curve shows the refinement path
             pts = [(r["wall_s"], r[f"error_{q}"]) for r in sorted(disc, key=lambda r: -r["factor"])
                    if (r["kind"] == kind or r["rung"] == "base") and np.isfinite(r[f"error_{q}"])
-                   and r[f"error_{q}"] > 0]
+                   and r[f"error_{q}"] > 1e-10]  # below: round-off, nothing to show on a log axis
             if pts:
                 ax.plot(*zip(*pts), marker=marker, ls="-" if kind == "space" else "--", color=f"C{i}",
                         label=f"{q} ({kind})", ms=4)
@@ -373,7 +403,7 @@ def plot_study(study: Study, path, title: str = "") -> None:
     ax.set_yscale("log")
     ax.set_xlabel("wall time per run (s)")
     ax.set_ylabel(f"relative error ({study.reference})")
-    ax.set_title(title, fontsize=9)
+    ax.set_title(title if len(title) <= 70 else title[:67] + "...", fontsize=9)
     ax.legend(fontsize=6, loc="best")
     fig.tight_layout()
     fig.savefig(path, dpi=110)

@@ -18,7 +18,7 @@ from .scene import Scene
 #: injection-point series and the observation group each one stands for
 SERIES = {"pressure": "pressure", "shear": "slip", "normal": "opening"}
 #: screened quantities of the global methods (default_summary keys)
-SCREENED = ("peak_overpressure", "injection_slip", "slipping_length", "slip_onset")
+SCREENED = ("peak_overpressure", "injection_slip", "slipping_length", "slip_onset", "time_first_yellow")
 
 
 def _check(outcomes, what):
@@ -160,7 +160,8 @@ def _variants(params: ParameterSet, samples_z: np.ndarray):
 
 
 def _screened(outs, q, scene):
-    """One screened quantity over the runs; a fault that never slipped has its onset at the end."""
+    """One screened quantity over the runs; a fault that never slipped (never turned yellow) has
+    its onset (first yellow) at the end of the run."""
     Y = np.array([o.summary[q] for o in outs], dtype=float)
     return np.where(np.isfinite(Y), Y, scene.time.end)
 

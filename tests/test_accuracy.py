@@ -152,3 +152,34 @@ def test_accuracy_bad_options(cli_run, args, message):
     _, _, path = cli_run
     r = CliRunner().invoke(main, ["accuracy", str(path), *args])
     assert r.exit_code == 2 and message in r.output, r.output
+
+
+def test_richardson_ladders_add_space_and_time_errors_and_target_uses_them():
+    """Synthetic rungs with Q(h, dt) = 10 + 0.1 h^2 + 0.05 dt: each rung's reported error (its
+    own ladder's plus the other ladder's at x1) is within 2 % of its true error against Q = 10,
+    and --target picks the cheapest rung whose true error meets it."""
+    from fault_screen.accuracy import analyse
+    from fault_screen.ensemble import TaskOutcome
+
+    scene = Scene.from_toml(VERIFICATION.parent / "rustrel-2015-calibrated-paper-units.toml")
+    rungs, _ = ladder(scene, levels=3, effects=False)
+    h = {"base": 1.0, "h x2": 2.0, "h x1/2": 0.5, "dt x2": 1.0, "dt x1/2": 1.0}
+    dt = {"base": 1.0, "h x2": 1.0, "h x1/2": 1.0, "dt x2": 2.0, "dt x1/2": 0.5}
+    wall = {"base": 1.0, "h x2": 0.25, "h x1/2": 4.0, "dt x2": 0.5, "dt x1/2": 2.0}
+    q = {n: 10 + 0.1 * h[n] ** 2 + 0.05 * dt[n] for n in h}
+    outs = [TaskOutcome(i, r.name, r.overrides, True, {"peak_overpressure": q[r.name], "element_size": h[r.name]},
+                        wall_s=wall[r.name]) for i, r in enumerate(rungs)]
+    # the time rungs carry the scene's dt scaled; make the ladder's dt the synthetic one
+    for r in rungs:
+        r.overrides = {k: v for k, v in r.overrides.items() if k != "time.dt"}
+        if r.kind == "time":
+            r.overrides["time.dt"] = dt[r.name] * scene.time.dt
+    study = analyse(scene, rungs, outs, ["peak_overpressure"])
+    for row in study.rows:
+        true = abs(q[row["rung"]] - 10.0) / 10.0
+        assert row["error_peak_overpressure"] == pytest.approx(true, rel=0.02), row["rung"]
+    assert study.orders[("space", "peak_overpressure")].order == pytest.approx(2.0, abs=1e-6)
+    assert study.orders[("time", "peak_overpressure")].order == pytest.approx(1.0, abs=1e-6)
+    assert study.cheapest(0.016)["rung"] == "base"          # true 1.5 %, wall 1
+    assert study.cheapest(0.013)["rung"] == "dt x1/2"       # true 1.25 %, wall 2 (h x1/2: 0.75 %, wall 4)
+    assert study.cheapest(0.005) is None

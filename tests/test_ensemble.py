@@ -17,7 +17,8 @@ from fault_screen.scene import SceneError
 def tiny():
     """The paper-units calibrated Rustrel scene on a 14 x 15 mesh with 50 s steps (~0.2 s)."""
     base = Scene.from_toml(CONFIGS / "rustrel-2015-calibrated-paper-units.toml")
-    return base.replace(mesh=dataclasses.replace(base.mesh, nx=14, ny=15),
+    # the mesh as given: machinery on a tiny scene, not leak-off accuracy (README 'Leak-off and mesh')
+    return base.replace(mesh=dataclasses.replace(base.mesh, nx=14, ny=15, fault_grading="off"),
                         time=dataclasses.replace(base.time, dt=50.0))
 
 
@@ -59,7 +60,7 @@ def test_in_process_run_keeps_failures_and_streams(tiny, tmp_path):
     direct = default_summary(simulate(scene_with(tiny, {"injection.number_of_fractures": 46.0})))
     assert out[0].summary["peak_overpressure"] == direct["peak_overpressure"]
     # fewer fractures share the flow: more pressure (Eq. 29)
-    assert out[0].summary["peak_overpressure"] > 1.2 * out[2].summary["peak_overpressure"]
+    assert out[0].summary["peak_overpressure"] > 1.1 * out[2].summary["peak_overpressure"]
     stored = read_ensemble(tmp_path / "e.h5")
     assert [o.name for o in stored] == ["nof46", "bad", "nof120"]
     assert not stored[1].ok and stored[1].error == out[1].error

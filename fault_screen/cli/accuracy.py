@@ -71,7 +71,7 @@ def accuracy(scene_path, levels, target, quantities, no_effects, out_dir, worker
     finally:
         runner.close()
     write_csv(study, out / "accuracy.csv")
-    plot_study(study, out / "accuracy.png", title=f"{scene.title} -- reference: {study.reference}")
+    plot_study(study, out / "accuracy.png", title=scene.title)
     click.echo(f"reference: {study.reference}")
     head = ["rung", "h (m)", "dt (s)", "wall (s)", "MB", "unknowns", "steps", "newton"] + study.quantities
     rows = []

@@ -130,7 +130,7 @@ def _show_table(obj, section: str, raw, scene, derived, lines: list) -> None:
         else:
             src = "default"
         if value is None:
-            if key in derived:
+            if key in derived and derived[key][0] is not None:  # (a mobility leaves permeability unset)
                 dv, how = derived[key]
                 lines.append(f"# {name} = {_toml_value(dv)}".ljust(44)
                              + f"# {unit}, derived: {how}")
@@ -170,6 +170,7 @@ def show(path):
 
     with reading(path):
         lines += [""] + ["# " + line for line in fault_state_lines(discretise(sc))]
+    lines += ["# " + line for line in sc.flow_summary()]  # permeability and mobility, both
     click.echo("\n".join(lines) + "\n", nl=False)
 
 
