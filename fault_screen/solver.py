@@ -196,36 +196,37 @@ class NewtonSolver:
         # W = B^-1 L_BN is formed column block by column block for the Schur complement anyway;
         # kept when it is small, it turns the second sparse solve of every Newton iteration into
         # one dense product (dxB = yB - W dxN)
-        keep_W = len(N) and len(B) * len(N) * 8 <= KEEP_CONDENSATION_BYTES
+        keep_W = len(N) > 0 and len(B) * len(N) * 8 <= KEEP_CONDENSATION_BYTES
+        self.lu_B = _sparse_lu(Ls[B][:, B])
+        self.factorizations += 1
         if self.static_B:  # first step: B, the products and the N blocks, once for the run
-            self.lu_B = _sparse_lu(Ls[B][:, B])
-            self.factorizations += 1
             rows_N = [(D @ M @ D).tocsr()[N] for M in (self.A, self.C, self.Hf)]
             parts = [r[:, B] for r in rows_N]
             self._NN = [r[:, N] for r in rows_N]
             self._P = [np.zeros((len(N), len(N))) for _ in parts]
-            self.W = np.empty((len(B), len(N))) if keep_W else None
-            for j0 in range(0, len(N), 256):
-                X = self.lu_B.solve(self.L_BN[:, j0:j0 + 256].toarray())
-                if self.W is not None:
-                    self.W[:, j0:j0 + 256] = X
+            for cols, X in self._condensation(keep_W):
                 for P, part in zip(self._P, parts):
-                    P[:, j0:j0 + 256] = part @ X
+                    P[:, cols] = part @ X
             self.schur = self._static_schur(dt)
         else:
-            self.lu_B = _sparse_lu(Ls[B][:, B])
-            self.factorizations += 1
-            self.W = np.empty((len(B), len(N))) if keep_W else None
-            if len(N):
-                schur = LsN[:, N].toarray()
-                for j0 in range(0, len(N), 256):
-                    X = self.lu_B.solve(self.L_BN[:, j0:j0 + 256].toarray())
-                    if self.W is not None:
-                        self.W[:, j0:j0 + 256] = X
-                    schur[:, j0:j0 + 256] -= self.L_NB @ X
-                self.schur = schur
+            schur = LsN[:, N].toarray()
+            for cols, X in self._condensation(keep_W):
+                schur[:, cols] -= self.L_NB @ X
+            self.schur = schur
         self.L = L
         self._dt = dt
+
+    def _condensation(self, keep_W):
+        """B^-1 L_BN, 256 columns at a time: yields (column slice, block); keeps the whole of it
+        as W when ``keep_W``."""
+        N, B = self.N, self.B
+        self.W = np.empty((len(B), len(N))) if keep_W else None
+        for j0 in range(0, len(N), 256):
+            cols = slice(j0, j0 + 256)
+            X = self.lu_B.solve(self.L_BN[:, cols].toarray())
+            if self.W is not None:
+                self.W[:, cols] = X
+            yield cols, X
 
     def _static_schur(self, dt):
         """Schur complement for step size dt when B does not depend on it: only the N block and
