@@ -40,7 +40,7 @@ def hard_rustrel():
 
 def pressure_controlled():
     s = Scene.from_toml(VERIFICATION / "fluid-driven-slip-T0.4-horizontal.toml")
-    return s.replace(mesh=dataclasses.replace(s.mesh, nx=40, ny=41),
+    return s.replace(mesh=dataclasses.replace(s.mesh, nx=24, ny=25),
                      time=dataclasses.replace(s.time, end=0.05))
 
 
