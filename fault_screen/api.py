@@ -21,7 +21,7 @@ def scene_injected_volume(scene: Scene):
     from .io.injection_log import read_injection_log
 
     log = read_injection_log(inj.log, flow_unit=inj.log_flow_unit, max_gap=inj.log_max_gap,
-                             policy=inj.log_policy)
+                             policy=inj.log_policy, flowback=inj.allow_flowback)
     return log.volume
 
 

@@ -417,3 +417,17 @@ def test_gaps_standin_policies(tmp_path):
     back = read_injection_log(out, max_gap=None)
     np.testing.assert_array_equal(back.time, hold.time)
     np.testing.assert_allclose(back.flow_rate, hold.flow_rate, rtol=1e-15)
+
+
+def test_negative_rates_need_flowback_and_then_integrate_signed(tmp_path):
+    """Flowback: a log that goes negative is refused unless the scene allows flowback; then the
+    volume is the signed trapezoid (60 L/min in for 60 s, -30 L/min back for 60 s, ramps 30 s)."""
+    from fault_screen.io.injection_log import InjectionLogError, read_injection_log
+
+    p = tmp_path / "flowback.csv"
+    p.write_text("elapsed[s],flow_rate[L/min]\n0,60\n60,60\n90,-30\n150,-30\n")
+    with pytest.raises(InjectionLogError, match="allow_flowback"):
+        read_injection_log(p)
+    log = read_injection_log(p, flowback=True)
+    litres = 60 * 1.0 + 0.5 * (60 - 30) * 0.5 - 30 * 1.0   # L: in, the ramp (net), back
+    assert log.volume(0.0, 150.0) == pytest.approx(litres * 1e-3, rel=1e-12)

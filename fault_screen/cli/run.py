@@ -63,7 +63,8 @@ def read_scene_log(scene):
     inj = scene.injection
     with reading(inj.log):
         return read_injection_log(inj.log, flow_unit=inj.log_flow_unit, max_gap=inj.log_max_gap,
-                                  policy=inj.log_policy, option_names=SCENE_LOG_NAMES)
+                                  policy=inj.log_policy, option_names=SCENE_LOG_NAMES,
+                                  flowback=inj.allow_flowback)
 
 
 def events_report(catalog, t0: float, t1: float, start) -> list[str]:

@@ -184,6 +184,8 @@ class InjectionLog:
     flow_unit: str = "m3/s"
     pressure_unit: Optional[str] = None
     summary: str = ""
+    flowback: bool = False
+    """Negative rates (fluid flowing back out) are allowed (a scene's injection.allow_flowback)."""
     _cum: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
@@ -195,8 +197,8 @@ class InjectionLog:
             raise ValueError(f"time has {t.size} samples but flow_rate has {q.size}")
         if not (np.all(np.isfinite(t)) and np.all(np.diff(t) > 0)):
             raise ValueError("time must be finite and strictly increasing")
-        if not np.all(np.isfinite(q)) or np.any(q < 0):
-            raise ValueError("flow_rate must be finite and >= 0")
+        if not np.all(np.isfinite(q)) or (not self.flowback and np.any(q < 0)):
+            raise ValueError("flow_rate must be finite and >= 0 (negative only with flowback)")
         p = None
         if self.pressure is not None:
             p = np.array(self.pressure, dtype=np.float64).reshape(-1)
@@ -818,7 +820,8 @@ def read_injection_log(path, *, flow_unit: Optional[str] = None,
                        time_column: Optional[object] = None,
                        flow_column: Optional[object] = None,
                        pressure_column: Optional[object] = None,
-                       option_names: Optional[dict] = None) -> InjectionLog:
+                       option_names: Optional[dict] = None,
+                       flowback: bool = False) -> InjectionLog:
     """Read an operator's injection log (CSV and its dialects) into an :class:`InjectionLog`.
 
     ``max_gap`` (s): longest accepted interval between kept samples (None or inf disables the
@@ -928,9 +931,10 @@ def read_injection_log(path, *, flow_unit: Optional[str] = None,
 
         # -- flow rate --------------------------------------------------------
         v, why = num(cells[iq])
-        if v is not None and v < 0:
-            why = f"negative flow rate {cells[iq]}"
-        elif v is not None and v > q_hi:
+        if v is not None and v < 0 and not flowback:
+            why = (f"negative flow rate {cells[iq]} (flowback: set injection.allow_flowback = true "
+                   f"in the scene)")
+        elif v is not None and abs(v) > q_hi:
             why = (f"flow rate {cells[iq]} {qname} is outside the plausible range 0 to "
                    f"{q_hi:.6g} {qname} (0 to {FLOW_RATE_RANGE[1]:g} m3/s); check the unit")
         if why is not None:
@@ -998,7 +1002,8 @@ def read_injection_log(path, *, flow_unit: Optional[str] = None,
     time = np.asarray(T, dtype=np.float64)
     time = time - time[0]   # s since the first kept stamp
     log = InjectionLog(time, np.asarray(Q), np.asarray(P) if ip is not None else None,
-                       start, src, tuple(warnings), flow_unit=qname, pressure_unit=pname)
+                       start, src, tuple(warnings), flow_unit=qname, pressure_unit=pname,
+                       flowback=flowback)
 
     # -- one line saying what was understood ----------------------------------------------------
     dialect = [tab.encoding, f"{_DELIMITERS.get(tab.delim, 'blank')}-separated"]
