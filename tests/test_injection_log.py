@@ -224,7 +224,8 @@ def test_bad_input_stop(tmp_path, lineno, text, column, needles):
 def test_negative_message_exact(tmp_path):
     body, name = with_line(6, "20,-3.2")
     with pytest.raises(InjectionLogError, match=r"^rustrel\.csv line 6, column "
-                       r"flow_rate\[L/min\]: negative flow rate -3\.2$"):
+                       r"flow_rate\[L/min\]: negative flow rate -3\.2 \(flowback: set "
+                       r"injection\.allow_flowback = true in the scene\)$"):
         read_injection_log(write(tmp_path, body, name))
 
 
