@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -18,6 +19,25 @@ import numpy as np
 
 from .outputs import unit
 from .scene import Scene
+
+
+@contextmanager
+def atomic_hdf5(path):
+    """An HDF5 file written under a temporary name, synced and renamed only when complete, so a
+    failed or killed write leaves the previous file intact and no partial one."""
+    import h5py
+
+    path = Path(path)
+    tmp = path.with_name(path.name + ".part")
+    try:
+        with h5py.File(tmp, "w") as h5:
+            yield h5
+            h5.flush()
+            os.fsync(h5.id.get_vfd_handle())
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
 
 
 @dataclass
@@ -35,32 +55,24 @@ class Result:
     extra: dict = field(default_factory=dict)
 
     def save(self, path) -> Path:
-        import h5py
-
         path = Path(path)
-        tmp = path.with_name(path.name + ".part")
-        try:
-            with h5py.File(tmp, "w") as h5:
-                h5.attrs["scene"] = self.scene.to_toml()
-                h5.attrs["meta"] = json.dumps(self.meta, default=float)
-                h5.create_dataset("time", data=self.time).attrs["unit"] = unit("", "time")
-                g = h5.create_group("fault")
-                for k, v in (("x", self.fault_x), ("xy", self.fault_xy), ("weight", self.fault_weights)):
-                    g.create_dataset(k, data=v).attrs["unit"] = unit("fault", k)
-                for k, v in self.fault.items():
-                    g.create_dataset(k, data=v, compression="gzip").attrs["unit"] = unit("fault", k)
-                for name in ("injection", "balance", "solver"):
-                    grp = h5.create_group(name)
-                    for k, v in getattr(self, name).items():
-                        grp.create_dataset(k, data=v).attrs["unit"] = unit(name, k)
-                for name, arrays in self.extra.items():
-                    grp = h5.require_group(name)
-                    for k, v in arrays.items():
-                        grp.create_dataset(k, data=v).attrs["unit"] = unit(name, k)
-            os.replace(tmp, path)
-        finally:
-            if tmp.exists():
-                tmp.unlink()
+        with atomic_hdf5(path) as h5:
+            h5.attrs["scene"] = self.scene.to_toml()
+            h5.attrs["meta"] = json.dumps(self.meta, default=float)
+            h5.create_dataset("time", data=self.time).attrs["unit"] = unit("", "time")
+            g = h5.create_group("fault")
+            for k, v in (("x", self.fault_x), ("xy", self.fault_xy), ("weight", self.fault_weights)):
+                g.create_dataset(k, data=v).attrs["unit"] = unit("fault", k)
+            for k, v in self.fault.items():
+                g.create_dataset(k, data=v, compression="gzip").attrs["unit"] = unit("fault", k)
+            for name in ("injection", "balance", "solver"):
+                grp = h5.create_group(name)
+                for k, v in getattr(self, name).items():
+                    grp.create_dataset(k, data=v).attrs["unit"] = unit(name, k)
+            for name, arrays in self.extra.items():
+                grp = h5.require_group(name)
+                for k, v in arrays.items():
+                    grp.create_dataset(k, data=v).attrs["unit"] = unit(name, k)
         return path
 
     @classmethod

@@ -17,7 +17,6 @@ continues from its natural size afterwards.
 from __future__ import annotations
 
 import json
-import os
 import time as _time
 import tomllib
 from pathlib import Path
@@ -29,7 +28,7 @@ from . import __version__
 from .discretisation import Discretisation, discretise
 from .kernels.contact import H_SLIP
 from .outputs import SCHEMA
-from .result import Result
+from .result import Result, atomic_hdf5
 from .scene import Scene
 from .schedule import StepSchedule
 from .solver import NewtonSolver, StepFailed, fault_at_rest
@@ -281,38 +280,28 @@ class Simulation:
     def checkpoint(self, path) -> Path:
         """Write the complete state (unknowns, fault history, step size, time, recorded rows,
         scene, solver scaling) to HDF5, atomically (temporary file, then rename)."""
-        import h5py
-
         path = Path(path)
-        tmp = path.with_name(path.name + ".part")
-        try:
-            with h5py.File(tmp, "w") as h5:
-                h5.attrs["format"] = CHECKPOINT_FORMAT
-                h5.attrs["version"] = __version__
-                h5.attrs["scene"] = self.scene.to_toml()
-                h5.attrs["state"] = json.dumps(dict(time=self.time, steps=self.steps, dt=self.dt,
-                                                    injected=self.injected, leaked=self.leaked,
-                                                    damped_retries=self.damped_retries,
-                                                    damped_ahead=self.damped_ahead,
-                                                    continuation_steps=self.continuation_steps,
-                                                    stopped=self.stopped, dt_recover=self.dt_recover,
-                                                    dt_failed=self.dt_failed,
-                                                    recovery_hold=self.recovery_hold,
-                                                    build_time=self.build_time, wall_time=self.wall_time))
-                h5["x"] = self.x
-                if self.history is not None:
-                    h5["history"] = self.history
-                if self.solver.scale is not None:
-                    h5["solver_scale"] = self.solver.scale
-                rows = h5.create_group("rows")
-                for key in self.recorder.rows[0]:
-                    rows[key] = np.array([r[key] for r in self.recorder.rows])
-                h5.flush()
-                os.fsync(h5.id.get_vfd_handle())
-            os.replace(tmp, path)
-        finally:
-            if tmp.exists():
-                tmp.unlink()
+        with atomic_hdf5(path) as h5:
+            h5.attrs["format"] = CHECKPOINT_FORMAT
+            h5.attrs["version"] = __version__
+            h5.attrs["scene"] = self.scene.to_toml()
+            h5.attrs["state"] = json.dumps(dict(time=self.time, steps=self.steps, dt=self.dt,
+                                                injected=self.injected, leaked=self.leaked,
+                                                damped_retries=self.damped_retries,
+                                                damped_ahead=self.damped_ahead,
+                                                continuation_steps=self.continuation_steps,
+                                                stopped=self.stopped, dt_recover=self.dt_recover,
+                                                dt_failed=self.dt_failed,
+                                                recovery_hold=self.recovery_hold,
+                                                build_time=self.build_time, wall_time=self.wall_time))
+            h5["x"] = self.x
+            if self.history is not None:
+                h5["history"] = self.history
+            if self.solver.scale is not None:
+                h5["solver_scale"] = self.solver.scale
+            rows = h5.create_group("rows")
+            for key in self.recorder.rows[0]:
+                rows[key] = np.array([r[key] for r in self.recorder.rows])
         return path
 
     @classmethod

@@ -72,8 +72,8 @@ def events_report(catalog, t0: float, t1: float, start) -> list[str]:
     inside = int(np.count_nonzero((catalog.time >= t0) & (catalog.time <= t1)))
     lines = []
     if len(catalog) and inside == 0:
-        when = f" after {start.isoformat()}" if start is not None else " (event times relative " \
-               f"to the first event: give --t0 to place them)"
+        when = (f" after {start.isoformat()}" if start is not None
+                else " (event times relative to the first event: give --t0 to place them)")
         lines.append(f"Warning: none of the {len(catalog)} events of {catalog.source} is inside "
                      f"the run ({t0:g} to {t1:g} s{when}); first event at "
                      f"{float(catalog.time.min()):.6g} s, last at {float(catalog.time.max()):.6g} s")

@@ -59,7 +59,6 @@ def test_unstable_result_saves_and_screens_red(tmp_path):
 def test_stick_slip_cycling_runs_to_the_end_and_cycles():
     """The patch at the injection point goes stick -> slip -> stick three times."""
     r = run_case("stick-slip-cycling").result
-    g = r.injection["slip"]  # noqa: F841 - the series exists
     state = r.fault["contact_state"][:, np.argmin(np.abs(r.fault_x))]
     sliding = (state == 1).astype(int)
     starts = np.count_nonzero(np.diff(sliding) == 1)
