@@ -811,6 +811,18 @@ class _Clock:
         return text
 
 
+def flow_rate_cell(num, cell: str, q_hi: float, qname: str, flowback: bool):
+    """(value in the log's unit, problem) of a flow-rate cell: a number, not negative unless
+    flowback is allowed, within the plausible range (``q_hi`` in the log's unit)."""
+    v, why = num(cell)
+    if v is not None and v < 0 and not flowback:
+        why = f"negative flow rate {cell} (flowback: set injection.allow_flowback = true in the scene)"
+    elif v is not None and abs(v) > q_hi:
+        why = (f"flow rate {cell} {qname} is outside the plausible range 0 to {q_hi:.6g} {qname} "
+               f"(0 to {FLOW_RATE_RANGE[1]:g} m3/s); check the unit")
+    return v, why
+
+
 def read_injection_log(path, *, flow_unit: Optional[str] = None,
                        pressure_unit: Optional[str] = None,
                        max_gap: Optional[float] = 600.0,
@@ -930,13 +942,7 @@ def read_injection_log(path, *, flow_unit: Optional[str] = None,
             continue
 
         # -- flow rate --------------------------------------------------------
-        v, why = num(cells[iq])
-        if v is not None and v < 0 and not flowback:
-            why = (f"negative flow rate {cells[iq]} (flowback: set injection.allow_flowback = true "
-                   f"in the scene)")
-        elif v is not None and abs(v) > q_hi:
-            why = (f"flow rate {cells[iq]} {qname} is outside the plausible range 0 to "
-                   f"{q_hi:.6g} {qname} (0 to {FLOW_RATE_RANGE[1]:g} m3/s); check the unit")
+        v, why = flow_rate_cell(num, cells[iq], q_hi, qname, flowback)
         if why is not None:
             if policy == "hold" and last_q is not None:
                 problem(line, qcol, why, f"held previous rate {last_q / qf!r}")

@@ -36,7 +36,7 @@ from .injection_log import (
     _DATE_EXACT, _FLOW_EXACT, _FLOW_PREFIXES, _PRESSURE_EXACT, _PRESSURE_PREFIXES, _TIME_EXACT,
     _TIME_FORMAT_HINTS, _TIME_PREFIXES, FLOW_RATE_RANGE, HOLD_EPS, KEYWORD_NAMES, POLICIES,
     PRESSURE_RANGE, InjectionLogError, _arg, _as_date, _Clock, _delimiter, _norm, _Numbers,
-    _same_unit, _split, _Table, _unit_for, _where, _zone,
+    _same_unit, _split, _Table, _unit_for, _where, _zone, flow_rate_cell,
 )
 
 __all__ = ["LogDecoder", "Sample"]
@@ -67,7 +67,7 @@ class LogDecoder:
                  policy: str = "stop", date=None, tz=None, time_column=None, flow_column=None,
                  pressure_column=None, option_names: Optional[dict] = None,
                  resume: Optional[dict] = None,
-                 on_warning: Optional[Callable[[str], None]] = None):
+                 on_warning: Optional[Callable[[str], None]] = None, flowback: bool = False):
         self.names = dict(KEYWORD_NAMES)
         self.names.update(option_names or {})
         if policy not in POLICIES:
@@ -78,6 +78,7 @@ class LogDecoder:
         self.source = str(source)
         self.flow_unit, self.pressure_unit = flow_unit, pressure_unit
         self.max_gap, self.policy = max_gap, policy
+        self.flowback = flowback   # negative rates allowed (the scene's injection.allow_flowback)
         self.zone = _zone(tz, self.source, self.names["tz"])
         self.day0 = _as_date(date, self.source, self.names["date"])
         self.columns = (time_column, flow_column, pressure_column)
@@ -288,13 +289,7 @@ class LogDecoder:
                           f"{last[3]})", "row dropped")
             return []
 
-        v, why = self.num(cells[self.iq])
-        if v is not None and v < 0:
-            why = f"negative flow rate {cells[self.iq]}"
-        elif v is not None and v > self.q_hi:
-            why = (f"flow rate {cells[self.iq]} {self.qname} is outside the plausible range 0 to "
-                   f"{self.q_hi:.6g} {self.qname} (0 to {FLOW_RATE_RANGE[1]:g} m3/s); check the "
-                   f"unit")
+        v, why = flow_rate_cell(self.num, cells[self.iq], self.q_hi, self.qname, self.flowback)
         if why is not None:
             if self.policy == "hold" and self.last_q is not None:
                 self._problem(line, self.qcol, why, f"held previous rate {self.last_q / self.qf!r}")

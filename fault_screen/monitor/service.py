@@ -88,7 +88,8 @@ class MonitorService:
                                   pressure_unit=config.pressure_unit, max_gap=config.max_gap,
                                   policy=config.policy, **config.log_options,
                                   resume=extra.get("decoder"),
-                                  on_warning=lambda m: log.warning("%s", m))
+                                  on_warning=lambda m: log.warning("%s", m),
+                                  flowback=scene.injection.allow_flowback)
         name = config.source or ("stdin" if config.follow == "-" else "csv")
         self.source = plugins.instantiate("source", name, config.follow, decoder=self.decoder,
                                           poll_interval=config.poll_interval,
