@@ -811,6 +811,20 @@ class _Clock:
         return text
 
 
+def _column_units(tab, row_units, it: int) -> list:
+    """Each column's unit: the header's, or the units row's (which must agree with a header
+    unit; a time-format hint such as hh:mm:ss in the time column is not a unit)."""
+    units = [u for _, u, _ in tab.cols]
+    for i, u in enumerate(row_units):
+        if u is None or (i == it and _norm(u) in _TIME_FORMAT_HINTS):
+            continue
+        if units[i] is not None and not _same_unit(units[i], u):
+            raise tab.error(tab.units_line, tab.cols[i][2],
+                            f"the units row says {u!r} but the header says {units[i]!r}")
+        units[i] = u
+    return units
+
+
 def flow_rate_cell(num, cell: str, q_hi: float, qname: str, flowback: bool):
     """(value in the log's unit, problem) of a flow-rate cell: a number, not negative unless
     flowback is allowed, within the plausible range (``q_hi`` in the log's unit)."""
@@ -878,15 +892,7 @@ def read_injection_log(path, *, flow_unit: Optional[str] = None,
     tcol, qcol = tab.cols[it][2], tab.cols[iq][2]
     pcol = tab.cols[ip][2] if ip is not None else None
 
-    units = [u for _, u, _ in tab.cols]
-    row_units = tab.take_units_row(num, iq)
-    for i, u in enumerate(row_units):
-        if u is None or (i == it and _norm(u) in _TIME_FORMAT_HINTS):
-            continue
-        if units[i] is not None and not _same_unit(units[i], u):
-            raise tab.error(tab.units_line, tab.cols[i][2],
-                            f"the units row says {u!r} but the header says {units[i]!r}")
-        units[i] = u
+    units = _column_units(tab, tab.take_units_row(num, iq), it)
     unit_line = tab.units_line or tab.hline
     qf, qname = _unit_for(src, unit_line, qcol, units[iq], flow_unit, "flow_rate",
                           names["flow_unit"])

@@ -34,9 +34,9 @@ from typing import Callable, List, Optional
 from .. import units as _units
 from .injection_log import (
     _DATE_EXACT, _FLOW_EXACT, _FLOW_PREFIXES, _PRESSURE_EXACT, _PRESSURE_PREFIXES, _TIME_EXACT,
-    _TIME_FORMAT_HINTS, _TIME_PREFIXES, FLOW_RATE_RANGE, HOLD_EPS, KEYWORD_NAMES, POLICIES,
+    _TIME_PREFIXES, FLOW_RATE_RANGE, HOLD_EPS, KEYWORD_NAMES, POLICIES,
     PRESSURE_RANGE, InjectionLogError, _arg, _as_date, _Clock, _delimiter, _norm, _Numbers,
-    _same_unit, _split, _Table, _unit_for, _where, _zone, flow_rate_cell,
+    _column_units, _split, _Table, _unit_for, _where, _zone, flow_rate_cell,
 )
 
 __all__ = ["LogDecoder", "Sample"]
@@ -203,18 +203,11 @@ class LogDecoder:
                             "different columns")
         idate = next((i for i, (b, _, _) in enumerate(tab.cols)
                       if b in _DATE_EXACT and i not in used), None)
-        units = [u for _, u, _ in tab.cols]
         row_units = tab.take_units_row(num, iq)
         if not tab.rows:
             # only a units row so far: decide again when a data row comes
             return []
-        for i, u in enumerate(row_units):
-            if u is None or (i == it and _norm(u) in _TIME_FORMAT_HINTS):
-                continue
-            if units[i] is not None and not _same_unit(units[i], u):
-                raise tab.error(tab.units_line, tab.cols[i][2],
-                                f"the units row says {u!r} but the header says {units[i]!r}")
-            units[i] = u
+        units = _column_units(tab, row_units, it)
         unit_line = tab.units_line or tab.hline
         qcol = tab.cols[iq][2]
         self.qf, self.qname = _unit_for(src, unit_line, qcol, units[iq], self.flow_unit,
