@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .ensemble import Runner, Variant, default_summary
+from .exact import fault_diffusion_pressure, fluid_driven_slip, slip_front_lambda
 from .scene import Scene, SceneError
 
 #: screened quantities (default_summary keys) and what they are
@@ -29,70 +30,144 @@ QUANTITIES = {
     "time_first_yellow": "time the traffic light first turns yellow (s; empty if never)",
     "time_first_red": "time the traffic light first turns red (s; empty if never)",
 }
-#: quantities of the exact family (along-fault diffusion)
-EXACT_QUANTITIES = {
-    "fault_overpressure_l2": "fault overpressure profile at the end, L2 error relative to dp",
-    "injection_flow_rate": "injection flow rate at the end (m^3/s)",
+#: quantities each exact family measures against its closed-form solution (the end state);
+#: a ``*_l2`` quantity is itself the relative L2 error of an end profile, the others are end values
+FAMILY_QUANTITIES = {
+    "fault_diffusion": {
+        "fault_overpressure_l2": "fault overpressure profile at the end, L2 error relative to dp",
+        "injection_flow_rate": "injection flow rate at the end (m^3/s)",
+    },
+    "fluid_driven_slip": {
+        "slip_l2": "slip profile at the end, L2 error relative to the exact profile's L2 norm",
+        "injection_slip": "slip at the injection point at the end (m)",
+        "slipping_length": "length of fault slipping at the end, exact 2 lambda sqrt(4 alpha t) (m)",
+        "fault_overpressure_l2": "fault overpressure profile at the end, L2 error relative to dp",
+        "injection_flow_rate": "injection flow rate at the end (m^3/s)",
+    },
 }
 SWITCHABLE = ("fault_flow", "leak_off", "rate_friction", "state_evolution", "dilation",
               "aperture_evolution", "gravity", "damage_zone", "poroelastic")
 
 
-# ---- the exact family ------------------------------------------------------------------------------
+# ---- the exact families ----------------------------------------------------------------------------
 def exact_family(scene: Scene) -> str | None:
-    """'fault_diffusion' when the scene is along-fault diffusion with a closed-form solution:
-    rigid impermeable rock (mechanics, poroelastic and leak-off off), a constant overpressure
-    held at the injection point from t = 0, constant aperture and a given fault storativity,
-    an infinite fault in practice (the front sqrt(4 alpha t_end) well inside the domain).
-    Then p = dp erfc(|x| / sqrt(4 alpha t)) and the injected rate is 2 T dp / sqrt(pi alpha t)
-    (T the fault transmissivity, alpha = T / S). None otherwise."""
+    """The closed-form family the scene belongs to, or None. Both hold a constant overpressure dp
+    at the injection point from t = 0 on a fault in impermeable rock (poroelastic and leak-off
+    off, constant aperture, a given fault storativity), with the pressure front sqrt(4 alpha t_end)
+    well inside the domain:
+
+    - 'fault_diffusion': rigid rock (mechanics off). p = dp erfc(|x| / sqrt(4 alpha t)),
+      alpha = T / S, injected rate 2 T dp / sqrt(pi alpha t) (T the transmissivity).
+    - 'fluid_driven_slip': elastic homogeneous rock (no zones, damage zone or gravity), constant
+      friction f (rate friction and dilation off), 0 < T = (f sigma_n' - |tau0|) / (f dp) < 1
+      with sigma_n', tau0 the initial effective stress on the fault (p0 = 0): the self-similar
+      crack of Bhattacharya & Viesca (2019) / Viesca (2021), slip front a = lambda(T) sqrt(4 alpha t),
+      alpha = T / (S + 1/kN) (a closed penalty fault also stores dp/kN by opening its springs).
+    """
     e, inj, f = scene.effects, scene.injection, scene.fault
-    if (e.mechanics or e.poroelastic or e.leak_off or not e.fault_flow or e.aperture_evolution
+    if (not e.fault or e.poroelastic or e.leak_off or not e.fault_flow or e.aperture_evolution
             or inj.control != "pressure" or len(inj.schedule) != 1 or inj.schedule[0][0] != 0.0
-            or f.storativity is None or f.storativity <= 0 or inj.log is not None):
+            or inj.schedule[0][1] <= 0 or f.storativity is None or f.storativity <= 0 or inj.log is not None):
         return None
-    alpha = _diffusivity(scene)
-    front = math.sqrt(4 * alpha * scene.time.end)
+    if not e.mechanics:
+        family = "fault_diffusion"
+    elif (e.rate_friction or e.state_evolution or e.dilation or e.gravity or e.damage_zone or scene.zones
+          or scene.initial.pore_pressure != 0.0 or inj.position != 0.0
+          or not 0.0 < _stress_injection_parameter(scene) < 1.0):
+        return None
+    else:
+        family = "fluid_driven_slip"
+    front = math.sqrt(4 * _diffusivity(scene, family) * scene.time.end)
+    if family == "fluid_driven_slip":
+        front *= slip_front_lambda(_stress_injection_parameter(scene))
     half = 0.5 * (scene.mesh.lx if f.angle % 180 == 0 else min(scene.mesh.lx, scene.mesh.ly))
-    return "fault_diffusion" if 3 * front < half else None
+    return family if 3 * front < half else None
 
 
-def _diffusivity(scene):
+def _transmissivity(scene):
     f = scene.fault
-    transmissivity = f.hydraulic_aperture ** 3 / (12 * scene.fluid.viscosity * f.kappa)
-    return transmissivity / f.storativity
+    return f.hydraulic_aperture ** 3 / (12 * scene.fluid.viscosity * f.kappa)
 
 
-def exact_summary(result) -> dict:
-    """The exact family's quantities: relative L2 error of the end profile (computed here, where
-    the profile is) and the end injection rate (compared with the exact rate later)."""
-    from scipy.special import erfc
+def _diffusivity(scene, family):
+    f = scene.fault
+    storage = f.storativity + (1.0 / f.normal_stiffness if family == "fluid_driven_slip" else 0.0)
+    return _transmissivity(scene) / storage
 
+
+def _fault_stress(scene):
+    """(sigma_n', |tau0|) on the fault plane from the initial stress (Pa, compression positive);
+    with p0 = 0 every stress kind reads the same."""
+    sxx, syy, sxy = scene.initial.stress if scene.initial.stress is not None else (0.0, 0.0, 0.0)
+    a = math.radians(scene.fault.angle)
+    t, n = np.array([math.cos(a), math.sin(a)]), np.array([-math.sin(a), math.cos(a)])
+    stress = np.array([[sxx, sxy], [sxy, syy]])
+    return float(-(n @ stress @ n)), float(abs(t @ stress @ n))
+
+
+def _stress_injection_parameter(scene):
+    """T = (f sigma_n' - |tau0|) / (f dp) (-): 1 - T measures how close to failure dp brings it."""
+    sigma, tau = _fault_stress(scene)
+    f = scene.fault.friction
+    return (f * sigma - tau) / (f * scene.injection.schedule[0][1])
+
+
+def exact_summary(result, family: str) -> dict:
+    """Each family quantity of one run and its exact reference ``exact_<q>`` at the run's end
+    time (an ``*_l2`` quantity is already the error: its reference is 0)."""
     scene = result.scene
     dp = scene.injection.schedule[0][1]
-    t = result.time[-1]
-    alpha = _diffusivity(scene)
-    exact = dp * erfc(np.abs(result.fault_x) / math.sqrt(4 * alpha * t))
-    w = result.fault_weights
-    err = math.sqrt(np.sum(w * (result.fault["overpressure"][-1] - exact) ** 2) / np.sum(w * dp ** 2))
-    return {"fault_overpressure_l2": err, "injection_flow_rate": float(result.injection["flow_rate"][-1])}
+    t = float(result.time[-1])
+    alpha = _diffusivity(scene, family)
+    x, w = result.fault_x, result.fault_weights
+    p_exact = fault_diffusion_pressure(x, t, dp=dp, alpha=alpha)
+    out = {
+        "fault_overpressure_l2": _l2(result.fault["overpressure"][-1] - p_exact, w, np.full_like(x, dp)),
+        "injection_flow_rate": float(result.injection["flow_rate"][-1]),
+        "exact_injection_flow_rate": 2 * _transmissivity(scene) * dp / math.sqrt(math.pi * alpha * t)
+        * scene.injection.number_of_fractures,
+    }
+    if family == "fluid_driven_slip":
+        T = _stress_injection_parameter(scene)
+        rock = scene.rock
+        shear_modulus = rock.youngs_modulus / (2 * (1 + rock.poissons_ratio))
+        kw = dict(alpha=alpha, dp=dp, f=scene.fault.friction, T=T, shear_modulus=shear_modulus,
+                  nu=rock.poissons_ratio)
+        slip = np.abs(result.fault["slip"][-1])
+        d_exact = fluid_driven_slip(x, t, **kw)
+        a = slip_front_lambda(T) * math.sqrt(4 * alpha * t)
+        out.update({
+            "slip_l2": _l2(slip - d_exact, w, d_exact),
+            # the values themselves are default_summary's injection_slip and slipping_length
+            "exact_injection_slip": float(fluid_driven_slip(0.0, t, **kw)),
+            "exact_slipping_length": 2 * a,
+        })
+    return out
 
 
-def exact_values(scene: Scene) -> dict:
-    """Exact reference of each exact-family quantity (the L2 error's reference is 0 error)."""
-    f = scene.fault
-    transmissivity = f.hydraulic_aperture ** 3 / (12 * scene.fluid.viscosity * f.kappa)
-    alpha = _diffusivity(scene)
-    dp = scene.injection.schedule[0][1]
-    rate = 2 * transmissivity * dp / math.sqrt(math.pi * alpha * scene.time.end)
-    return {"injection_flow_rate": rate * scene.injection.number_of_fractures}
+def _l2(diff, w, ref) -> float:
+    return float(math.sqrt(np.sum(w * diff ** 2) / np.sum(w * ref ** 2)))
+
+
+def known_quantities(scene: Scene) -> list:
+    """The quantities a study of ``scene`` can compare: its exact family's, then the screened ones."""
+    family = exact_family(scene)
+    exact = list(FAMILY_QUANTITIES[family]) if family else []
+    return exact + [q for q in QUANTITIES if q not in exact]
+
+
+def reference_of(scene: Scene, quantity: str) -> str:
+    """'exact' when the scene's family has a closed form for the quantity, else 'richardson'."""
+    family = exact_family(scene)
+    return "exact" if family and quantity in FAMILY_QUANTITIES[family] else "richardson"
 
 
 def rung_summary(result) -> dict:
     out = default_summary(result)
     out["element_size"] = _element_size(result.scene)
-    if exact_family(result.scene):
-        out.update(exact_summary(result))
+    family = exact_family(result.scene)
+    if family:
+        out.update(exact_summary(result, family))
     return out
 
 
@@ -219,11 +294,14 @@ class Study:
     unknowns, steps, newton_iterations, error_<quantity> (NaN: empty), failed error text."""
     quantities: list
     reference: str
-    """'exact (<family>)' or 'richardson'."""
+    """'exact (<family>)' when the scene has a closed form (for the quantities in
+    ``references`` marked 'exact'), else 'richardson'."""
     orders: dict
     """(ladder, quantity) -> Extrapolation (Richardson) or observed order from the exact errors."""
     skipped: list
     warnings: list = field(default_factory=list)
+    references: dict = field(default_factory=dict)
+    """quantity -> 'exact' (closed form of the scene's family) or 'richardson'."""
 
     def cheapest(self, target: float):
         """The rung of least wall time whose errors (non-empty) are all <= target, among the
@@ -236,13 +314,15 @@ class Study:
 
 def run_study(scene: Scene, runner: Runner, *, levels: int = 3, quantities=None, effects: bool = True,
               kinds=("space", "time"), progress=None, out=None) -> Study:
+    """Run the ladder on ``runner`` and analyse it. ``quantities`` default: the exact family's
+    (all exact-referenced) or else every screened quantity."""
     family = exact_family(scene)
+    known = known_quantities(scene)
     if quantities is None:
-        quantities = list(EXACT_QUANTITIES) if family else list(QUANTITIES)
-    known = set(QUANTITIES) | (set(EXACT_QUANTITIES) if family else set())
+        quantities = list(FAMILY_QUANTITIES[family]) if family else list(QUANTITIES)
     bad = [q for q in quantities if q not in known]
     if bad:
-        raise ValueError(f"unknown quantity {bad[0]!r} for this scene; known: {', '.join(sorted(known))}")
+        raise ValueError(f"unknown quantity {bad[0]!r} for this scene; known: {', '.join(known)}")
     rungs, skipped = ladder(scene, levels, effects, kinds)
     outs = runner.run(scene, [Variant(r.name, r.overrides) for r in rungs], summarise=rung_summary,
                       warm=True, progress=progress, out=out)
@@ -251,7 +331,9 @@ def run_study(scene: Scene, runner: Runner, *, levels: int = 3, quantities=None,
 
 def analyse(scene: Scene, rungs, outs, quantities, kinds=("space", "time"), skipped=()) -> Study:
     """The study from the rungs' outcomes (a fresh run's, or ``ensemble.read_ensemble`` of a
-    stored ``runs.h5``: rungs without an outcome are left out)."""
+    stored ``runs.h5``: rungs without an outcome are left out). A quantity of the scene's exact
+    family is measured against the closed form on every rung; any other against each ladder's
+    Richardson extrapolation."""
     family = exact_family(scene)
     by_name = {o.name: o for o in outs}
     pairs = [(r, by_name[r.name]) for r in rungs if r.name in by_name]
@@ -266,40 +348,36 @@ def analyse(scene: Scene, rungs, outs, quantities, kinds=("space", "time"), skip
                "failed": "" if o.ok else o.error, "values": o.summary}
         rows.append(row)
     base = rows[0]
+    exact_qs = [q for q in quantities if reference_of(scene, q) == "exact"]
     orders, warnings = {}, []
-    exact = exact_values(scene) if family else {}
+    for r in rows:  # exact: every rung's own (whole) error, whatever ladder it is on
+        if not r["failed"] and r["kind"] in ("space", "time"):
+            for q in exact_qs:
+                r[f"error_{q}"] = _exact_error(r["values"], q)
     for ladder_kind in kinds:
         lad = [base] + [r for r in rows if r["kind"] == ladder_kind and r is not base]
         lad = [r for r in lad if not r["failed"]]
         lad.sort(key=lambda r: -r["factor"])
         x = [r["element_size"] if ladder_kind == "space" else r["dt"] for r in lad]
         for q in quantities:
+            if q in exact_qs:
+                orders[(ladder_kind, q)] = _fitted_order(x[-3:], [r[f"error_{q}"] for r in lad[-3:]])
+                continue
             vals = [r["values"].get(q, float("nan")) for r in lad]
-            if family:
-                if q == "fault_overpressure_l2":
-                    errs = vals  # already an error against the exact profile
-                else:
-                    ref = exact.get(q, float("nan"))
-                    errs = [abs(v - ref) / abs(ref) if ref else float("nan") for v in vals]
-                for r, e in zip(lad, errs):
-                    _set_error(r, q, e)
-                orders[(ladder_kind, q)] = _fitted_order(x[-3:], errs[-3:])
+            if len(lad) < 3 or not all(np.isfinite(vals[-3:])):
+                ref = Extrapolation(float("nan"), float("nan"), False, "fewer than three finite rungs")
             else:
-                if len(lad) < 3 or not all(np.isfinite(vals[-3:])):
-                    ref = Extrapolation(float("nan"), float("nan"), False, "fewer than three finite rungs")
-                else:
-                    ref = richardson(x[-3:], vals[-3:])
-                orders[(ladder_kind, q)] = ref
-                if not ref.asymptotic:
-                    warnings.append(f"{ladder_kind} ladder, {q}: {ref.note}; its errors are against "
-                                    f"the finest rung")
-                # a reference at round-off of the values' scale is a zero reference: no relative error
-                zero = not np.isfinite(ref.value) or abs(ref.value) <= 1e-9 * np.nanmax(np.abs(vals))
-                for r, v in zip(lad, vals):
-                    r.setdefault("partial", {})[(ladder_kind, q)] = (
-                        abs(v - ref.value) / abs(ref.value) if not zero and np.isfinite(v) else float("nan"))
-    if not family:
-        _total_errors(rows, base, quantities, kinds)
+                ref = richardson(x[-3:], vals[-3:])
+            orders[(ladder_kind, q)] = ref
+            if not ref.asymptotic:
+                warnings.append(f"{ladder_kind} ladder, {q}: {ref.note}; its errors are against "
+                                f"the finest rung")
+            # a reference at round-off of the values' scale is a zero reference: no relative error
+            zero = not np.isfinite(ref.value) or abs(ref.value) <= 1e-9 * np.nanmax(np.abs(vals))
+            for r, v in zip(lad, vals):
+                r.setdefault("partial", {})[(ladder_kind, q)] = (
+                    abs(v - ref.value) / abs(ref.value) if not zero and np.isfinite(v) else float("nan"))
+    _total_errors(rows, base, [q for q in quantities if q not in exact_qs], kinds)
     # effect rungs: the change from the full scene
     for r in rows:
         if r["kind"] != "effect":
@@ -311,7 +389,17 @@ def analyse(scene: Scene, rungs, outs, quantities, kinds=("space", "time"), skip
         for q in quantities:
             r.setdefault(f"error_{q}", float("nan"))
     return Study(rows, list(quantities), f"exact ({family})" if family else "richardson", orders, list(skipped),
-                 warnings)
+                 warnings, {q: ("exact" if q in exact_qs else "richardson") for q in quantities})
+
+
+def _exact_error(values: dict, q: str) -> float:
+    """Relative error of one rung's quantity against its exact reference (``*_l2``: the error
+    itself); NaN when the reference is zero or missing."""
+    v = values.get(q, float("nan"))
+    if q.endswith("_l2"):
+        return float(v)
+    ref = values.get(f"exact_{q}", float("nan"))
+    return abs(v - ref) / abs(ref) if np.isfinite(ref) and ref != 0 and np.isfinite(v) else float("nan")
 
 
 def _total_errors(rows, base, quantities, kinds):
@@ -328,12 +416,6 @@ def _total_errors(rows, base, quantities, kinds):
                     parts.append(base.get("partial", {}).get((other, q), float("nan")))
             finite = [e for e in parts if np.isfinite(e)]
             r[f"error_{q}"] = sum(finite) if np.isfinite(parts[0]) else float("nan")
-
-
-def _set_error(row, q, e):
-    """The base rung sits on both ladders: it keeps the larger of its two errors."""
-    old = row.get(f"error_{q}", float("nan"))
-    row[f"error_{q}"] = e if not np.isfinite(old) else (max(old, e) if np.isfinite(e) else old)
 
 
 def _fitted_order(x, errs):

@@ -40,21 +40,23 @@ def accuracy(scene_path, levels, target, quantities, no_effects, out_dir, worker
     show each rung's cost (wall time, peak memory, unknowns, steps, Newton iterations) against
     its error in the screened quantities.
 
-    The reference is the exact solution for along-fault diffusion scenes (rigid impermeable
-    rock, constant injection pressure: configs/verification/fault-diffusion.toml), otherwise
+    The reference is the exact solution where the scene has one: along-fault diffusion (rigid
+    impermeable rock, constant injection pressure: configs/verification/fault-diffusion.toml)
+    and self-similar fluid-driven slip (elastic impermeable rock, constant friction:
+    configs/verification/fluid-driven-slip-*.toml); any other quantity is measured against
     Richardson extrapolation from the three finest rungs of each ladder, with the observed
-    order printed. Effect rungs are compared with the full scene. Writes accuracy.csv and
+    order printed. The table marks each quantity [exact] or [richardson]. Effect rungs are compared with the full scene. Writes accuracy.csv and
     accuracy.png (error against wall time, Pareto front) to --out. Wall times are warm (each
     task runs its scene once for one step first); with more workers than free cores they
     include the contention.
     """
-    from ..accuracy import EXACT_QUANTITIES, QUANTITIES, exact_family, plot_study, run_study, write_csv
+    from ..accuracy import known_quantities, plot_study, run_study, write_csv
 
     if levels < 3:
         raise BadInput(f"--levels {levels}: must be >= 3 (Richardson extrapolation needs three rungs)")
     scene_path = Path(scene_path)
     scene = apply_sets(load_scene(scene_path), sets)
-    known = list(EXACT_QUANTITIES) if exact_family(scene) else list(QUANTITIES)
+    known = known_quantities(scene)
     qs = None
     if quantities is not None:
         qs = [q.strip() for q in quantities.split(",") if q.strip()]
@@ -72,8 +74,13 @@ def accuracy(scene_path, levels, target, quantities, no_effects, out_dir, worker
         runner.close()
     write_csv(study, out / "accuracy.csv")
     plot_study(study, out / "accuracy.png", title=scene.title)
-    click.echo(f"reference: {study.reference}")
-    head = ["rung", "h (m)", "dt (s)", "wall (s)", "MB", "unknowns", "steps", "newton"] + study.quantities
+    exact = [q for q in study.quantities if study.references.get(q) == "exact"]
+    rich = [q for q in study.quantities if q not in exact]
+    click.echo("reference: " + "; ".join(
+        ([f"{study.reference} for {', '.join(exact)}"] if exact else [])
+        + ([f"Richardson extrapolation for {', '.join(rich)}"] if rich else [])))
+    head = (["rung", "h (m)", "dt (s)", "wall (s)", "MB", "unknowns", "steps", "newton"]
+            + [f"{q} [{study.references.get(q, 'richardson')}]" for q in study.quantities])
     rows = []
     for r in study.rows:
         rows.append([r["rung"], f"{r['element_size']:.3g}", f"{r['dt']:.3g}", f"{r['wall_s']:.3g}",
