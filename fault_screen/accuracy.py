@@ -473,7 +473,7 @@ def plot_study(study: Study, path, title: str = "") -> None:
                    and r[f"error_{q}"] > 1e-10]  # below: round-off, nothing to show on a log axis
             if pts:
                 ax.plot(*zip(*pts), marker=marker, ls="-" if kind == "space" else "--", color=f"C{i}",
-                        label=f"{q} ({kind})", ms=4)
+                        label=f"{q} ({kind}; {study.references.get(q, 'richardson')})", ms=4)
     front = pareto(disc, study.quantities)
     if front:
         ax.plot([p[0] for p in front], [p[1] for p in front], "k:", lw=1)
@@ -484,7 +484,7 @@ def plot_study(study: Study, path, title: str = "") -> None:
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("wall time per run (s)")
-    ax.set_ylabel(f"relative error ({study.reference})")
+    ax.set_ylabel("relative error (against exact solution or Richardson limit)")
     ax.set_title(title if len(title) <= 70 else title[:67] + "...", fontsize=9)
     ax.legend(fontsize=6, loc="best")
     fig.tight_layout()

@@ -768,37 +768,151 @@ BYTES_PER_UNKNOWN_LOG = 650.0
 BASE_MEMORY = 250e6
 
 
-def _graded_count(length: float, lo: float, hi: float, size: float, growth: float) -> int:
-    """Elements of a graded axis: ``size`` on [lo, hi], growing by ``growth`` outside."""
-    inner = max(hi - lo, 0.0)
-    n = math.ceil(inner / size) if inner > 0 else 0
-    for side in (lo, length - hi):
-        side = max(side, 0.0)
-        if side <= 0:
+class _Axis:
+    """Node lines of one mesh axis, counted without building them (``mesh.build_mesh`` and the
+    leak-off grading build them; this follows their rules): ``n`` elements, and the lines near
+    ``focus`` at ``spacing`` (uniform: every line; graded: the refined core)."""
+
+    def __init__(self, start: float, length: float, n_uniform: int, refinement=None, axis: int = 0):
+        self.start, self.end = start, start + length
+        if refinement is None:
+            self.n, self.spacing, self.focus, self.growth = n_uniform, length / n_uniform, start, 1.0
+            self.core = (start, self.end)
+            return
+        focus, half, size = refinement.center[axis], refinement.half_width[axis], refinement.size
+        # whole elements of ``size`` on each side of the focus, then geometric growth outwards
+        n_lo = int(math.floor(min(half, focus - start) / size + 1e-9))
+        n_hi = int(math.floor(min(half, self.end - focus) / size + 1e-9))
+        self.core = (focus - n_lo * size, focus + n_hi * size)
+        self.spacing, self.focus, self.growth = size, focus, refinement.growth
+        self.n = n_lo + n_hi + sum(_outward_count(e, size, self.growth, length)
+                                   for e in (self.core[0] - start, self.end - self.core[1]))
+
+    def lines_within(self, lo: float, hi: float) -> int:
+        """Interior node lines in [lo, hi] (m): exact on the uniform part, the graded tails
+        counted as if their elements grew from the core size without the final rescaling."""
+        lo, hi = max(lo, self.start), min(hi, self.end)
+        if hi <= lo:
+            return 0
+        c0, c1 = max(lo, self.core[0]), min(hi, self.core[1])
+        n = 0
+        if c1 >= c0:
+            n += (math.floor((c1 - self.focus) / self.spacing + 1e-9)
+                  - math.ceil((c0 - self.focus) / self.spacing - 1e-9) + 1)
+        if self.core != (self.start, self.end):
+            length = self.end - self.start
+            n += _outward_count(self.core[0] - lo, self.spacing, self.growth, length, whole=True)
+            n += _outward_count(hi - self.core[1], self.spacing, self.growth, length, whole=True)
+        n -= (lo <= self.start) + (hi >= self.end)  # the domain's edges are not interior lines
+        return max(n, 0)
+
+
+def _outward_count(extent: float, size: float, growth: float, length: float, whole: bool = False) -> int:
+    """Elements growing by ``growth`` from ``size`` that fill ``extent`` (m), a short last one
+    folded into the others as ``mesh.graded_line`` does; ``whole``: how many fit entirely."""
+    if extent <= 1e-12 * length:
+        return 0
+    if growth <= 1.0:
+        k = extent / size
+    else:  # size (g + g^2 + ... + g^k) = extent
+        k = math.log1p(extent * (growth - 1.0) / (size * growth)) / math.log(growth)
+    if whole:
+        return int(math.floor(k + 1e-9))
+    n = max(1, math.ceil(k - 1e-9))
+    last = size * growth ** n
+    total = size * n if growth <= 1.0 else size * growth * (growth ** n - 1.0) / (growth - 1.0)
+    return n - 1 if n > 1 and total - extent > 0.5 * last else n
+
+
+def _leak_off_length(scene: "Scene") -> float:
+    """sqrt(c dt) of the first step in the most slowly diffusing permeable rock along the fault
+    (m), as the leak-off grading (``physics/leak_off_mesh.py``) reads it; 0 if none is permeable.
+    c = mobility / (1/M + alpha^2 / (K + 4G/3)), 1/M alone without mechanics."""
+    rocks = [scene.rock]
+    zones = ((Zone(band=scene.damage_zone.width, rock=scene.damage_zone.rock_overrides()),)
+             if scene.effects.damage_zone else ()) + tuple(scene.zones)
+    a = math.radians(scene.fault.angle)
+    px, py = scene.fault_point
+    for z in zones:  # in the order they apply: a band holds the whole fault
+        if z.band is not None:
+            rocks = [scene.rock.with_overrides(z.rock)]
+        elif z.box is not None:
+            x0, x1, y0, y1 = z.box
+            phi = [-(x - px) * math.sin(a) + (y - py) * math.cos(a)
+                   for x, y in ((x0, y0), (x1, y0), (x1, y1), (x0, y1))]
+            if min(phi) <= 0 <= max(phi):
+                rocks.append(scene.rock.with_overrides(z.rock))
+    c = []
+    for r in rocks:
+        mobility = r.mobility_at(scene.fluid.viscosity)
+        if mobility <= 0:
             continue
-        if growth <= 1.0:
-            n += math.ceil(side / size)
-        else:
-            n += math.ceil(math.log1p(side * (growth - 1.0) / size) / math.log(growth))
-    return max(n, 1)
+        E, nu, alpha, n = r.youngs_modulus, r.poissons_ratio, r.biot_coefficient, r.porosity
+        K = E / (3.0 * (1.0 - 2.0 * nu))
+        Ks = r.solid_bulk_modulus or (K / (1.0 - alpha) if alpha < 1.0 else math.inf)
+        storage = (alpha - n) / Ks + n / scene.fluid.bulk_modulus
+        if scene.effects.mechanics:
+            storage += alpha ** 2 / (E * (1.0 - nu) / ((1.0 + nu) * (1.0 - 2.0 * nu)))
+        c.append(mobility / storage)
+    return math.sqrt(min(c) * scene.time.dt) if c else 0.0
+
+
+def _graded_lines_added(axis: _Axis, at: float, size: float, growth: float) -> int:
+    """Node lines the leak-off grading adds across a fault at ``at`` (m), as
+    ``mesh.grade_across`` does: lines from ``size`` growing to the mesh spacing on each side,
+    less the mesh's own lines they replace."""
+    if axis.spacing <= size:
+        return 0
+    added = 0
+    for sign in (1.0, -1.0):
+        z, h = 0.5 * size, size
+        while axis.start < at + sign * z < axis.end:
+            added += 1
+            if h * growth >= axis.spacing:
+                break
+            h *= growth
+            z += h
+        reach = z + 0.5 * h * growth
+        added -= axis.lines_within(at, at + reach) if sign > 0 else axis.lines_within(at - reach, at)
+    return added
 
 
 def estimate_size(scene: "Scene") -> tuple[int, int, float]:
     """(elements, unknowns, bytes): a run's size from the mesh and the effects alone, before
-    anything is built (refusing an absurd mesh must not itself exhaust the memory)."""
+    anything is built (refusing an absurd mesh must not itself exhaust the memory). Counts the
+    node lines of the graded mesh and of the leak-off grading across the fault, and the nodes the
+    fault enriches (tests/test_accuracy.py states how close it comes to the built model)."""
     m, ef = scene.mesh, scene.effects
-    if m.refinement is None:
-        nx, ny = m.nx, m.ny
-    else:
-        r = m.refinement
-        cx, cy = r.center[0] - m.origin[0], r.center[1] - m.origin[1]
-        nx = _graded_count(m.lx, cx - r.half_width[0], cx + r.half_width[0], r.size, r.growth)
-        ny = _graded_count(m.ly, cy - r.half_width[1], cy + r.half_width[1], r.size, r.growth)
+    ax = [_Axis(m.origin[0], m.lx, m.nx, m.refinement, 0), _Axis(m.origin[1], m.ly, m.ny, m.refinement, 1)]
+    nx, ny = ax[0].n, ax[1].n
+    angle = scene.fault.angle % 180.0
+    along = 0 if min(angle, 180.0 - angle) < 1e-9 else (1 if abs(angle - 90.0) < 1e-9 else None)
+    if ef.fault and ef.leak_off and m.fault_grading == "auto" and along is not None:
+        size = m.fault_grading_size if m.fault_grading_size is not None else 0.5 * _leak_off_length(scene)
+        if size > 0:
+            across = 1 - along
+            added = _graded_lines_added(ax[across], scene.fault_point[across], size, m.fault_grading_growth)
+            nx, ny = (nx + added, ny) if across == 0 else (nx, ny + added)
     nodes = (nx + 1) * (ny + 1)
-    per_node = 2 * ef.mechanics + 1 * ef.poroelastic
-    # a straight fault crosses about max(nx, ny) cells; the nodes of those cells are enriched
-    enriched = 2 * (max(nx, ny) + 1) if ef.fault else 0
-    unknowns = per_node * nodes + enriched * (2 * ef.mechanics + ef.leak_off + ef.fault_flow)
+    unknowns = 2 * ef.mechanics * nodes + ef.poroelastic * nodes
+    if ef.fault:
+        if along is not None:
+            cut = (nx, ny)[along]
+        else:  # a straight line crosses one more element at each node line it passes
+            a = math.radians(angle)
+            px, py = scene.fault_point
+            x0, y0 = m.origin
+            # the two middle crossings of the box's edge lines are where the fault enters and leaves
+            ts = sorted(((x0 - px) / math.cos(a), (x0 + m.lx - px) / math.cos(a),
+                         (y0 - py) / math.sin(a), (y0 + m.ly - py) / math.sin(a)))[1:3]
+            xs = sorted(px + t * math.cos(a) for t in ts)
+            ys = sorted(py + t * math.sin(a) for t in ts)
+            cut = 1 + ax[0].lines_within(*xs) + ax[1].lines_within(*ys)
+        enriched = 2 * (cut + 1)  # a staircase of cut elements: two more nodes per element
+        unknowns += enriched * (2 * ef.mechanics + ef.leak_off)
+        if ef.fault_flow and not ef.leak_off:
+            unknowns += cut + 1  # the fault's own pressure line
+        unknowns += scene.injection.control == "pressure"
     return nx * ny, unknowns, BASE_MEMORY + BYTES_PER_UNKNOWN_LOG * unknowns * math.log2(max(unknowns, 2))
 
 
