@@ -3,10 +3,12 @@ rung's cost and the error of the quantities an operator screens on.
 
 Rungs: element size near the fault x2, x1, x1/2, ... (``levels`` of them; the graded mesh's
 fine size, or nx and ny), time step x2, x1, x1/2, ... (dt and dt_max), and the scene with each
-switchable effect off in turn (where the rest is a valid scene). The reference of a ladder is
-the exact solution when the scene is one whose solution is known in closed form (see
-``exact_family``), otherwise Richardson extrapolation from its three finest rungs with the
-observed order of convergence. Effect rungs are compared with the full scene.
+switchable effect off in turn (where the rest is a valid scene). A quantity is measured against
+the exact solution when the scene belongs to a family whose solution is known in closed form
+(``exact_family``: along-fault diffusion, self-similar fluid-driven slip; the formulas are in
+``exact.py``) and the family gives that quantity, otherwise against Richardson extrapolation
+from each ladder's three finest rungs with the observed order of convergence. Effect rungs are
+compared with the full scene.
 """
 from __future__ import annotations
 
@@ -18,7 +20,7 @@ import numpy as np
 
 from .ensemble import Runner, Variant, default_summary
 from .exact import fault_diffusion_pressure, fluid_driven_slip, slip_front_lambda
-from .scene import Scene, SceneError
+from .scene import Scene, SceneError, graded_cut_height
 
 #: screened quantities (default_summary keys) and what they are
 QUANTITIES = {
@@ -45,6 +47,8 @@ FAMILY_QUANTITIES = {
         "injection_flow_rate": "injection flow rate at the end (m^3/s)",
     },
 }
+#: quantities that only mean something on a fault that slips somewhere
+SLIP_QUANTITIES = ("injection_slip", "slipping_length", "peak_slip_rate")
 SWITCHABLE = ("fault_flow", "leak_off", "rate_friction", "state_evolution", "dilation",
               "aperture_evolution", "gravity", "damage_zone", "poroelastic")
 
@@ -218,12 +222,17 @@ def ladder(scene: Scene, levels: int = 3, effects: bool = True,
         else:
             over = {"mesh.nx": _same_parity(m.nx / f, m.nx), "mesh.ny": _same_parity(m.ny / f, m.ny)}
         rungs.append(Rung(f"h x{_fmt(f)}", "space", over, f))
+    # the leak-off grading follows the first step (0.5 sqrt(c dt)): the time rungs keep the base's
+    # grading, so that they change the time step only, on the base mesh
+    graded = graded_cut_height(scene)
     for f in factors if "time" in kinds else ():
         if f == 1.0:
             continue
         over = {"time.dt": min(t.dt * f, t.end)}
         if t.dt_max is not None:
             over["time.dt_max"] = max(t.dt_max * f, over["time.dt"])
+        if graded > 0 and m.fault_grading_size is None:
+            over["mesh.fault_grading_size"] = graded
         rungs.append(Rung(f"dt x{_fmt(f)}", "time", over, f))
     skipped = []
     if effects:
@@ -364,26 +373,38 @@ def analyse(scene: Scene, rungs, outs, quantities, kinds=("space", "time"), skip
                 orders[(ladder_kind, q)] = _fitted_order(x[-3:], [r[f"error_{q}"] for r in lad[-3:]])
                 continue
             vals = [r["values"].get(q, float("nan")) for r in lad]
-            if len(lad) < 3 or not all(np.isfinite(vals[-3:])):
+            if q in SLIP_QUANTITIES and not any(r["values"].get("slipping_length", 0.0) > 0 for r in lad):
+                # a fault that slips on no rung: the "slip" is the elastic give of its stuck
+                # contact springs (1e-10 m), not a screened quantity: no error
+                ref = Extrapolation(float("nan"), float("nan"), True, "the fault slips on no rung")
+            elif not np.isfinite(vals).any():  # e.g. a traffic light that never turns yellow
+                ref = Extrapolation(float("nan"), float("nan"), True, "undefined on every rung")
+            elif len(lad) < 3 or not all(np.isfinite(vals[-3:])):
                 ref = Extrapolation(float("nan"), float("nan"), False, "fewer than three finite rungs")
             else:
                 ref = richardson(x[-3:], vals[-3:])
             orders[(ladder_kind, q)] = ref
+            value = ref.value
             if not ref.asymptotic:
                 warnings.append(f"{ladder_kind} ladder, {q}: {ref.note}; its errors are against "
                                 f"the finest rung")
+                value = vals[-1]
             # a reference at round-off of the values' scale is a zero reference: no relative error
-            zero = not np.isfinite(ref.value) or abs(ref.value) <= 1e-9 * np.nanmax(np.abs(vals))
+            zero = not np.isfinite(value) or abs(value) <= 1e-9 * np.nanmax(np.abs(vals))
             for r, v in zip(lad, vals):
                 r.setdefault("partial", {})[(ladder_kind, q)] = (
-                    abs(v - ref.value) / abs(ref.value) if not zero and np.isfinite(v) else float("nan"))
+                    abs(v - value) / abs(value) if not zero and np.isfinite(v) else float("nan"))
     _total_errors(rows, base, [q for q in quantities if q not in exact_qs], kinds)
-    # effect rungs: the change from the full scene
+    # effect rungs: the change from the full scene (none where the full scene's value is zero,
+    # undefined or, for slip, the give of a fault that does not slip)
+    base_slips = base["values"].get("slipping_length", 0.0) > 0
     for r in rows:
         if r["kind"] != "effect":
             continue
         for q in quantities:
             v, b = r["values"].get(q, float("nan")), base["values"].get(q, float("nan"))
+            if q in SLIP_QUANTITIES and not base_slips:
+                b = float("nan")
             r[f"error_{q}"] = abs(v - b) / abs(b) if np.isfinite(v) and np.isfinite(b) and b != 0 else float("nan")
     for r in rows:
         for q in quantities:

@@ -857,6 +857,18 @@ def _leak_off_length(scene: "Scene") -> float:
     return math.sqrt(min(c) * scene.time.dt) if c else 0.0
 
 
+def graded_cut_height(scene: "Scene") -> float:
+    """Height across the fault of the element the leak-off grading makes the fault cut (m):
+    ``mesh.fault_grading_size``, else half the first step's leak-off length (the SIZE_FRACTION of
+    ``physics/leak_off_mesh.py``); 0 when the mesh is not graded (no leak-off, grading off, a
+    fault at an angle, impermeable rock)."""
+    m, ef = scene.mesh, scene.effects
+    a = scene.fault.angle % 90.0
+    if not (ef.fault and ef.leak_off and m.fault_grading == "auto") or min(a, 90.0 - a) >= 1e-9:
+        return 0.0
+    return m.fault_grading_size if m.fault_grading_size is not None else 0.5 * _leak_off_length(scene)
+
+
 def _graded_lines_added(axis: _Axis, at: float, size: float, growth: float) -> int:
     """Node lines the leak-off grading adds across a fault at ``at`` (m), as
     ``mesh.grade_across`` does: lines from ``size`` growing to the mesh spacing on each side,
@@ -887,12 +899,11 @@ def estimate_size(scene: "Scene") -> tuple[int, int, float]:
     nx, ny = ax[0].n, ax[1].n
     angle = scene.fault.angle % 180.0
     along = 0 if min(angle, 180.0 - angle) < 1e-9 else (1 if abs(angle - 90.0) < 1e-9 else None)
-    if ef.fault and ef.leak_off and m.fault_grading == "auto" and along is not None:
-        size = m.fault_grading_size if m.fault_grading_size is not None else 0.5 * _leak_off_length(scene)
-        if size > 0:
-            across = 1 - along
-            added = _graded_lines_added(ax[across], scene.fault_point[across], size, m.fault_grading_growth)
-            nx, ny = (nx + added, ny) if across == 0 else (nx, ny + added)
+    size = graded_cut_height(scene)
+    if size > 0:
+        across = 1 - along
+        added = _graded_lines_added(ax[across], scene.fault_point[across], size, m.fault_grading_growth)
+        nx, ny = (nx + added, ny) if across == 0 else (nx, ny + added)
     nodes = (nx + 1) * (ny + 1)
     unknowns = 2 * ef.mechanics * nodes + ef.poroelastic * nodes
     if ef.fault:

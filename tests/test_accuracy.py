@@ -138,7 +138,8 @@ def test_ladder_keeps_parity_and_skips_invalid_effects():
     assert space["h x2"] == {"mesh.nx": 26, "mesh.ny": 25}            # 50 -> 25 -> even 26; 51 -> 25.5 -> odd 25
     assert space["h x1/4"] == {"mesh.nx": 200, "mesh.ny": 205}
     time = {r.name: r.overrides for r in rungs if r.kind == "time"}
-    assert time["dt x1/4"] == {"time.dt": 1.25}
+    # the time rungs keep the base's leak-off grading (0.5 sqrt(c dt) of the base's first step)
+    assert time["dt x1/4"] == pytest.approx({"time.dt": 1.25, "mesh.fault_grading_size": 0.025}, rel=1e-3)
     effects = {r.effect_off for r in rungs if r.kind == "effect"}
     assert "damage_zone" in effects and "fault_flow" not in effects
     assert dict(skipped)["poroelastic"].startswith("effects.leak_off")
