@@ -228,13 +228,13 @@ def test_richardson_ladders_add_space_and_time_errors_and_target_uses_them():
 @pytest.mark.slow
 def test_fluid_driven_slip_space_order_and_target_against_the_exact_solution():
     """Self-similar fluid-driven slip (T = 0.4), element size 4 m and 2 m along the fault against a
-    slip front a = 15.5 m. Theory for the slip profile's L2 error: p = 2 (linear elements; the
-    slip is smooth inside the crack and vanishes like (a - |x|)^(3/2) at its tips, whose error
-    over the one element holding the front is also O(h^2) in L2). Measured 1.75 (2 m -> 1 m) and
-    1.8 here: the front falls inside an element and is placed to within it, which costs a little
-    of the order on coarse meshes, hence +-0.35. The box is widened to 1600 m and the steps cut to
+    slip front a = 15.5 m. Theory for the slip profile's L2 error with linear elements: p = 2 where
+    the slip is smooth; at the crack tips it vanishes like (a - |x|)^(3/2) and the front (a free
+    boundary between stick and slip) is only placed to within an element, which can bring the L2
+    rate of such a contact problem down to 3/2. So 1.5 <= p <= 2.2; measured 1.70 (4 m -> 2 m)
+    and 1.75 (2 m -> 1 m, same box and steps). The box is widened to 1600 m and the steps cut to
     3 ms so that the pinned edges (0.25 % at 400 m) and backward Euler (0.4 % at 12.5 ms) stay
-    below the mesh error being measured."""
+    well below the mesh error being measured."""
     scene = scene_with(Scene.from_toml(VERIFICATION / "fluid-driven-slip-T0.4-horizontal.toml"),
                        {"mesh.lx": 1600.0, "mesh.ly": 1600.0, "mesh.origin": [-800.0, -800.0],
                         "mesh.refinement.size": 2.0, "mesh.refinement.growth": 1.3, "time.dt_max": 0.003})
@@ -242,7 +242,7 @@ def test_fluid_driven_slip_space_order_and_target_against_the_exact_solution():
         study = run_study(scene, runner, levels=2, effects=False, kinds=("space",))
     assert study.reference == "exact (fluid_driven_slip)"
     assert set(study.references.values()) == {"exact"}
-    assert study.orders[("space", "slip_l2")].order == pytest.approx(2.0, abs=0.35)
+    assert 1.5 <= study.orders[("space", "slip_l2")].order <= 2.2
     errs = {r["rung"]: r["error_slip_l2"] for r in study.rows}
     assert errs["h x2"] > 3 * errs["base"]
     best = study.cheapest(0.05)
