@@ -120,6 +120,24 @@ CASES["stick-slip-cycling-dilation"] = Case(lambda: load("stick-slip-cycling", e
 OPEN_CASES: dict[str, Case] = {}
 
 
+def _point_refined(offset, size):
+    """The 30-degree rate-controlled point case with elements of ``size`` (m) around the point,
+    the point ``offset`` of an element off the node."""
+    return lambda: load("injection-point-anywhere", fault__point=[offset * size, offset * size],
+                        fault__angle=30.0, initial__effective_stress=rotated_stress(30.0),
+                        injection__control="rate", injection__schedule=[[0.0, 1e-3]],
+                        mesh__refinement=dict(center=[0.0, 0.0], half_width=[6.0, 4.0], size=size,
+                                              growth=1.35))
+
+
+#: the rate-controlled point off the node under refinement (a slow test, not the benchmark):
+#: "point-<offset>-30deg-rate-h<element size in m>"
+REFINED_CASES: dict[str, Case] = {
+    f"point-{_label}-30deg-rate-h{_h:g}": Case(_point_refined(_o, _h), "mesh convergence", family="refined")
+    for _h in (1.0, 0.5, 0.25) for _o, _label in ((0.0, "node"), (0.3, "0.3"), (0.5, "0.5"))
+}
+
+
 @dataclass
 class Run:
     scene: object
@@ -138,7 +156,7 @@ def run_case(name: str) -> Run:
         return _RUNS[name]
     from fault_screen import Simulation
 
-    case = CASES[name] if name in CASES else OPEN_CASES[name]
+    case = {**CASES, **OPEN_CASES, **REFINED_CASES}[name]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         scene = case.scene()
