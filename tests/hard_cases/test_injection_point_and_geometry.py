@@ -62,10 +62,10 @@ def test_rate_control_point_off_the_node_converges_to_the_node_case():
     at 1, 0.5, 0.25 m. Cause: the contact traction at the fault's Gauss points oscillates
     (penalty kN = 1e13 Pa/m is 400 times the elements' stiffness E/h; +-5 MPa around the
     expected sigma'_n even with the point on a node), and the pressure's kink at a source inside
-    an element, which the element's jump cannot follow, tips a few points next to it into
-    tension: they open by microns and store a quarter of the 2e-5 m^2 injected, which the slip
-    patch then lacks. Asserted: each halving of the elements at least halves the deficit, and at
-    0.25 m the moment is within 2 % of the node case's, itself converged to 0.5 %."""
+    an element, which the element's jump cannot follow, drives it harder: a few points next to
+    the source open by microns (9 % of the injected fluid in their opening) while neighbours are
+    pressed MPa too hard. Asserted: each halving of the elements at least halves the deficit,
+    and at 0.25 m the moment is within 2 % of the node case's, itself converged to 0.5 %."""
     def moments(h):
         return [moment(run_case(f"point-{lab}-30deg-rate-h{h:g}").result) for lab in ("node", "0.3", "0.5")]
 
