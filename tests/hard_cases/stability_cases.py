@@ -115,6 +115,7 @@ CASES["velocity-weakening"] = Case(lambda: load("velocity-weakening"), "unstable
 CASES["stick-slip-cycling"] = Case(lambda: load("stick-slip-cycling"), "runs to the end")
 CASES["stick-slip-cycling-dilation"] = Case(lambda: load("stick-slip-cycling", effects__dilation=True),
                                             "cycles three times; opening = tan(psi) plastic slip")
+CASES["finite-fault"] = Case(lambda: load("finite-fault"), "ends in the rock: elliptical slip", family="finite")
 
 #: cases the benchmark runs but the tests do not: known open failures (README, Numerical stability)
 OPEN_CASES: dict[str, Case] = {}
@@ -136,6 +137,14 @@ REFINED_CASES: dict[str, Case] = {
     f"point-{_label}-30deg-rate-h{_h:g}": Case(_point_refined(_o, _h), "mesh convergence", family="refined")
     for _h in (1.0, 0.5, 0.25) for _o, _label in ((0.0, "node"), (0.3, "0.3"), (0.5, "0.5"))
 }
+#: the finite fault under refinement: "finite-fault-h<element size in m>"
+REFINED_CASES.update({
+    f"finite-fault-h{_h:g}": Case(
+        (lambda h: lambda: load("finite-fault", mesh__refinement=dict(center=[0.0, 0.0], half_width=[5.0, 3.0],
+                                                                     size=h, growth=1.3)))(_h),
+        "mesh convergence", family="refined")
+    for _h in (1.0, 0.5, 0.25)
+})
 
 
 @dataclass
