@@ -108,9 +108,7 @@ class FaultGeometry:
     heaviside_enriched: np.ndarray  # (n_nodes,) bool: node carries Heaviside DOFs
     pressure_enriched: np.ndarray  # (n_nodes,) bool: node carries modified-level-set DOFs
     shift: float = 0.0             # m along the normal the fault was moved off mesh nodes
-    #: a finite fault: the length asked for (m) and the tips it was snapped to (s, m); None for a
-    #: fault across the whole model
-    requested_length: float | None = None
+    #: a finite fault's tips after snapping to element edges (s, m); None: across the whole model
     tips: tuple[float, float] | None = None
 
     @property
@@ -248,7 +246,7 @@ def locate_fault(mesh: StructuredMesh, point, angle_deg: float, length: float | 
         **gp, segment_s=segment_s, segment_ref=np.array(seg_pts), fault_node_s=fault_node_s,
         segment_nodes=segment_nodes, segment_element=np.arange(n_cut),
         heaviside_enriched=heav, pressure_enriched=enriched, shift=shift,
-        requested_length=None if length is None else float(length), tips=tips,
+        tips=tips,
     )
 
 
@@ -269,7 +267,7 @@ def _finite(segment_s, length, h_min):
     s_hi = float(ends[np.argmin(np.abs(ends - 0.5 * length))])
     if not s_hi - s_lo > 1e-9 * h_min:
         raise ValueError(f"fault.length = {length:g} m is shorter than the element edges it can end on "
-                         f"(elements of {h_min:g} m or more along the fault): make it longer or refine there")
+                         f"(the elements it crosses are {h_min:g} m or larger): make it longer or refine there")
     tol = 1e-9 * h_min
     keep = (segment_s[:, 0] >= s_lo - tol) & (segment_s[:, 1] <= s_hi + tol)
     return keep, (s_lo, s_hi)
