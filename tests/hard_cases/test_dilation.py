@@ -43,6 +43,27 @@ def test_dilatant_slip_closes_walls_that_are_apart_before_it_by_hand():
 
 
 @pytest.mark.parametrize("law", [_coulomb, _rate_state], ids=["coulomb", "rate-state"])
+def test_tangent_where_dilatant_slip_closes_the_walls_matches_finite_differences(law):
+    """Where the walls are apart before the step's slip and pressed together by it (sigma_base
+    = -0.5 MPa), the consistent tangent is the sliding branch's: central differences agree."""
+    slip, opening = 2e6 / KT, (SIGMA_N0 + 0.5e6) / KN
+
+    def at(s, o):
+        r = (coulomb_point(s, o, 0.0, 0.0, 0.0, SIGMA_N0, KN, KT, MU, TAN_PSI) if law is _coulomb else
+             rate_state_point(s, o, 0.0, 0.0, 0.0, 1.0, SIGMA_N0, KN, KT, TAN_PSI, MU, 0.01, 0.0, 1e-6,
+                              1e-4, 1.0, 1e-9))
+        return np.array(r[:2]), r[2], np.array(r[4:8] if law is _coulomb else r[6:10])
+
+    (_, state, analytic), h = at(slip, opening), 1e-10
+    assert state == SLIP
+    fd = np.empty(4)
+    for k, (ds, do) in enumerate(((h, 0.0), (0.0, h))):
+        d = (at(slip + ds, opening + do)[0] - at(slip - ds, opening - do)[0]) / (2 * h)
+        fd[k], fd[2 + k] = d[0], d[1]          # (dtau, dsigma) / d(slip or opening)
+    np.testing.assert_allclose(analytic, fd, rtol=1e-5, atol=1e-6 * KN)
+
+
+@pytest.mark.parametrize("law", [_coulomb, _rate_state], ids=["coulomb", "rate-state"])
 def test_the_dilatant_return_map_is_continuous_where_the_walls_part(law):
     """Sweep the opening across the contact boundary (sigma_base = -kN tan(psi) tau_trial / kT =
     -1 MPa) in steps of 1e-9 m: tau and sigma_n change by at most kN x 1e-9 m = 10 Pa a step (the
