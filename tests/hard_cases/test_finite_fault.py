@@ -195,3 +195,19 @@ def test_finite_fault_slip_converges_to_the_ellipse():
 def test_bad_finite_faults_are_refused_naming_the_key(change, match):
     with pytest.raises(SceneError, match=match.replace(".", r"\.").replace("(", r"\(")):
         Simulation(load(NAME, **change))
+
+
+def test_cli_refuses_a_too_short_fault_as_bad_input(tmp_path):
+    """Found while building the model, after the scene was read: still bad input (exit 2, one
+    line naming the key), not an internal error (exit 1, as before for any such SceneError)."""
+    from click.testing import CliRunner
+
+    from fault_screen.cli import main
+    from stability_cases import HARD
+
+    path = tmp_path / "short.toml"
+    path.write_text((HARD / f"{NAME}.toml").read_text().replace("length = 8.3", "length = 0.3"))
+    r = CliRunner().invoke(main, ["run", str(path), "--out", str(tmp_path / "r.h5"), "--quiet"])
+    assert r.exit_code == 2, r.output
+    assert "Error: " in r.output and "fault.length = 0.3 m is too short to slip" in r.output
+    assert "internal error" not in r.output and not (tmp_path / "r.h5").exists()
