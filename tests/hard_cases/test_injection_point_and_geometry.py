@@ -69,7 +69,7 @@ def test_rate_control_point_off_the_node_converges_to_the_node_case():
     def moments(h):
         return [moment(run_case(f"point-{lab}-30deg-rate-h{h:g}").result) for lab in ("node", "0.3", "0.5")]
 
-    for name in REFINED_CASES:
+    for name in (n for n in REFINED_CASES if n.startswith("point-")):
         check_common(run_case(name))
     deficit = {}
     node = {}
