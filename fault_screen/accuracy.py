@@ -71,7 +71,8 @@ def exact_family(scene: Scene) -> str | None:
     e, inj, f = scene.effects, scene.injection, scene.fault
     if (not e.fault or e.poroelastic or e.leak_off or not e.fault_flow or e.aperture_evolution
             or inj.control != "pressure" or len(inj.schedule) != 1 or inj.schedule[0][0] != 0.0
-            or inj.schedule[0][1] <= 0 or f.storativity is None or f.storativity <= 0 or inj.log is not None):
+            or inj.schedule[0][1] <= 0 or f.storativity is None or f.storativity <= 0 or inj.log is not None
+            or f.length is not None):  # both solutions are for a fault through the whole model
         return None
     if not e.mechanics:
         family = "fault_diffusion"

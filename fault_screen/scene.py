@@ -911,20 +911,28 @@ def estimate_size(scene: "Scene") -> tuple[int, int, float]:
     nodes = (nx + 1) * (ny + 1)
     unknowns = 2 * ef.mechanics * nodes + ef.poroelastic * nodes
     if ef.fault:
-        if along is not None:
+        # the stretch of fault line in the model: along s from the fault point, within the box
+        # and, for a finite fault, within its length (each tip ends on an element edge)
+        a = math.radians(angle)
+        ca, sa = math.cos(a), math.sin(a)
+        px, py = scene.fault_point
+        x0, y0 = m.origin
+        s0, s1 = -math.inf, math.inf
+        for c, p, lo, hi in ((ca, px, x0, x0 + m.lx), (sa, py, y0, y0 + m.ly)):
+            if abs(c) > 1e-12:
+                s0, s1 = max(s0, min((lo - p) / c, (hi - p) / c)), min(s1, max((lo - p) / c, (hi - p) / c))
+        finite = scene.fault.length is not None
+        if finite:
+            s0, s1 = max(s0, -0.5 * scene.fault.length), min(s1, 0.5 * scene.fault.length)
+        if along is not None and not finite:
             cut = (nx, ny)[along]
         else:  # a straight line crosses one more element at each node line it passes
-            a = math.radians(angle)
-            px, py = scene.fault_point
-            x0, y0 = m.origin
-            # the two middle crossings of the box's edge lines are where the fault enters and leaves
-            ts = sorted(((x0 - px) / math.cos(a), (x0 + m.lx - px) / math.cos(a),
-                         (y0 - py) / math.sin(a), (y0 + m.ly - py) / math.sin(a)))[1:3]
-            xs = sorted(px + t * math.cos(a) for t in ts)
-            ys = sorted(py + t * math.sin(a) for t in ts)
+            xs = sorted((px + s0 * ca, px + s1 * ca))
+            ys = sorted((py + s0 * sa, py + s1 * sa))
             cut = 1 + ax[0].lines_within(*xs) + ax[1].lines_within(*ys)
         enriched = 2 * (cut + 1)  # a staircase of cut elements: two more nodes per element
-        unknowns += enriched * (2 * ef.mechanics + ef.leak_off)
+        # a finite fault's jump closes at its tips: the nodes of the edge through each tip carry none
+        unknowns += (enriched - 4 * finite) * 2 * ef.mechanics + enriched * ef.leak_off
         if ef.fault_flow and not ef.leak_off:
             unknowns += cut + 1  # the fault's own pressure line
         unknowns += scene.injection.control == "pressure"

@@ -48,6 +48,7 @@ def test_exact_family_is_recognised():
     assert exact_family(scene_with(slip, {"effects.dilation": True, "fault.dilation_angle": 5.0})) is None
     assert exact_family(scene_with(slip, {"injection.schedule": [[0.0, 2e6]]})) is None  # T = 1: no slip
     assert exact_family(scene_with(slip, {"time.end": 100.0})) is None   # front reaches the edges
+    assert exact_family(scene_with(slip, {"fault.length": 60.0})) is None  # a finite fault
     assert exact_family(Scene.from_toml(VERIFICATION.parent / "rustrel-2015-calibrated.toml")) is None
 
 
@@ -62,6 +63,7 @@ def test_exact_family_is_recognised():
     ("verification/fluid-driven-slip-T0.4-horizontal.toml", {"mesh.refinement.size": 2.0}, 0),
     ("verification/fluid-driven-slip-T0.4-dip30.toml", {"mesh.refinement.size": 2.0}, 0.002),
     ("hard-cases/fault-geometry.toml", {}, 0.01),                  # 30 deg through a coarse mesh
+    ("hard-cases/finite-fault.toml", {}, 0.01),                    # tips snapped to element edges
 ])
 def test_estimate_size_counts_the_unknowns_of_the_built_model(path, overrides, tolerance):
     """The estimate counts the graded lines (refinement and leak-off grading) and the enriched
