@@ -312,10 +312,16 @@ class Study:
     warnings: list = field(default_factory=list)
     references: dict = field(default_factory=dict)
     """quantity -> 'exact' (closed form of the scene's family) or 'richardson'."""
+    uncertified: list = field(default_factory=list)
+    """Richardson quantities of a ladder outside the asymptotic range: measured against its
+    finest rung (whose own error is then unknown: an empty cell), so no rung meets a target on
+    them."""
 
     def cheapest(self, target: float):
         """The rung of least wall time whose errors (non-empty) are all <= target, among the
-        space and time rungs; None if none."""
+        space and time rungs; None if none, or if a quantity is ``uncertified``."""
+        if set(self.uncertified) & set(self.quantities):
+            return None
         ok = [r for r in self.rows if r["kind"] in ("space", "time") and not r.get("failed")
               and all(not np.isfinite(r[f"error_{q}"]) or r[f"error_{q}"] <= target for q in self.quantities)
               and any(np.isfinite(r[f"error_{q}"]) for q in self.quantities)]
@@ -359,7 +365,7 @@ def analyse(scene: Scene, rungs, outs, quantities, kinds=("space", "time"), skip
         rows.append(row)
     base = rows[0]
     exact_qs = [q for q in quantities if reference_of(scene, q) == "exact"]
-    orders, warnings = {}, []
+    orders, warnings, uncertified = {}, [], set()
     for r in rows:  # exact: every rung's own (whole) error, whatever ladder it is on
         if not r["failed"] and r["kind"] in ("space", "time"):
             for q in exact_qs:
@@ -388,13 +394,18 @@ def analyse(scene: Scene, rungs, outs, quantities, kinds=("space", "time"), skip
             value = ref.value
             if not ref.asymptotic:
                 warnings.append(f"{ladder_kind} ladder, {q}: {ref.note}; its errors are against "
-                                f"the finest rung")
+                                f"the finest rung, whose own error is unknown")
                 value = vals[-1]
             # a reference at round-off of the values' scale is a zero reference: no relative error
             zero = not np.isfinite(value) or abs(value) <= 1e-9 * np.nanmax(np.abs(vals))
             for r, v in zip(lad, vals):
                 r.setdefault("partial", {})[(ladder_kind, q)] = (
                     abs(v - value) / abs(value) if not zero and np.isfinite(v) else float("nan"))
+            if not ref.asymptotic and not zero:
+                # the finest rung against itself would show 0; the others' errors against it are
+                # lower bounds: --target certifies no rung on this quantity
+                lad[-1]["partial"][(ladder_kind, q)] = float("nan")
+                uncertified.add(q)
     _total_errors(rows, base, [q for q in quantities if q not in exact_qs], kinds)
     # effect rungs: the change from the full scene (none where the full scene's value is zero,
     # undefined or, for slip, the give of a fault that does not slip)
@@ -411,7 +422,8 @@ def analyse(scene: Scene, rungs, outs, quantities, kinds=("space", "time"), skip
         for q in quantities:
             r.setdefault(f"error_{q}", float("nan"))
     return Study(rows, list(quantities), f"exact ({family})" if family else "richardson", orders, list(skipped),
-                 warnings, {q: ("exact" if q in exact_qs else "richardson") for q in quantities})
+                 warnings, {q: ("exact" if q in exact_qs else "richardson") for q in quantities},
+                 sorted(uncertified))
 
 
 def _exact_error(values: dict, q: str) -> float:

@@ -99,7 +99,9 @@ def accuracy(scene_path, levels, target, quantities, no_effects, out_dir, worker
     if target is not None:
         best = study.cheapest(target)
         if best is None:
-            click.echo(f"no rung meets {100 * target:g}% on every quantity")
+            click.echo(f"no rung meets {100 * target:g}% on every quantity"
+                       + (f" (no converged reference, so no rung is certified on: {', '.join(study.uncertified)};"
+                          f" leave them out with --quantities)" if study.uncertified else ""))
         else:
             click.echo(f"cheapest rung within {100 * target:g}%: {best['rung']} (h {best['element_size']:.3g} m, "
                        f"dt {best['dt']:.3g} s, {best['wall_s']:.3g} s)")
