@@ -45,10 +45,10 @@ def accuracy(scene_path, levels, target, quantities, no_effects, out_dir, worker
     and self-similar fluid-driven slip (elastic impermeable rock, constant friction:
     configs/verification/fluid-driven-slip-*.toml); any other quantity is measured against
     Richardson extrapolation from the three finest rungs of each ladder, with the observed
-    order printed. The table marks each quantity [exact] or [richardson]. Effect rungs are compared with the full scene. Writes accuracy.csv and
-    accuracy.png (error against wall time, Pareto front) to --out. Wall times are warm (each
-    task runs its scene once for one step first); with more workers than free cores they
-    include the contention.
+    order printed. The table marks each quantity [exact] or [richardson]. Effect rungs are
+    compared with the full scene. Writes accuracy.csv and accuracy.png (error against wall time,
+    Pareto front) to --out. Wall times are warm (each task runs its scene once for one step
+    first); with more workers than free cores they include the contention.
     """
     from ..accuracy import known_quantities, plot_study, run_study, write_csv
 
