@@ -31,7 +31,7 @@ def _target_callback(ctx, param, value):
 @click.option("--target", default=None, metavar="5%", callback=_target_callback,
               help="Name the cheapest rung whose errors are all below this relative error.")
 @click.option("--quantities", default=None, metavar="Q,Q",
-              help="Screened quantities to compare [default: all the scene supports].")
+              help="Quantities to compare [default: the exact ones on a verification scene, else every screened one].")
 @click.option("--no-effects", is_flag=True, help="Skip the rungs with one effect switched off.")
 @runner_options
 @version_option
