@@ -44,7 +44,8 @@ def _count_callback(ctx, param, value):
               help="Checkpoint file: written every --checkpoint-every steps and on "
                    "SIGINT/SIGTERM; an existing one is resumed.")
 @click.option("--out", "-o", type=FILE, default=None, metavar="RESULT.h5",
-              help="HDF5 result file written when the monitor stops.")
+              help="HDF5 result file, written as the monitor goes (readable meanwhile, HDF5 "
+                   "SWMR) and completed when it stops.")
 @click.option("--idle-exit", type=float, default=None, metavar="SECONDS",
               callback=_positive_callback,
               help="Stop cleanly (state and results written) after this long without a new "

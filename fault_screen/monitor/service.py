@@ -31,6 +31,9 @@ __all__ = ["MonitorConfig", "MonitorService", "MonitorInputError"]
 
 log = logging.getLogger("fault_screen.monitor")
 
+#: wall seconds between flushes of the streamed result file (beside those of the checkpoints)
+FLUSH_INTERVAL = 2.0
+
 
 class MonitorInputError(ValueError):
     """Input the monitor cannot use, found while running (the message names the option)."""
@@ -97,13 +100,15 @@ class MonitorService:
         if resuming:
             self.stage, _ = Stage.restore(config.state, scene=scene,
                                           simulation_class=simulation_class,
-                                          screener=screener, metrics=metrics, site=config.site)
+                                          screener=screener, metrics=metrics, site=config.site,
+                                          out=config.out)
             log.info("resumed from %s at model time %.6g s (%d steps, %d samples)",
                      config.state, self.stage.time, self.stage.steps, self.stage.samples.count)
         else:
             sim = simulation_class(scene) if simulation_class is not None else None
             self.stage = Stage(scene, start=config.t0, simulation=sim, screener=screener,
-                               metrics=metrics, site=config.site, label=config.label)
+                               metrics=metrics, site=config.site, label=config.label,
+                               out=config.out)
         box = config.outbox
         if box is None and not all_sinks:
             box = ":memory:"           # no alert plugin: nothing to deliver, no file
@@ -116,6 +121,7 @@ class MonitorService:
         self._detector_state = extra.get("detector")
         self._last_ckpt = self.stage.steps
         self._last_wave_poll = 0.0
+        self._last_flush = time.monotonic()
 
     # -- signals ----------------------------------------------------------------------------
     def request_stop(self, reason: str = "stop requested") -> None:
@@ -182,6 +188,10 @@ class MonitorService:
                         f": {alert['action']}" if alert["action"] else "")
         if self.on_update is not None:
             self.on_update(upd)
+        now = time.monotonic()
+        if now - self._last_flush >= FLUSH_INTERVAL:
+            self.stage.flush()            # a reader of --out sees the newest steps
+            self._last_flush = now
         if checkpoint and self.cfg.state is not None and self.stage.steps - self._last_ckpt >= \
                 self.cfg.checkpoint_every:
             self.checkpoint()
@@ -195,6 +205,10 @@ class MonitorService:
         self._last_ckpt = self.stage.steps
 
     def _write_result(self) -> None:
+        if self.stage.out is not None:
+            if self.stage.close() is not None:
+                log.info("results completed in %s", self.cfg.out)
+            return
         if self.cfg.out is not None and self.stage.steps > 0:
             self.stage.result().save(self.cfg.out)
             log.info("results written to %s", self.cfg.out)
