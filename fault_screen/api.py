@@ -11,8 +11,6 @@ import numpy as np
 
 from .result import Result
 from .scene import Scene
-from .screening import screen_result
-from .simulate import simulate as simulate_core
 
 
 def scene_injected_volume(scene: Scene):
@@ -27,16 +25,25 @@ def scene_injected_volume(scene: Scene):
     return log.volume
 
 
-def simulate(scene: Scene, *, events=None, injected_volume=None, **options) -> Result:
-    """Run ``scene`` to its end time (options as :func:`fault_screen.simulate.simulate`:
-    ``progress``, ``observer``) and screen the result with the scene's ``[monitor]`` rules. A
-    scene with ``injection.log`` is driven by that log unless ``injected_volume`` is given.
+def simulate(scene: Scene, *, events=None, injected_volume=None, progress=None,
+             observer=None) -> Result:
+    """Run ``scene`` to its end time (``progress``, ``observer`` as
+    :func:`fault_screen.simulate.simulate`) and screen it step by step with the scene's
+    ``[monitor]`` rules (``/screening/``, the numbers :func:`screen_result` gives over the
+    whole result; a level change keeps its fault profile when ``[output]`` thins them). A scene
+    with ``injection.log`` is driven by that log unless ``injected_volume`` is given.
     ``events``: seismic events (``.time`` s of model time, ``.magnitude``, optional
     ``.distance`` m) the rules may use."""
+    from .stepper import Simulation
+
     if injected_volume is None:
         injected_volume = scene_injected_volume(scene)
-    result = simulate_core(scene, injected_volume=injected_volume, **options)
-    screen_result(result, events=events)
+    sim = Simulation(scene)
+    if observer is not None:
+        observer(0.0, sim.x, sim.disc)
+    screening = _screened_run(sim, events, injected_volume, progress, observer)
+    result = sim.result()
+    result.extra["screening"] = screening.arrays()
     return result
 
 
@@ -55,6 +62,18 @@ class StepScreening:
         self.tracker = MetricsTracker(fault_x, fault_weights, scene.fault.friction)
         self.screener = Screener(scene.monitor)
         self.screener.add_events(Events.coerce(events))
+        self.records: list[dict] = []     # the rows screened, when kept in memory
+
+    def arrays(self) -> dict:
+        """The ``/screening/`` group of the rows screened in memory (``Result.extra``)."""
+        from .screening import TRANSITION_DTYPE
+
+        out = {p.rsplit("/", 1)[1]: np.array([r[p] for r in self.records])
+               for p in self.streams()["screening"]}
+        out["level"] = out["level"].astype(np.int8)
+        tr = [self.transition_record(t)["/screening/transitions"] for t in self.screener.transitions]
+        out["transitions"] = np.array(tr, dtype=TRANSITION_DTYPE).reshape(-1)
+        return out
 
     @staticmethod
     def streams() -> dict:
@@ -92,8 +111,9 @@ class StepScreening:
         return {"/screening/transitions": rec}
 
     def screen(self, sim, *, events=None) -> list:
-        """Screen the newest row of ``sim`` and append it to its result file; a level change
-        keeps that row's fault profile. Returns the level changes."""
+        """Screen the newest row of ``sim`` and append it to its result file (or keep it, for
+        :meth:`arrays`, when ``sim`` keeps its results in memory); a level change keeps that
+        row's fault profile. Returns the level changes."""
         stopped = (sim.stopped or {}).get("reason") == "unstable"
         record, transitions = self.update(sim.last_row, sim.disc.injection.nearest_point,
                                           unstable=stopped, events=events)
@@ -102,6 +122,8 @@ class StepScreening:
             writer.append("screening", record)
             for tr in transitions:
                 writer.append("transitions", self.transition_record(tr))
+        else:
+            self.records.append(record)
         if transitions:
             sim.recorder.keep_profile()
         return transitions
@@ -126,15 +148,27 @@ def run_streamed(scene: Scene, path, *, events=None, injected_volume=None, progr
 
     sim = Simulation(scene)
     sim.stream_to(path, streams=StepScreening.streams())
-    fp = sim.disc.fault_points
-    screening = StepScreening(scene, fp.s - sim.disc.injection.s, fp.weight, events)
     try:
-        screening.screen(sim)                       # the in-situ state at t = 0
-        end = scene.time.end
-        # one step per call: each row is screened before the next (the same steps as one call)
-        while sim.advance(end, volume=injected_volume, max_steps=1, progress=progress):
-            screening.screen(sim)
+        screening = _screened_run(sim, events, injected_volume, progress, None)
     except BaseException:
         sim.writer.abandon()
         raise
     return sim, screening
+
+
+def _screened_run(sim, events, injected_volume, progress, observer) -> StepScreening:
+    """Advance ``sim`` to its scene's end, screening every row as it comes."""
+    from .simulate import SimulationError
+
+    scene = sim.scene
+    if scene.injection.log is not None and injected_volume is None:
+        raise SimulationError(f"the scene reads the injection log {scene.injection.log}: read it with "
+                              f"fault_screen.io.read_injection_log and pass injected_volume=log.volume")
+    fp = sim.disc.fault_points
+    screening = StepScreening(scene, fp.s - sim.disc.injection.s, fp.weight, events)
+    screening.screen(sim)                       # the in-situ state at t = 0
+    # one step per call: each row is screened before the next (the same steps as one call)
+    while sim.advance(scene.time.end, volume=injected_volume, max_steps=1, progress=progress,
+                      observer=observer):
+        screening.screen(sim)
+    return screening

@@ -17,6 +17,7 @@ continues from its natural size afterwards.
 from __future__ import annotations
 
 import json
+import math
 import time as _time
 import tomllib
 from pathlib import Path
@@ -495,7 +496,7 @@ class Recorder:
             stored_rock=stored["rock"], stored_fault=stored["fault"], leaked=leaked,
         )
         self._commit()
-        row["profile"] = self._profile_due(self.count, t)
+        row["profile"] = self._profile_due(self.count, t, self.last["time"] if self.last else None)
         if row["profile"]:
             self.last_profile = (self.count, float(t))
         self.count += 1
@@ -505,12 +506,14 @@ class Recorder:
         else:
             self._open = True
 
-    def _profile_due(self, k: int, t: float) -> bool:
-        if (self.profile_every is None and self.profile_interval is None) or self.last_profile is None:
+    def _profile_due(self, k: int, t: float, t_before: float | None) -> bool:
+        """On a fixed grid (rows 0, N, 2N...; the first row at or after each multiple of T), so
+        the rows kept do not depend on where the level changed or the run was restarted."""
+        every, interval = self.profile_every, self.profile_interval
+        if (every is None and interval is None) or t_before is None:
             return True
-        k0, t0 = self.last_profile
-        return ((self.profile_every is not None and k - k0 >= self.profile_every)
-                or (self.profile_interval is not None and t - t0 >= self.profile_interval * (1 - 1e-12)))
+        return ((every is not None and k % every == 0)
+                or (interval is not None and math.floor(t / interval) > math.floor(t_before / interval)))
 
     def keep_profile(self) -> None:
         """Keep the full fault profile of the newest row (a level changed there, the run ends)."""
