@@ -24,7 +24,7 @@ from ..io.injection_log import InjectionLogError
 from ..io.log_stream import LogDecoder
 from . import plugins
 from .outbox import Outbox
-from .seismicity import CatalogFollower, SdsDetector, Site
+from .seismicity import CatalogFollower, SdsDetector, SeedLinkDetector, Site
 from .stage import LEVELS, Stage
 
 __all__ = ["MonitorConfig", "MonitorService", "MonitorInputError"]
@@ -48,6 +48,8 @@ class MonitorConfig:
     out: Optional[Path] = None                 # result file written at the end
     events: Optional[Path] = None              # QuakeML / FDSN text catalogue (polled)
     waveforms: Optional[Path] = None           # SDS archive root
+    seedlink: Optional[str] = None             # SeedLink server HOST:PORT
+    seedlink_streams: str = ""                 # NET_STA[:SELECTORS],... (obspy's stream list)
     idle_exit: Optional[float] = None          # s without a new sample -> clean exit
     alerts: List[str] = field(default_factory=list)   # NAME[:CONFIG] specs
     source: Optional[str] = None               # source plugin (default: csv, or stdin for "-")
@@ -142,7 +144,8 @@ class MonitorService:
             st.start = self.decoder.start
         if st.start is None:
             wanted = [o for o, v in (("--events", self.cfg.events),
-                                     ("--waveforms", self.cfg.waveforms)) if v is not None]
+                                     ("--waveforms", self.cfg.waveforms),
+                                     ("--seedlink", self.cfg.seedlink)) if v is not None]
             if wanted and self.decoder.has_clock is False:
                 raise MonitorInputError(
                     f"{' and '.join(wanted)} need the date-time of model time 0, and the log "
@@ -151,8 +154,13 @@ class MonitorService:
         if self.cfg.events is not None and self.catalog is None:
             site = st.site.spec if st.site is not None else None
             self.catalog = CatalogFollower(self.cfg.events, st.start, site=site)
-        if self.cfg.waveforms is not None and self.detector is None:
-            self.detector = SdsDetector(self.cfg.waveforms, st.start, **self.cfg.sta_lta)
+        if self.detector is None and (self.cfg.waveforms is not None or self.cfg.seedlink is not None):
+            if self.cfg.seedlink is not None:
+                # the same STA/LTA path on the records a SeedLink server streams
+                self.detector = SeedLinkDetector(self.cfg.seedlink, self.cfg.seedlink_streams,
+                                                 st.start, **self.cfg.sta_lta)
+            else:
+                self.detector = SdsDetector(self.cfg.waveforms, st.start, **self.cfg.sta_lta)
             if self._detector_state:
                 self.detector.restore(self._detector_state)
 
@@ -232,6 +240,8 @@ class MonitorService:
                             "start", left, self.outbox.path)
             self.outbox.close()
             self.source.close()
+            if hasattr(self.detector, "close"):
+                self.detector.close()
             for signum, old in getattr(self, "_old_handlers", {}).items():
                 signal.signal(signum, old)
         st = self.stage
