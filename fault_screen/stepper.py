@@ -412,8 +412,7 @@ class Simulation:
         rec.rows = [{k: _scalar(v[i]) for k, v in rows.items()} for i in range(n)]
         for r in rec.rows:
             r.setdefault("profile", True)        # checkpoints before [output]
-        rec.set_state(rec_state or dict(count=n, last_profile=(n - 1, float(rec.rows[-1]["time"]))),
-                      rec.rows[-1])
+        rec.set_state(rec_state or dict(count=n), rec.rows[-1])
         return sim
 
 
@@ -459,7 +458,6 @@ class Recorder:
         self._open = False                # the newest row is not yet in the file
         self.profile_every = getattr(output, "profile_every", None)
         self.profile_interval = getattr(output, "profile_interval", None)
-        self.last_profile: tuple[int, float] | None = None   # (row, time) of the newest profile
         # fluid stored in the rock and in the fault: linear in the unknowns, so weights formed once
         self.store_weights = {"rock": np.zeros(disc.n_dofs), "fault": np.zeros(disc.n_dofs)}
         self.nonlinear_stores = []
@@ -497,8 +495,6 @@ class Recorder:
         )
         self._commit()
         row["profile"] = self._profile_due(self.count, t, self.last["time"] if self.last else None)
-        if row["profile"]:
-            self.last_profile = (self.count, float(t))
         self.count += 1
         self.last = row
         if self.writer is None:
@@ -521,7 +517,6 @@ class Recorder:
         if row is None or row["profile"]:
             return
         row["profile"] = True
-        self.last_profile = (self.count - 1, float(row["time"]))
         if self.writer is not None and not self._open:     # its series are already in the file
             self.writer.append("profiles", self.profile_record(row))
 
@@ -584,12 +579,10 @@ class Recorder:
             self.writer.flush()
 
     def state(self) -> dict:
-        return dict(count=self.count, last_profile=self.last_profile)
+        return dict(count=self.count)
 
     def set_state(self, state: dict, last: dict | None) -> None:
         self.count = int(state["count"])
-        lp = state.get("last_profile")
-        self.last_profile = (int(lp[0]), float(lp[1])) if lp is not None else None
         self.last = last
 
     # -- in memory --------------------------------------------------------------------------
