@@ -11,6 +11,9 @@ import numpy as np
 
 from .result import Result
 from .scene import Scene
+# imported here, before the package binds the name ``simulate`` to the function below: a first
+# import of the submodule later would rebind ``fault_screen.simulate`` to the module
+from .simulate import SimulationError
 
 
 def scene_injected_volume(scene: Scene):
@@ -158,8 +161,6 @@ def run_streamed(scene: Scene, path, *, events=None, injected_volume=None, progr
 
 def _screened_run(sim, events, injected_volume, progress, observer) -> StepScreening:
     """Advance ``sim`` to its scene's end, screening every row as it comes."""
-    from .simulate import SimulationError
-
     scene = sim.scene
     if scene.injection.log is not None and injected_volume is None:
         raise SimulationError(f"the scene reads the injection log {scene.injection.log}: read it with "
