@@ -100,6 +100,10 @@ class FaultSpec:
     """Dilation angle (degrees); used with effects.dilation."""
     asperity_height_std: float = 0.0
     """sigma_h of Renshaw's aperture law (m); used with effects.aperture_evolution."""
+    length: float | None = None
+    """Length of a fault that ends in the rock (m), centred on ``point``; each tip is snapped to
+    the nearest element edge along the fault (a warning gives the modelled length). Default:
+    the fault crosses the whole model. Needs effects.leak_off = false."""
 
 
 @_spec
@@ -530,7 +534,7 @@ QUANTITY = {
     **dict.fromkeys(["normal_stiffness", "shear_stiffness", "pore_pressure_gradient"], "stiffness"),
     **dict.fromkeys(["lx", "ly", "origin", "center", "half_width", "size", "point",
                      "hydraulic_aperture", "critical_slip_distance", "asperity_height_std", "width",
-                     "band", "box", "position", "reference_point"], "length"),
+                     "band", "box", "position", "reference_point", "length"], "length"),
     "permeability": "permeability",
     "mobility": "mobility",
     **dict.fromkeys(["end", "dt", "dt_max", "initial_state", "log_max_gap"], "time"),
@@ -902,6 +906,11 @@ def _validate(s: Scene, sink: list | None = None):
     for key in ("normal_stiffness", "shear_stiffness", "hydraulic_aperture", "kappa"):
         _check(getattr(f, key) > 0, f"fault.{key}", getattr(f, key), "must be > 0")
     _check(f.friction >= 0, "fault.friction", f.friction, "must be >= 0")
+    if f.length is not None:
+        _check(f.length > 0, "fault.length", f.length, "must be > 0 m")
+        _check(not s.effects.leak_off, "fault.length", f.length,
+               "a fault that ends in the rock needs effects.leak_off = false (its pressure on its own "
+               "line; the leak-off enrichment has no tip treatment)")
     if f.storativity is not None:
         _check(f.storativity >= 0, "fault.storativity", f.storativity, "must be >= 0 m/Pa")
     _validate_rock(s.rock, "rock", sink)

@@ -278,6 +278,8 @@ class Simulation:
                     physics=self.physics.names(), factorizations=self.solver.factorizations,
                     damped_retries=self.damped_retries, continuation_steps=self.continuation_steps,
                     fault_shift=disc.fault.shift)
+        if disc.fault.tips is not None:  # a finite fault: where its snapped tips are (s, m)
+            meta["fault_tips"] = list(disc.fault.tips)
         if self.stopped is not None:
             meta["stopped"] = dict(self.stopped)
         return meta
