@@ -23,8 +23,13 @@ def records_of(stream) -> list[bytes]:
 
 
 class FakeSeedLinkServer:
-    def __init__(self, records: list[bytes]):
+    """``hold_after``: send that many records, then wait for :meth:`release` to send the rest
+    (a channel whose records come late)."""
+
+    def __init__(self, records: list[bytes], hold_after: int | None = None):
         self.records = records
+        self.hold_after = hold_after
+        self._released = threading.Event()
         self.commands: list[str] = []
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -70,10 +75,16 @@ class FakeSeedLinkServer:
                     conn.sendall(b"OK\r\n")
                 elif verb == "END":
                     for seq, rec in enumerate(self.records):
+                        if seq == self.hold_after:
+                            while not (self._released.wait(0.1) or self._stop.is_set()):
+                                pass
                         conn.sendall(b"SL%06X" % seq + rec)
                         self.sent += 1
                 else:
                     conn.sendall(b"ERROR\r\n")
+
+    def release(self):
+        self._released.set()
 
     def close(self):
         self._stop.set()

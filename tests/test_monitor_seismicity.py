@@ -131,24 +131,38 @@ def test_site_from_the_scene_puts_the_dip_section_in_the_model_plane():
 
 def test_sta_lta_on_seedlink_records_finds_what_the_sds_archive_gives(tmp_path):
     """obspy's example waveforms served as 512-byte records by a SeedLink server on loopback
-    (tests/seedlink_fake.py): the same onsets and detections as the SDS path."""
+    (tests/seedlink_fake.py): the same onsets and detections as the SDS path, also when one
+    channel's records come late (the detector waits for every channel, so the P arrival on the
+    three channels is one detection at the earliest onset, 4.99 s on EHE)."""
     import time
 
     from fault_screen.monitor import SeedLinkDetector
     from seedlink_fake import FakeSeedLinkServer, records_of
 
-    st = obspy.read()
-    server = FakeSeedLinkServer(records_of(st))
+    st = obspy.read()                    # EHZ, EHN, EHE, in that order
+    records = records_of(st)
+    late = 2 * len(records) // 3 + 2     # EHZ and EHN whole, the first 2 records of EHE
+    server = FakeSeedLinkServer(records, hold_after=late)
     start = datetime(2009, 8, 24, 0, 20, 3, tzinfo=UTC)
     opts = dict(sta=0.5, lta=5.0, on=3.0, off=1.0)
     det = SeedLinkDetector(server.address, "BW_RJOB:EH?", start, merge=1.0, min_channels=2, **opts)
-    try:
+
+    def received(n):
         deadline = time.monotonic() + 30
-        while det.client.records < len(server.records) and time.monotonic() < deadline:
+        while det.client.records < n and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert det.client.records == len(server.records) > 3 * 20
+        assert det.client.records == n
+
+    try:
+        received(late)
         said = [" ".join(c.split()) for c in server.commands]
         assert said == ["HELLO", "STATION RJOB BW", "SELECT EH?", "DATA", "END"]
+        # EHE has 2.2 s so far: nothing is analysed beyond it, although EHZ and EHN hold 30 s
+        # (without the wait, their onsets would make a detection at 5.01 s without EHE's 4.99 s)
+        assert det.poll(30.0) == []
+        assert max(det.done.values()) < obspy.UTCDateTime(start) + 3.0
+        server.release()
+        received(len(records))
         assert sorted(".".join(c) for c in det.client.get_all_nslc()) == \
             ["BW.RJOB..EHE", "BW.RJOB..EHN", "BW.RJOB..EHZ"]
         write_sds(tmp_path, st)

@@ -190,6 +190,11 @@ class SdsDetector:
         from obspy.signal.trigger import classic_sta_lta, trigger_onset
 
         t_end = self.ref + until
+        complete = getattr(self.client, "complete_until", lambda: None)()
+        if complete is not None:
+            # a live stream: only as far as every channel has data, so that the onsets of one
+            # arrival on several channels come in the same call and merge into one detection
+            t_end = min(t_end, complete)
         out = []
         for code in self._nslc():
             done = self.done.get(code, self.ref)
@@ -317,6 +322,19 @@ class SeedLinkBuffer:
             kept = list(self.traces.get(".".join((network, station, location, channel)), ()))
         return Stream([tr.slice(starttime, endtime) for tr in kept
                        if tr.stats.endtime >= starttime and tr.stats.starttime <= endtime])
+
+    def complete_until(self):
+        """Stream time (UTCDateTime) up to which every live channel has sent its records; a
+        channel silent for more than ``STALE`` seconds behind the newest is left out."""
+        with self._lock:
+            ends = [kept[-1].stats.endtime for kept in self.traces.values() if kept]
+        if not ends:
+            return None
+        newest = max(ends)
+        return min(e for e in ends if newest - e <= self.STALE)
+
+    #: s a channel may lag the newest before detections go on without it
+    STALE = 60.0
 
     def forget_before(self, t) -> None:
         """Drop the records that end before ``t`` (UTCDateTime)."""
