@@ -13,13 +13,20 @@ import threading
 RECLEN = 512
 
 
-def records_of(stream) -> list[bytes]:
-    """The stream as 512-byte miniSEED records (float32 samples, as obspy's example holds)."""
-    buf = io.BytesIO()
-    stream.write(buf, format="MSEED", reclen=RECLEN)
-    data = buf.getvalue()
-    assert len(data) % RECLEN == 0
-    return [data[i:i + RECLEN] for i in range(0, len(data), RECLEN)]
+def records_of(stream, interleave: bool = False) -> list[bytes]:
+    """The stream as 512-byte miniSEED records (float32 samples, as obspy's example holds),
+    trace after trace, or with ``interleave`` in turn across the traces, as a server streams
+    channels recorded together."""
+    per_trace = []
+    for tr in stream:
+        buf = io.BytesIO()
+        tr.write(buf, format="MSEED", reclen=RECLEN)
+        data = buf.getvalue()
+        assert len(data) % RECLEN == 0
+        per_trace.append([data[i:i + RECLEN] for i in range(0, len(data), RECLEN)])
+    if not interleave:
+        return [rec for recs in per_trace for rec in recs]
+    return [recs[i] for i in range(max(map(len, per_trace))) for recs in per_trace if i < len(recs)]
 
 
 class FakeSeedLinkServer:

@@ -208,7 +208,7 @@ def test_seedlink_detections_reach_the_results(dist, scene_file, tmp_path):
 
     from seedlink_fake import FakeSeedLinkServer, records_of
 
-    server = FakeSeedLinkServer(records_of(obspy.read()))
+    server = FakeSeedLinkServer(records_of(obspy.read(), interleave=True))
     log = tmp_path / "elapsed.csv"
     log.write_text("elapsed[s],flow_rate[L/min]\n"
                    + "".join(f"{t},10\n" for t in range(0, 36, 5)))
