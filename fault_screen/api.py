@@ -88,18 +88,17 @@ class StepScreening:
         rows["/screening/level"] = ("|i1", ())
         return {"screening": rows, "transitions": {"/screening/transitions": (TRANSITION_DTYPE, ())}}
 
-    def update(self, row: dict, point: int, *, unstable: bool = False, events=None, metrics=None):
+    def update(self, row: dict, point: int, *, unstable: bool = False, events=None):
         """Screen one recorded row of the stepper (``Simulation.last_row``; ``point``: index of
         the fault point nearest to the injection). Returns ``(record, transitions)``: the
         ``screening`` stream's record and the level changes (Transition list)."""
         from .screening.metrics import FAULT_FIELDS
 
-        if metrics is None:
-            at = lambda k: float(row[k][point]) if len(row[k]) else 0.0  # noqa: E731
-            metrics = self.tracker.update({k: row[k] for k in FAULT_FIELDS},
-                                          {"overpressure": row["inj_overpressure"], "slip": row["inj_slip"],
-                                           "shear_traction": at("shear_traction"),
-                                           "effective_normal_stress": at("effective_normal_stress")})
+        at = lambda k: float(row[k][point]) if len(row[k]) else 0.0  # noqa: E731
+        metrics = self.tracker.update({k: row[k] for k in FAULT_FIELDS},
+                                      {"overpressure": row["inj_overpressure"], "slip": row["inj_slip"],
+                                       "shear_traction": at("shear_traction"),
+                                       "effective_normal_stress": at("effective_normal_stress")})
         transitions = self.screener.update(row["time"], metrics, events=events, unstable=unstable)
         record = {f"/screening/{k}": float(v) for k, v in metrics.items()}
         record["/screening/level"] = self.screener.level
