@@ -299,6 +299,8 @@ class Simulation:
                 h5["history"] = self.history
             if self.solver.scale is not None:
                 h5["solver_scale"] = self.solver.scale
+            for key, value in self.solver.checkpoint_state().items():
+                h5[f"solver/{key}"] = value
             rows = h5.create_group("rows")
             for key in self.recorder.rows[0]:
                 rows[key] = np.array([r[key] for r in self.recorder.rows])
@@ -329,6 +331,8 @@ class Simulation:
             sim.history = h5["history"][()] if "history" in h5 else None
             if "solver_scale" in h5:
                 sim.solver.scale = h5["solver_scale"][()]
+            if "solver" in h5:
+                sim.solver.restore_state({k: h5["solver"][k][()] for k in h5["solver"]})
             rows = {k: h5["rows"][k][()] for k in h5["rows"]}
         n = len(next(iter(rows.values())))
         sim.recorder.rows = [{k: _scalar(v[i]) for k, v in rows.items()} for i in range(n)]
