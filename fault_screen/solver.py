@@ -46,6 +46,11 @@ BULK_BALANCE = 1e-3
 STALLED_ITERATIONS = 3
 
 
+#: the condensation B^-1 L_BN is solved for in blocks of columns of about this size (bytes; 16 to
+#: 256 columns): wide enough for SuperLU's block solves, narrow enough for the memory budget
+CONDENSATION_BLOCK_BYTES = 32 * 2 ** 20
+
+
 #: condensed (nonlinear) blocks up to this many unknowns are solved with one BLAS thread
 SINGLE_THREAD_BLAS_UP_TO = 2000
 
@@ -242,10 +247,13 @@ class NewtonSolver:
             rows_N = [(D @ M @ D).tocsr()[N] for M in (self.A, self.C, self.Hf)]
             parts = [r[:, B] for r in rows_N]
             self._NN = [r[:, N] for r in rows_N]
-            self._P = [np.zeros((len(N), len(N))) for _ in parts]
+            # a matrix with no entry coupling the fault rows to the bulk (storage and conduction
+            # of an impermeable rock) adds nothing: None instead of a zero n_N x n_N block
+            self._P = [np.zeros((len(N), len(N))) if part.nnz else None for part in parts]
             for cols, X in self._condensation(keep_W):
                 for P, part in zip(self._P, parts):
-                    P[:, cols] = part @ X
+                    if P is not None:
+                        P[:, cols] = part @ X
             self.schur = self._static_schur(dt)
         else:
             LNN = LsN[:, N].toarray()
@@ -258,14 +266,15 @@ class NewtonSolver:
         self._dt = dt
 
     def _condensation(self, keep_W):
-        """B^-1 L_BN, 256 columns at a time: yields (column indices, block); keeps the whole of it
+        """B^-1 L_BN, a block of columns at a time (CONDENSATION_BLOCK_BYTES): yields (column indices, block); keeps the whole of it
         as W when ``keep_W``. Columns of L_BN that are empty (fault unknowns no bulk unknown
         couples to: the fault pressures when the rock is impermeable) are zero: not solved for."""
         N, B = self.N, self.B
         self.W = np.zeros((len(B), len(N))) if keep_W else None
         coupled = np.flatnonzero(np.diff(self.L_BN.indptr) > 0)
-        for j0 in range(0, len(coupled), 256):
-            cols = coupled[j0:j0 + 256]
+        width = int(np.clip(CONDENSATION_BLOCK_BYTES // (8 * max(len(B), 1)), 16, 256))
+        for j0 in range(0, len(coupled), width):
+            cols = coupled[j0:j0 + width]
             X = self.lu_B.solve(self.L_BN[:, cols].toarray())
             if self.W is not None:
                 self.W[:, cols] = X
@@ -276,7 +285,12 @@ class NewtonSolver:
         the three precomputed products change (no sparse slicing per step size)."""
         th = self.time_weight
         (A, C, Hf), (P0, P1, P2) = self._NN, self._P
-        self.P = P0 + P1 / dt + th * P2
+        P = np.zeros((len(self.N),) * 2) if P0 is None else P0
+        if P1 is not None:
+            P = P + P1 / dt
+        if P2 is not None:
+            P = P + th * P2
+        self.P = P
         return (A + C * (1.0 / dt) + Hf * th).toarray() - self.P
 
     def _solve(self, sR, dense, bulk_eliminated, defer):
@@ -524,6 +538,12 @@ def _condensed_max_iterations(n):
     return min(30, max(12, n // 40))
 
 
+def _largest_difference(A, B, rows=256):
+    """max |A - B| over two equal dense matrices, a block of rows at a time (no n x n temporary)."""
+    return max((float(np.abs(A[i:i + rows] - B[i:i + rows]).max()) for i in range(0, len(A), rows)),
+               default=0.0)
+
+
 class _CondensedSolver:
     """Solves with the condensed block M of the current Newton iteration.
 
@@ -569,20 +589,21 @@ class _CondensedSolver:
 
     def solve(self, b):
         if not self.factored:
-            D = self.M - self.M0
-            nz = D != 0.0
+            M, M0 = self.M, self.M0
+            nz = M != M0
             K = np.flatnonzero(nz.any(axis=0) | nz.any(axis=1))
+            del nz
             x = None
             if len(K) * LOW_RANK_FRACTION <= len(b):
-                x = self._low_rank(b, D, K)
-            elif np.abs(D).max() <= SMALL_CHANGE * np.abs(self.M0).max():
+                x = self._low_rank(b, M[np.ix_(K, K)] - M0[np.ix_(K, K)], K)
+            elif _largest_difference(M, M0) <= SMALL_CHANGE * np.abs(M0).max():
                 x = self._gmres(b)
             if x is not None:
                 return x
             self._factorise()
         return self._precondition(b)
 
-    def _low_rank(self, b, D, K):
+    def _low_rank(self, b, DK, K):
         """Woodbury: with M = M0 + E D E^T (E: the columns of the identity at the changed rows
         and columns K), M^-1 b = y - Z (I + D Z_K)^-1 D y_K, y = M0^-1 b, Z = M0^-1 E (its
         columns kept while M0 is: K grows as a front advances). None when the result misses the
@@ -599,7 +620,6 @@ class _CondensedSolver:
             self._Z[:, new] = self._precondition(E)
             self._have[new] = True
         Z = self._Z[:, K]
-        DK = D[np.ix_(K, K)]
         capacitance = np.eye(len(K)) + DK @ Z[K]
         try:
             cap = scipy.linalg.lu_factor(capacitance, check_finite=False)
