@@ -347,6 +347,8 @@ class Simulation:
                 h5["history"] = self.history
             if self.solver.scale is not None:
                 h5["solver_scale"] = self.solver.scale
+            for key, value in self.solver.checkpoint_state().items():
+                h5[f"solver/{key}"] = value
             rec = self.recorder
             h5.attrs["recorder"] = json.dumps(rec.state())
             if rec.writer is not None:
@@ -394,6 +396,8 @@ class Simulation:
             sim.history = h5["history"][()] if "history" in h5 else None
             if "solver_scale" in h5:
                 sim.solver.scale = h5["solver_scale"][()]
+            if "solver" in h5:
+                sim.solver.restore_state({k: h5["solver"][k][()] for k in h5["solver"]})
             rec_state = json.loads(h5.attrs["recorder"]) if "recorder" in h5.attrs else None
             stream = json.loads(h5.attrs["stream"]) if "stream" in h5.attrs else None
             if stream is not None:
