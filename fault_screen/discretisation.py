@@ -208,6 +208,20 @@ class Discretisation:
         self.blocks = Blocks(n=start, **sl)
         self.n_dofs = start
 
+    def dof_coordinates(self) -> np.ndarray:
+        """(n_dofs, 2) where each unknown sits (m): its node, the fault point of a fault-line
+        pressure, the injection point for the pressure-control multiplier (sparse orderings)."""
+        b, c = self.blocks, self.coords
+        xy = np.zeros((self.n_dofs, 2))
+        xy[b.u] = np.repeat(c, 2, axis=0)[: b.u.stop - b.u.start]
+        xy[b.a] = np.repeat(c[self.heav_index >= 0], 2, axis=0)[: b.a.stop - b.a.start]
+        xy[b.p] = c[: b.p.stop - b.p.start]
+        xy[b.c] = c[self.lset_index >= 0][: b.c.stop - b.c.start]
+        if b.pf.stop > b.pf.start:
+            xy[b.pf] = self.fault.point + self.fault.fault_node_s[:, None] * self.fault.tangent
+        xy[b.q] = self.injection_xy
+        return xy
+
     def dof_counts(self) -> dict:
         b = self.blocks
         return {k: getattr(b, k).stop - getattr(b, k).start for k in BLOCK_ORDER}

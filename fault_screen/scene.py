@@ -410,6 +410,20 @@ class SiteSpec:
 
 
 @_spec
+class OutputSpec:
+    """How often the full fault profiles ((time, x) arrays under ``/fault``) are recorded
+    (``[output]``). The injection-point series, the fluid balance, the solver record and the
+    screening metrics are recorded at every step whatever this says. With neither key set
+    (the default) profiles are recorded at every step; with one or both, a profile is recorded
+    when either is due, and always at the first and the last step and at every change of the
+    screening level (run, replay, monitor). ``/fault/time`` holds the profiles' own times."""
+    profile_every: int | None = None
+    """Record the profiles every this many steps (-)."""
+    profile_interval: float | None = None
+    """Record the profiles at least every this long in model time (s)."""
+
+
+@_spec
 class Scene:
     title: str = "untitled"
     mesh: MeshSpec = MeshSpec()
@@ -426,6 +440,7 @@ class Scene:
     effects: EffectsSpec = EffectsSpec()
     monitor: MonitorSpec = MonitorSpec()
     site: SiteSpec = SiteSpec()
+    output: OutputSpec = OutputSpec()
 
     # ---- loading -------------------------------------------------------------------------
     @classmethod
@@ -524,6 +539,7 @@ QUANTITY = {
     "mobility": "mobility",
     **dict.fromkeys(["end", "dt", "dt_max", "initial_state", "log_max_gap"], "time"),
     **dict.fromkeys(["hold", "event_rate_window"], "time"),
+    "profile_interval": "time",
     "viscosity": "viscosity",
     **dict.fromkeys(["angle", "dilation_angle", "latitude", "longitude", "strike", "dip"], "angle"),
     **dict.fromkeys(["depth", "x", "y", "z"], "length"),
@@ -674,7 +690,7 @@ def _number(value, key, quantity=None, unit=None):
 
 for _cls in (Refinement, MeshSpec, FaultSpec, RockSpec, DamageZoneSpec, FluidSpec, InitialSpec, EdgeSpec,
              BoundarySpec, InjectionSpec, TimeSpec, SolverSpec, EffectsSpec, MonitorRule, MonitorSpec,
-             SiteSpec):
+             SiteSpec, OutputSpec):
     _SECTIONS[_cls.__name__] = _cls
 
 
@@ -1149,6 +1165,11 @@ def _validate(s: Scene, sink: list | None = None):
         _check(not ef.poroelastic, "effects.poroelastic", ef.poroelastic,
                "Biot rock needs mechanics = true (rigid rock has no pore volume change)")
     _validate_monitor(s.monitor)
+    out = s.output
+    if out.profile_every is not None:
+        _check(out.profile_every >= 1, "output.profile_every", out.profile_every, "must be >= 1 step")
+    if out.profile_interval is not None:
+        _check(out.profile_interval > 0, "output.profile_interval", out.profile_interval, "must be > 0 s")
 
 
 def _validate_monitor(mon: MonitorSpec):
