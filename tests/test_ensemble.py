@@ -75,3 +75,20 @@ def test_local_dask_cluster_gives_the_in_process_numbers(tiny, tmp_path):
         assert t.summary["peak_overpressure"] == h.summary["peak_overpressure"]
         assert t.summary["injection_slip"] == h.summary["injection_slip"]
     assert len(read_ensemble(tmp_path / "d.h5")) == 2
+
+
+def test_existing_scheduler_gives_the_in_process_numbers(tiny):
+    """``scheduler="tcp://..."``: the tasks go to a cluster the runner did not start (here an
+    in-process one, started by the test) and come back with the same numbers."""
+    from distributed import LocalCluster
+
+    variants = [Variant("nof46", {"injection.number_of_fractures": 46.0})]
+    here = run_ensemble(tiny, variants, workers=0)
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, protocol="tcp",
+                      host="127.0.0.1", dashboard_address=None) as cluster:
+        assert cluster.scheduler_address.startswith("tcp://")
+        there = run_ensemble(tiny, variants, scheduler=cluster.scheduler_address)
+        assert "run_task" in cluster.scheduler.task_prefixes   # the task ran there
+        assert len(cluster.scheduler.workers) == 1          # and the runner left the cluster as it was
+    assert there[0].ok
+    assert there[0].summary["peak_overpressure"] == here[0].summary["peak_overpressure"]
