@@ -7,8 +7,6 @@ Run: OPENBLAS_NUM_THREADS=1 python benchmarks/calibration_recovery.py
 import sys
 from pathlib import Path
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
@@ -39,8 +37,10 @@ def main():
             print(f"{k:<32} {truth[k]:>10.4g} {res.initial[k]:>10.4g} {res.values[k]:>10.4g} "
                   f"{res.std_error[k]:>10.3g} {abs(res.values[k] - truth[k]) / res.std_error[k]:>8.2f} "
                   f"{'yes' if k in ident else 'no'}")
-        print("correlation:")
-        print(np.array2string(res.correlation, precision=4))
+        short = [p.label or p.key for p in params]
+        pairs = [f"{short[i]}-{short[j]} {res.correlation[i, j]:+.4g}"
+                 for i in range(len(short)) for j in range(i + 1, len(short))]
+        print("correlation: " + ", ".join(pairs))
 
 
 if __name__ == "__main__":
