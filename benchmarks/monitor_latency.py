@@ -5,7 +5,8 @@ alert hook.
 
 A writer thread appends the bundled Rustrel stand-in log, resampled to one sample per second of
 log time, at --rate lines per second of wall time (1 = real time) to a file that the monitor
-service (csv source, real stepper, scene configs/rustrel-2015-calibrated.toml) follows.  So that
+service (csv source, real stepper, scene configs/rustrel-2015-calibrated.toml, results streamed
+to a file) follows.  So that
 every step raises an alert, the screener of this benchmark toggles green/yellow at each step
 (the real rules raise few alerts); the latency of a step is the wall time from the append of the
 line that completed it (the first sample at or after the step's end) to its alert reaching the
@@ -79,9 +80,10 @@ def main(argv=None):
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "live.csv"
         path.write_text("elapsed[s],flow_rate[m3/s]\n")
+        # the results stream to a file as in operation (what a step costs includes it)
         cfg = MonitorConfig(follow=str(path), idle_exit=max(3.0, 5 * a.poll + 2.0 / a.rate),
                             poll_interval=a.poll, outbox=Path(tmp) / "box.sqlite",
-                            checkpoint_every=10**9)
+                            checkpoint_every=10**9, out=Path(tmp) / "live.h5")
         hook = Hook()
         service = MonitorService(scene, cfg, sinks={"bench": hook}, simulation_class=sim_class,
                                  screener=Toggle(), metrics=lambda row, sc: {})

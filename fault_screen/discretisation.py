@@ -29,6 +29,10 @@ class FaultShiftWarning(UserWarning):
     """The fault was moved off mesh nodes by a tiny documented amount (xfem.NODE_CLEARANCE)."""
 
 
+class FaultTipWarning(UserWarning):
+    """A finite fault's tips were snapped to element edges: the modelled length differs."""
+
+
 @dataclass(frozen=True)
 class Blocks:
     """Start and size of each unknown block."""
@@ -107,7 +111,7 @@ class Discretisation:
         self.elements = self.mesh.elements
         self.has_fault = physics.has_fault
         try:
-            self.fault = (xfem.locate_fault(self.mesh, scene.fault_point, scene.fault.angle)
+            self.fault = (xfem.locate_fault(self.mesh, scene.fault_point, scene.fault.angle, scene.fault.length)
                           if self.has_fault else xfem.no_fault(self.mesh))
         except ValueError as exc:
             raise SceneError(f"fault.point = {scene.fault_point}, fault.angle = {scene.fault.angle}: {exc}") from None
@@ -116,6 +120,12 @@ class Discretisation:
                           f"passes through mesh nodes; it is moved {self.fault.shift:.3g} m along its normal "
                           f"(xfem.NODE_CLEARANCE of an element) so that every node lies on one side",
                           FaultShiftWarning, stacklevel=3)
+        tips, length = self.fault.tips, scene.fault.length
+        if tips is not None and max(abs(tips[0] + 0.5 * length), abs(tips[1] - 0.5 * length)) > 1e-9 * length:
+            lo, hi = tips
+            warnings.warn(f"fault.length = {scene.fault.length:g} m: the tips are snapped to the nearest element "
+                          f"edges along the fault, s = {lo:.6g} and {hi:.6g} m from fault.point; the modelled "
+                          f"length is {hi - lo:.6g} m", FaultTipWarning, stacklevel=3)
         if self.has_fault and "pf" in physics.blocks:  # the fault's own pressure line: a node at the source
             try:
                 self.fault = xfem.with_node_at(self.fault, scene.injection.position)
@@ -197,6 +207,20 @@ class Discretisation:
             start += sizes[key]
         self.blocks = Blocks(n=start, **sl)
         self.n_dofs = start
+
+    def dof_coordinates(self) -> np.ndarray:
+        """(n_dofs, 2) where each unknown sits (m): its node, the fault point of a fault-line
+        pressure, the injection point for the pressure-control multiplier (sparse orderings)."""
+        b, c = self.blocks, self.coords
+        xy = np.zeros((self.n_dofs, 2))
+        xy[b.u] = np.repeat(c, 2, axis=0)[: b.u.stop - b.u.start]
+        xy[b.a] = np.repeat(c[self.heav_index >= 0], 2, axis=0)[: b.a.stop - b.a.start]
+        xy[b.p] = c[: b.p.stop - b.p.start]
+        xy[b.c] = c[self.lset_index >= 0][: b.c.stop - b.c.start]
+        if b.pf.stop > b.pf.start:
+            xy[b.pf] = self.fault.point + self.fault.fault_node_s[:, None] * self.fault.tangent
+        xy[b.q] = self.injection_xy
+        return xy
 
     def dof_counts(self) -> dict:
         b = self.blocks

@@ -3,7 +3,8 @@
 The HDF5 writer, the README's results table (``python -m fault_screen.outputs``) and the
 figures' axis units all read this table, so a unit lives in one place. Shapes: ``(time, x)``
 along the fault's Gauss points at every output time, ``(time,)`` one value per output time,
-``(x,)`` and ``(x, 2)`` fixed along the fault.
+``(x,)`` and ``(x, 2)`` fixed along the fault. The ``(time, x)`` profiles are recorded at the
+times ``/fault/time`` (every output time by default; the scene's ``[output]`` may thin them).
 """
 from __future__ import annotations
 
@@ -31,6 +32,8 @@ SCHEMA: tuple[Output, ...] = (
     Output(_F, "x", "(x,)", "m", "along-fault coordinate of the fault Gauss points, 0 at the injection point"),
     Output(_F, "xy", "(x, 2)", "m", "model coordinates of the fault Gauss points"),
     Output(_F, "weight", "(x,)", "m", "Gauss weights: integrals along the fault are sums"),
+    Output(_F, "time", "(profiles,)", "s",
+           "model time of each fault profile (rows of the (time, x) arrays; [output] sets how often)"),
     Output(_F, "pressure", "(time, x)", "Pa", "fault pore pressure"),
     Output(_F, "overpressure", "(time, x)", "Pa", "fault pore pressure minus its in-situ value"),
     Output(_F, "slip", "(time, x)", "m", "tangential jump u+ - u- (along the fault tangent)"),

@@ -378,7 +378,9 @@ def plot_space_time(result, path, events=None, *, xlim=None) -> Path:
                 cmap, kw = "RdBu_r", {"vmin": -lim, "vmax": lim}
             else:
                 cmap = "viridis"
-        mesh = ax.pcolormesh(x, t * f, z, shading="nearest", cmap=cmap, rasterized=True, **kw)
+        # the profiles have their own times when [output] thins them
+        tp = np.asarray(getattr(result, "profile_time", t), dtype=float)
+        mesh = ax.pcolormesh(x, tp * f, z, shading="nearest", cmap=cmap, rasterized=True, **kw)
         cb = fig.colorbar(mesh, ax=ax, pad=0.01)
         cb.set_label(label)
         ax.set_title(label.split(" (")[0], loc="left")

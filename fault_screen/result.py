@@ -40,6 +40,18 @@ def atomic_hdf5(path):
             tmp.unlink()
 
 
+def _open_for_reading(path):
+    """h5py.File for reading; a file a writer holds open in SWMR mode is opened as its reader."""
+    import h5py
+
+    try:
+        return h5py.File(path, "r")
+    except OSError as exc:
+        if "already open for write" not in str(exc):
+            raise
+        return h5py.File(path, "r", libver="latest", swmr=True)
+
+
 @dataclass
 class Result:
     scene: Scene
@@ -53,6 +65,13 @@ class Result:
     solver: dict
     meta: dict = field(default_factory=dict)
     extra: dict = field(default_factory=dict)
+    #: model times of the rows of the ``fault`` profiles (s); None: every time of ``time``
+    fault_time: np.ndarray | None = None
+
+    @property
+    def profile_time(self) -> np.ndarray:
+        """The model times of the rows of the fault profiles (s)."""
+        return self.time if self.fault_time is None else self.fault_time
 
     def save(self, path) -> Path:
         path = Path(path)
@@ -61,7 +80,8 @@ class Result:
             h5.attrs["meta"] = json.dumps(self.meta, default=float)
             h5.create_dataset("time", data=self.time).attrs["unit"] = unit("", "time")
             g = h5.create_group("fault")
-            for k, v in (("x", self.fault_x), ("xy", self.fault_xy), ("weight", self.fault_weights)):
+            for k, v in (("x", self.fault_x), ("xy", self.fault_xy), ("weight", self.fault_weights),
+                         ("time", self.profile_time)):
                 g.create_dataset(k, data=v).attrs["unit"] = unit("fault", k)
             for k, v in self.fault.items():
                 g.create_dataset(k, data=v, compression="gzip").attrs["unit"] = unit("fault", k)
@@ -77,15 +97,22 @@ class Result:
 
     @classmethod
     def load(cls, path) -> "Result":
+        """A result file, also one still being streamed (opened as a single-writer/multiple-
+        reader reader then: what the last flush wrote)."""
         import h5py
         import tomllib
 
-        with h5py.File(path, "r") as h5:
+        with _open_for_reading(path) as h5:
             scene = Scene.from_dict(tomllib.loads(h5.attrs["scene"]))
             read = lambda grp: {k: grp[k][()] for k in grp}
             fault = read(h5["fault"])
             fx, fxy, fw = fault.pop("x"), fault.pop("xy"), fault.pop("weight")
+            time = h5["time"][()]
+            ft = fault.pop("time", None)         # files before [output] have a profile per time
+            if ft is not None and np.array_equal(ft, time):
+                ft = None
             extra = {k: read(h5[k]) for k in h5 if k not in ("time", "fault", "injection", "balance", "solver")}
-            return cls(scene=scene, time=h5["time"][()], fault_x=fx, fault_xy=fxy, fault_weights=fw, fault=fault,
+            return cls(scene=scene, time=time, fault_x=fx, fault_xy=fxy, fault_weights=fw, fault=fault,
                        injection=read(h5["injection"]), balance=read(h5["balance"]),
-                       solver=read(h5["solver"]), meta=json.loads(h5.attrs["meta"]), extra=extra)
+                       solver=read(h5["solver"]), meta=json.loads(h5.attrs["meta"]), extra=extra,
+                       fault_time=ft)

@@ -100,6 +100,10 @@ class FaultSpec:
     """Dilation angle (degrees); used with effects.dilation."""
     asperity_height_std: float = 0.0
     """sigma_h of Renshaw's aperture law (m); used with effects.aperture_evolution."""
+    length: float | None = None
+    """Length of a fault that ends in the rock (m), centred on ``point``; each tip is snapped to
+    the nearest element edge along the fault (a warning gives the modelled length). Default:
+    the fault crosses the whole model. Needs effects.leak_off = false."""
 
 
 @_spec
@@ -406,6 +410,20 @@ class SiteSpec:
 
 
 @_spec
+class OutputSpec:
+    """How often the full fault profiles ((time, x) arrays under ``/fault``) are recorded
+    (``[output]``). The injection-point series, the fluid balance, the solver record and the
+    screening metrics are recorded at every step whatever this says. With neither key set
+    (the default) profiles are recorded at every step; with one or both, a profile is recorded
+    when either is due, and always at the first and the last step and at every change of the
+    screening level (run, replay, monitor). ``/fault/time`` holds the profiles' own times."""
+    profile_every: int | None = None
+    """Record the profiles every this many steps (-)."""
+    profile_interval: float | None = None
+    """Record the profiles at least every this long in model time (s)."""
+
+
+@_spec
 class Scene:
     title: str = "untitled"
     mesh: MeshSpec = MeshSpec()
@@ -422,6 +440,7 @@ class Scene:
     effects: EffectsSpec = EffectsSpec()
     monitor: MonitorSpec = MonitorSpec()
     site: SiteSpec = SiteSpec()
+    output: OutputSpec = OutputSpec()
 
     # ---- loading -------------------------------------------------------------------------
     @classmethod
@@ -515,11 +534,12 @@ QUANTITY = {
     **dict.fromkeys(["normal_stiffness", "shear_stiffness", "pore_pressure_gradient"], "stiffness"),
     **dict.fromkeys(["lx", "ly", "origin", "center", "half_width", "size", "point",
                      "hydraulic_aperture", "critical_slip_distance", "asperity_height_std", "width",
-                     "band", "box", "position", "reference_point"], "length"),
+                     "band", "box", "position", "reference_point", "length"], "length"),
     "permeability": "permeability",
     "mobility": "mobility",
     **dict.fromkeys(["end", "dt", "dt_max", "initial_state", "log_max_gap"], "time"),
     **dict.fromkeys(["hold", "event_rate_window"], "time"),
+    "profile_interval": "time",
     "viscosity": "viscosity",
     **dict.fromkeys(["angle", "dilation_angle", "latitude", "longitude", "strike", "dip"], "angle"),
     **dict.fromkeys(["depth", "x", "y", "z"], "length"),
@@ -670,7 +690,7 @@ def _number(value, key, quantity=None, unit=None):
 
 for _cls in (Refinement, MeshSpec, FaultSpec, RockSpec, DamageZoneSpec, FluidSpec, InitialSpec, EdgeSpec,
              BoundarySpec, InjectionSpec, TimeSpec, SolverSpec, EffectsSpec, MonitorRule, MonitorSpec,
-             SiteSpec):
+             SiteSpec, OutputSpec):
     _SECTIONS[_cls.__name__] = _cls
 
 
@@ -887,6 +907,11 @@ def _validate(s: Scene, sink: list | None = None):
     for key in ("normal_stiffness", "shear_stiffness", "hydraulic_aperture", "kappa"):
         _check(getattr(f, key) > 0, f"fault.{key}", getattr(f, key), "must be > 0")
     _check(f.friction >= 0, "fault.friction", f.friction, "must be >= 0")
+    if f.length is not None:
+        _check(f.length > 0, "fault.length", f.length, "must be > 0 m")
+        _check(not s.effects.leak_off, "fault.length", f.length,
+               "a fault that ends in the rock needs effects.leak_off = false (its pressure on its own "
+               "line; the leak-off enrichment has no tip treatment)")
     if f.storativity is not None:
         _check(f.storativity >= 0, "fault.storativity", f.storativity, "must be >= 0 m/Pa")
     _validate_rock(s.rock, "rock", sink)
@@ -1008,6 +1033,11 @@ def _validate(s: Scene, sink: list | None = None):
         _check(not ef.poroelastic, "effects.poroelastic", ef.poroelastic,
                "Biot rock needs mechanics = true (rigid rock has no pore volume change)")
     _validate_monitor(s.monitor)
+    out = s.output
+    if out.profile_every is not None:
+        _check(out.profile_every >= 1, "output.profile_every", out.profile_every, "must be >= 1 step")
+    if out.profile_interval is not None:
+        _check(out.profile_interval > 0, "output.profile_interval", out.profile_interval, "must be > 0 s")
 
 
 def _validate_monitor(mon: MonitorSpec):

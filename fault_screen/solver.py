@@ -23,6 +23,7 @@ import scipy.sparse.linalg as spla
 
 from .assembly import TripletBuilder, add_triplets_to_dense
 from .discretisation import Discretisation
+from .ordering import nested_dissection
 from .physics import ConstantMatrices, Term
 
 
@@ -33,6 +34,21 @@ DAMPED_ITERATION_FACTOR = 4
 #: the dense condensation W = B^-1 L_BN (rows: linear unknowns, columns: nonlinear ones) is kept
 #: up to this size (bytes); beyond, each Newton iteration solves with the sparse LU twice
 KEEP_CONDENSATION_BYTES = 64 * 2 ** 20
+
+
+#: the linear rows' residual at a step's start is left unsolved below this fraction of what the
+#: convergence test resolves (solver.tolerance times the reference magnitudes)
+BULK_BALANCE = 1e-3
+
+
+#: a deferred bulk update (see NewtonSolver._step) is made when the fault residual has not halved
+#: for this many Newton iterations
+STALLED_ITERATIONS = 3
+
+
+#: the condensation B^-1 L_BN is solved for in blocks of columns of about this size (bytes; 16 to
+#: 256 columns): wide enough for SuperLU's block solves, narrow enough for the memory budget
+CONDENSATION_BLOCK_BYTES = 32 * 2 ** 20
 
 
 #: condensed (nonlinear) blocks up to this many unknowns are solved with one BLAS thread
@@ -93,14 +109,19 @@ class NewtonSolver:
     Only the fault terms are nonlinear (the terms' ``nonlinear_dofs``: contact on the Heaviside
     DOFs, evolving-aperture conduction on the fault pressures). The free unknowns are split into
     those (N, a few hundred) and everything else (B), whose Jacobian block is constant for a given
-    time step. B is factorised once per step size and its Schur complement on N is formed once;
-    each Newton iteration then costs one sparse solve with B, a small dense solve and the product
-    with the kept condensation W = B^-1 L_BN (a second sparse solve where W is not kept).
+    time step. B is factorised once per step size and its Schur complement on N is formed once.
+    The bulk is linear, so after a step's first Newton update its rows stay in balance: only that
+    first iteration solves with B for the step's right-hand side; every iteration then costs a
+    small dense solve and the bulk's response to the fault update, the product with the kept
+    condensation W = B^-1 L_BN, or, where W is too big to keep, one sparse solve for the sum of
+    a step's fault updates once the fault has converged (see ``_residual``).
     """
 
     #: B^-1 L_BN (scaled), kept when small (KEEP_CONDENSATION_BYTES), else None
     W = None
     _AH = None
+    _dense = None
+    _order_B = None
 
     def __init__(self, disc: Discretisation):
         self.disc = disc
@@ -133,10 +154,31 @@ class NewtonSolver:
         nl_free = nonlinear[self.free]
         self.N = self.free[nl_free]
         self.B = self.free[~nl_free]
+        self._mech_B = self.mech_free[~nl_free]
         # position of each global DOF in N (for the nonlinear tangents), -1 elsewhere
         self.n_index = np.full(disc.n_dofs, -1, dtype=np.int64)
         self.n_index[self.N] = np.arange(len(self.N))
         self.factorizations = 0
+        # the bulk update may wait until a convergence check needs it only when the nonlinear
+        # terms read nothing but condensed unknowns (the fault's jump and pressure DOFs)
+        fp = disc.fault_points
+        read = np.concatenate([fp.jump_dofs.ravel(), fp.p_dofs.ravel()])
+        read = read[(read >= 0) & ~disc.fixed[np.maximum(read, 0)]]
+        self._fault_reads_only_N = bool(np.all(self.n_index[read] >= 0))
+
+    def checkpoint_state(self) -> dict:
+        """Arrays that a restored solver needs to take bit-identical steps: the condensed block
+        last factorised (later solves are preconditioned by its factors) and its step size."""
+        d = self._dense
+        if d is None or d.M0 is None:
+            return {}
+        return {"condensed_block": d.M0, "condensed_dt": np.array(d.factored_dt)}
+
+    def restore_state(self, state: dict):
+        """Undo ``checkpoint_state`` (the factors are recomputed: LAPACK repeats them exactly)."""
+        if "condensed_block" in state:
+            self._dense = _CondensedSolver()
+            self._dense.set(np.array(state["condensed_block"]), float(state["condensed_dt"]))
 
     def _uncoupled_to_linear(self, nonlinear):
         """Free unknowns whose constant rows or columns touch no other linear unknown: left in
@@ -197,32 +239,42 @@ class NewtonSolver:
         # kept when it is small, it turns the second sparse solve of every Newton iteration into
         # one dense product (dxB = yB - W dxN)
         keep_W = len(N) > 0 and len(B) * len(N) * 8 <= KEEP_CONDENSATION_BYTES
-        self.lu_B = _sparse_lu(Ls[B][:, B])
+        if self._order_B is None:  # the pattern of B is that of every step size
+            self._order_B = nested_dissection(Ls[B][:, B], self.disc.dof_coordinates()[B])
+        self.lu_B = _PermutedLU(Ls[B][:, B], self._order_B)
         self.factorizations += 1
         if self.static_B:  # first step: B, the products and the N blocks, once for the run
             rows_N = [(D @ M @ D).tocsr()[N] for M in (self.A, self.C, self.Hf)]
             parts = [r[:, B] for r in rows_N]
             self._NN = [r[:, N] for r in rows_N]
-            self._P = [np.zeros((len(N), len(N))) for _ in parts]
+            # a matrix with no entry coupling the fault rows to the bulk (storage and conduction
+            # of an impermeable rock) adds nothing: None instead of a zero n_N x n_N block
+            self._P = [np.zeros((len(N), len(N))) if part.nnz else None for part in parts]
             for cols, X in self._condensation(keep_W):
                 for P, part in zip(self._P, parts):
-                    P[:, cols] = part @ X
+                    if P is not None:
+                        P[:, cols] = part @ X
             self.schur = self._static_schur(dt)
         else:
-            schur = LsN[:, N].toarray()
+            LNN = LsN[:, N].toarray()
+            P = np.zeros_like(LNN)
             for cols, X in self._condensation(keep_W):
-                schur[:, cols] -= self.L_NB @ X
-            self.schur = schur
+                P[:, cols] = self.L_NB @ X
+            self.P = P
+            self.schur = LNN - P
         self.L = L
         self._dt = dt
 
     def _condensation(self, keep_W):
-        """B^-1 L_BN, 256 columns at a time: yields (column slice, block); keeps the whole of it
-        as W when ``keep_W``."""
+        """B^-1 L_BN, a block of columns at a time (CONDENSATION_BLOCK_BYTES): yields (column indices, block); keeps the whole of it
+        as W when ``keep_W``. Columns of L_BN that are empty (fault unknowns no bulk unknown
+        couples to: the fault pressures when the rock is impermeable) are zero: not solved for."""
         N, B = self.N, self.B
-        self.W = np.empty((len(B), len(N))) if keep_W else None
-        for j0 in range(0, len(N), 256):
-            cols = slice(j0, j0 + 256)
+        self.W = np.zeros((len(B), len(N))) if keep_W else None
+        coupled = np.flatnonzero(np.diff(self.L_BN.indptr) > 0)
+        width = int(np.clip(CONDENSATION_BLOCK_BYTES // (8 * max(len(B), 1)), 16, 256))
+        for j0 in range(0, len(coupled), width):
+            cols = coupled[j0:j0 + width]
             X = self.lu_B.solve(self.L_BN[:, cols].toarray())
             if self.W is not None:
                 self.W[:, cols] = X
@@ -233,27 +285,57 @@ class NewtonSolver:
         the three precomputed products change (no sparse slicing per step size)."""
         th = self.time_weight
         (A, C, Hf), (P0, P1, P2) = self._NN, self._P
-        return (A + C * (1.0 / dt) + Hf * th).toarray() - (P0 + P1 / dt + th * P2)
+        P = np.zeros((len(self.N),) * 2) if P0 is None else P0
+        if P1 is not None:
+            P = P + P1 / dt
+        if P2 is not None:
+            P = P + th * P2
+        self.P = P
+        return (A + C * (1.0 / dt) + Hf * th).toarray() - self.P
 
-    def _solve(self, sR, dense):
-        """Solve (scaled) J dx = -sR with J = L + nonlinear tangent (on N only)."""
+    def _solve(self, sR, dense, bulk_eliminated, defer):
+        """Solve (scaled) J dx = -sR with J = L + nonlinear tangent (on N only); returns (dx, dxN).
+
+        ``bulk_eliminated``: the linear rows are in balance (every Newton update after a step's
+        first solves them exactly, and the bulk is linear), so their residual is round-off and
+        the first sparse solve is skipped. ``defer`` (W not kept): dx holds only the bulk part
+        known without a second sparse solve, and dxN is returned: its bulk response
+        -B^-1 L_BN dxN is left to the caller, who sums it over the iterations of a step and
+        solves for it once (``_step``). Otherwise dxN is None and dx is complete."""
         B, N = self.B, self.N
         rB = -sR[B]
-        if not len(N):
-            out = np.zeros_like(sR)
-            out[B] = self.lu_B.solve(rB)
-            return out
-        rN = -sR[N]
-        yB = self.lu_B.solve(rB)
-        dxN = dense.solve(rN - self.L_NB @ yB)
-        if self.W is not None:
-            dxB = yB - self.W @ dxN
-        else:
-            dxB = self.lu_B.solve(rB - self.L_BN @ dxN)
         out = np.zeros_like(sR)
-        out[B] = dxB
+        if not len(N):
+            out[B] = self.lu_B.solve(rB)
+            return out, None
+        rN = -sR[N]
+        if bulk_eliminated:
+            yB = np.zeros(len(B))
+            dxN = dense.solve(rN)
+        else:
+            yB = self.lu_B.solve(rB)
+            dxN = dense.solve(rN - self.L_NB @ yB)
         out[N] = dxN
-        return out
+        if self.W is not None:
+            out[B] = yB - self.W @ dxN
+        elif defer:
+            out[B] = yB
+            return out, dxN
+        else:
+            out[B] = self.lu_B.solve((0.0 if bulk_eliminated else rB) - self.L_BN @ dxN)
+        return out, None
+
+    def _residual(self, x, rhs, history, dt, pending):
+        """Residual at x and the nonlinear terms' tangent and fault state. ``pending``: scaled
+        fault updates whose bulk response -B^-1 L_BN pending is not yet in x[B]: on the fault
+        rows it is -P pending (P = L_NB B^-1 L_BN, dense, formed with the Schur complement), and
+        the bulk rows are in balance once it is added (linear bulk, eliminated exactly)."""
+        R = self.L @ x - rhs
+        if pending is not None:
+            R[self.N] -= (self.P @ pending) / self.scale[self.N]
+            R[self.B] = 0.0
+        rows, cols, vals, point = self.nonlinear(x, history, dt, R)
+        return R, rows, cols, vals, point
 
     def step(self, x_n, history, dt, injection_value, damped=False, x0=None):
         """Advance from x_n over dt. ``injection_value``: the step's injected volume (m^3, whole
@@ -273,13 +355,29 @@ class NewtonSolver:
         with _blas_controller().limit(limits=1, user_api="blas"):
             return self._step(x_n, history, dt, injection_value, damped, x0)
 
+    def _reference(self, x, x_n, dt, ref0, flow_known):
+        """Reference magnitudes of the convergence test at x: internal forces (mechanics);
+        stored-volume rate plus conduction plus sources (flow); never below the step's first
+        residual norms ``ref0``."""
+        n, scale, free, mf = self.disc.n_dofs, self.scale, self.free, self.mech_free
+        AHx = self._AH @ x
+        s_mech = (scale * AHx[:n])[free]
+        s_flow = (scale * (np.abs(self.C @ (x - x_n)) / dt + np.abs(AHx[n:]) + flow_known))[free]
+        return (max(ref0[0], np.linalg.norm(s_mech[mf])), max(ref0[1], np.linalg.norm(s_flow[~mf])))
+
+    def _bulk_in_balance(self, sR, ref):
+        """Is the scaled residual of the linear rows below BULK_BALANCE of what the convergence
+        test resolves, in each field? Solving it away would then change nothing the test sees."""
+        rB = sR[self.B]
+        mB = self._mech_B
+        lim = BULK_BALANCE * self.tol
+        return (np.linalg.norm(rB[mB]) <= lim * ref[0]) and (np.linalg.norm(rB[~mB]) <= lim * ref[1])
+
     def _step(self, x_n, history, dt, injection_value, damped, x0):
         disc = self.disc
         th = self.time_weight
         self._prepare(dt, x_n, history)
-        L = self.L
         scale = self.scale
-        n = disc.n_dofs
         if self._AH is None:  # A and Hf stacked: both products of the convergence test in one pass
             self._AH = sp.vstack([self.A, self.Hf]).tocsr()
         stored_n = (self.C @ x_n) / dt
@@ -293,65 +391,93 @@ class NewtonSolver:
         rhs -= known
         flow_known = np.abs(rhs - stored_n)  # sources and the known parts of the flow terms
         x = x_n.copy() if x0 is None else x0.copy()  # x0: a better first guess (continuation)
-        free = self.free
-        ref0 = None
+        free, mf, tol = self.free, self.mech_free, self.tol
+        # without a kept W the bulk update of every Newton iteration would cost a sparse solve:
+        # it is summed instead (pending) and solved for once, when the fault looks converged
+        defer = self.W is None and len(self.N) > 0 and len(self.B) > 0 and self._fault_reads_only_N
+        pending = None
+        ref0 = ref = exact_ref = last_norms = None
+        stalled = 0
         dense = None
         last_vals = None
         n_fact = 0
         # the damped iteration lowers its merit at every step, so it may take longer: a slip
         # front that must cross many fault points moves a few points per iteration
         max_it = self.max_it * (DAMPED_ITERATION_FACTOR if damped else 1)
-        for it in range(max_it + 1):
-            R = L @ x - rhs
-            rows, cols, vals, point = self.nonlinear(x, history, dt, R)
+        it = 0
+        while True:
+            R, rows, cols, vals, point = self._residual(x, rhs, history, dt, pending)
             sR = scale * R
             if not np.all(np.isfinite(sR[free])):
                 raise StepFailed("non-finite residual")
-            mf = self.mech_free
             sRf = sR[free]
             norms = (np.linalg.norm(sRf[mf]), np.linalg.norm(sRf[~mf]))
             if ref0 is None:
                 ref0 = norms
-            if it > 0 or max(norms) == 0.0:
-                # reference magnitudes at the current iterate: internal forces (mechanics);
-                # stored-volume rate plus conduction plus sources (flow)
-                AHx = self._AH @ x
-                s_mech = (scale * AHx[:n])[free]
-                s_flow = (scale * (np.abs(self.C @ (x - x_n)) / dt + np.abs(AHx[n:]) + flow_known))[free]
-                ref = (max(ref0[0], np.linalg.norm(s_mech[mf])), max(ref0[1], np.linalg.norm(s_flow[~mf])))
-                if norms[0] <= self.tol * ref[0] and norms[1] <= self.tol * ref[1]:
+            check = it > 0 or max(norms) == 0.0
+            # at the first iteration the reference serves the deferred update and the bulk
+            # balance test, which only a step-size-independent bulk can pass
+            if pending is None and (check or (it == 0 and (defer or self.static_B))):
+                ref = exact_ref = self._reference(x, x_n, dt, ref0, flow_known)
+                if check and norms[0] <= tol * ref[0] and norms[1] <= tol * ref[1]:
                     reactions = np.zeros(disc.n_dofs)
                     reactions[disc.fixed] = R[disc.fixed]
                     new_history = point.pop("history")
                     return StepOutcome(x, it, n_fact, point,
                                        history if new_history is None else new_history, reactions)
+            elif pending is not None:
+                # the reference magnitudes at the lagging bulk are an estimate (never below the
+                # last exact ones): once the fault converges by it, or has not halved its
+                # residual for STALLED_ITERATIONS iterations (round-off floor, a reference
+                # underestimated), or at the last iteration, the bulk is brought up to date with
+                # one sparse solve and the iterate is checked exactly, as if never deferred
+                ref = tuple(map(max, exact_ref, self._reference(x, x_n, dt, ref0, flow_known)))
+                failing = [k for k in (0, 1) if norms[k] > tol * ref[k]]
+                stalled = stalled + 1 if all(norms[k] > 0.5 * last_norms[k] for k in failing) else 0
+                if not failing or stalled >= STALLED_ITERATIONS or it == max_it:
+                    x[self.B] -= scale[self.B] * self.lu_B.solve(self.L_BN @ pending)
+                    pending = None
+                    continue
+            last_norms = norms
             if it == max_it:
                 break
             if dense is None or len(vals) != len(last_vals) or np.any(vals != last_vals):
                 dense = self._condensed_system(rows, cols, vals)
                 last_vals = vals
                 n_fact += 1
-            dx = scale * self._solve(sR, dense)
+            # after the first update the bulk rows are in balance; at the first they may be
+            # already (a bulk that does not depend on the step: only the fault's load changed)
+            eliminated = it > 0 or (ref is not None and self._bulk_in_balance(sR, ref))
+            dx, dxN = self._solve(sR, dense, bulk_eliminated=eliminated, defer=defer)
+            dx *= scale
             if not np.all(np.isfinite(dx)):
                 raise StepFailed("non-finite Newton update")
+            alpha = 1.0
             if damped and it > 0:  # the first update solves the linear flow part: take it whole
-                dx *= self._line_search(x, dx, norms, ref, rhs, history, dt)
+                alpha = self._line_search(x, dx, dxN, pending, norms, ref, rhs, history, dt)
+                dx *= alpha
             x += dx
+            if dxN is not None:
+                pending = alpha * dxN if pending is None else pending + alpha * dxN
+            it += 1
         raise StepFailed(f"Newton did not converge in {max_it} iterations "
                          f"(scaled residuals {norms[0]:.3e}, {norms[1]:.3e})")
 
-    def _line_search(self, x, dx, norms, ref, rhs, history, dt, max_halvings=10):
+    def _line_search(self, x, dx, dxN, pending, norms, ref, rhs, history, dt, max_halvings=10):
         """Step length along the Newton direction dx: the first of 1, 1/2, 1/4, ... that lowers
         the merit (sum of the squared field residuals relative to their references) by the Armijo
-        fraction 1e-4; the last one tried if none does (the next iteration then re-linearises)."""
+        fraction 1e-4; the last one tried if none does (the next iteration then re-linearises).
+        ``dxN``, ``pending``: the deferred bulk response (see ``_solve``), or None."""
         free, mf = self.free, self.mech_free
         r0, r1 = max(ref[0], 1e-300), max(ref[1], 1e-300)
         merit0 = (norms[0] / r0) ** 2 + (norms[1] / r1) ** 2
         alpha = 1.0
         for _ in range(max_halvings):
             xt = x + alpha * dx
-            R = self.L @ xt - rhs
-            self.nonlinear(xt, history, dt, R)
+            trial = None
+            if dxN is not None:
+                trial = alpha * dxN if pending is None else pending + alpha * dxN
+            R = self._residual(xt, rhs, history, dt, trial)[0]
             sRf = (self.scale * R)[free]
             with np.errstate(over="ignore", invalid="ignore"):
                 merit = (np.linalg.norm(sRf[mf]) / r0) ** 2 + (np.linalg.norm(sRf[~mf]) / r1) ** 2
@@ -361,24 +487,211 @@ class NewtonSolver:
         return alpha
 
     def _condensed_system(self, rows, cols, vals):
-        """Dense LU of the condensed system: Schur complement plus scaled nonlinear tangent."""
+        """The condensed system (Schur complement plus scaled nonlinear tangent) handed to the
+        run's one dense solver, which factorises it only when the factors it has stop serving
+        (see ``_CondensedSolver``)."""
         if not len(self.N):
             return None
         M = self.schur.copy()
         add_triplets_to_dense(M, self.n_index, rows, cols, vals, self.scale)
-        return _DenseLU(M)
+        if self._dense is None:
+            self._dense = _CondensedSolver()
+        self._dense.set(M, self._dt)
+        return self._dense
 
 
-def _sparse_lu(M):
-    """Sparse LU of the linear block. Its pattern is symmetric (the same unknowns couple both
-    ways) and, scaled, its diagonal dominates: minimum degree on A^T + A with diagonal pivots
-    preferred has 20 % less fill than on A^T A and solves a third faster (issue 15)."""
-    return spla.splu(M.tocsc(), permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True))
+class _PermutedLU:
+    """Sparse LU of the linear block in a fill-reducing order (``ordering.nested_dissection``).
+    The block's pattern is symmetric (the same unknowns couple both ways) and, scaled, its
+    diagonal dominates: SuperLU keeps the order and prefers diagonal pivots."""
 
-
-class _DenseLU:
-    def __init__(self, M):
-        self.factors = scipy.linalg.lu_factor(M, check_finite=False)
+    def __init__(self, M, perm):
+        self.perm = perm
+        self.lu = spla.splu(M[perm][:, perm].tocsc(), permc_spec="NATURAL",
+                            options=dict(SymmetricMode=True))
 
     def solve(self, b):
-        return scipy.linalg.lu_solve(self.factors, b, check_finite=False)
+        x = np.empty_like(b)
+        x[self.perm] = self.lu.solve(np.ascontiguousarray(b[self.perm]))
+        return x
+
+
+#: relative residual |M x - b| / |b| of a condensed solve by the preconditioned iteration. Newton's
+#: right-hand side is its current residual, so each iteration still reduces it by 1e10 at least
+#: (beyond solver.tolerance from the step's start in one iteration) and the iterations taken are
+#: those of a direct solve; a direct solve of the ill-conditioned penalty block has a relative
+#: residual of 1e-13 to 1e-11 itself.
+CONDENSED_RTOL = 1e-10
+
+#: the change of the condensed block is applied as a low-rank update while it lies in at most
+#: 1/LOW_RANK_FRACTION of its rows and columns (its cost: that many solves with the old factors)
+LOW_RANK_FRACTION = 6
+
+#: a change of the condensed block spread over more rows is left to GMRES when no entry changed
+#: by more than this fraction of its largest entry (else M is factorised anew)
+SMALL_CHANGE = 0.05
+
+#: GMRES iterations allowed before the condensed block is factorised anew: measured on this
+#: machine, an LU of n unknowns costs as much as 12 iterations (each a product with M and a
+#: solve with the old factors) at n = 400, where fixed costs dominate, and about n/40 beyond
+def _condensed_max_iterations(n):
+    return min(30, max(12, n // 40))
+
+
+def _largest_difference(A, B, rows=256):
+    """max |A - B| over two equal dense matrices, a block of rows at a time (no n x n temporary)."""
+    return max((float(np.abs(A[i:i + rows] - B[i:i + rows]).max()) for i in range(0, len(A), rows)),
+               default=0.0)
+
+
+class _CondensedSolver:
+    """Solves with the condensed block M of the current Newton iteration.
+
+    M changes at every Newton iteration that moves a slip front or an aperture, and with every
+    step size; a dense LU of it (n = 400-2000) is the largest cost per iteration. The last
+    factorised M0 is kept instead, and M x = b is solved with its factors:
+    - when M - M0 lies in few rows and columns K (a slip front that moved by a few fault points:
+      the contact tangents of those points changed), exactly by the Woodbury identity, at the
+      cost of |K| solves with M0's factors in one block;
+    - when the change is spread but small (rate-dependent friction, an evolving aperture), by
+      GMRES preconditioned with M0's LU (right preconditioning: the true residual of M is what
+      converges), a few iterations to CONDENSED_RTOL.
+    Either result is checked against M itself. When neither serves, or the step size changed
+    (the Schur complement's flow rows all change), M is factorised and becomes M0."""
+
+    def __init__(self):
+        self.M = self.M0 = None
+        self.factors = None
+        self.factored = False      # the current M is the factorised one
+        self.factored_dt = None    # the step size of M0
+        self.factorizations = 0
+        self.iterations = 0        # GMRES iterations, for diagnostics
+        self.updates = 0           # low-rank (Woodbury) solves, for diagnostics
+
+    def set(self, M, dt):
+        self.M = M
+        self.factored = False
+        if self.factors is None or dt != self.factored_dt:
+            self._factorise()
+            self.factored_dt = dt
+
+    def _factorise(self):
+        self.factors = scipy.linalg.lu_factor(self.M, check_finite=False)
+        self.M0 = self.M
+        self.factored = True
+        self.factorizations += 1
+        # columns of M0^-1 solved for so far (the changed rows only grow until M0 is replaced)
+        self._Z = None
+        self._have = np.zeros(len(self.M), dtype=bool)
+
+    def _precondition(self, v):
+        return scipy.linalg.lu_solve(self.factors, v, check_finite=False)
+
+    def solve(self, b):
+        if not self.factored:
+            M, M0 = self.M, self.M0
+            nz = M != M0
+            K = np.flatnonzero(nz.any(axis=0) | nz.any(axis=1))
+            del nz
+            x = None
+            if len(K) * LOW_RANK_FRACTION <= len(b):
+                x = self._low_rank(b, M[np.ix_(K, K)] - M0[np.ix_(K, K)], K)
+            elif _largest_difference(M, M0) <= SMALL_CHANGE * np.abs(M0).max():
+                x = self._gmres(b)
+            if x is not None:
+                return x
+            self._factorise()
+        return self._precondition(b)
+
+    def _low_rank(self, b, DK, K):
+        """Woodbury: with M = M0 + E D E^T (E: the columns of the identity at the changed rows
+        and columns K), M^-1 b = y - Z (I + D Z_K)^-1 D y_K, y = M0^-1 b, Z = M0^-1 E (its
+        columns kept while M0 is: K grows as a front advances). None when the result misses the
+        check."""
+        n = len(b)
+        if len(K) == 0:
+            return self._precondition(b)
+        new = K[~self._have[K]]
+        if len(new):
+            if self._Z is None:
+                self._Z = np.empty((n, n))
+            E = np.zeros((n, len(new)))
+            E[new, np.arange(len(new))] = 1.0
+            self._Z[:, new] = self._precondition(E)
+            self._have[new] = True
+        Z = self._Z[:, K]
+        capacitance = np.eye(len(K)) + DK @ Z[K]
+        try:
+            cap = scipy.linalg.lu_factor(capacitance, check_finite=False)
+        except (np.linalg.LinAlgError, ValueError):
+            return None
+
+        def apply(r):
+            y = self._precondition(r)
+            return y - Z @ scipy.linalg.lu_solve(cap, DK @ y[K], check_finite=False)
+
+        # a slip front's tangents change the stiff shear penalty: the identity loses digits
+        # there, which up to two steps of refinement with it recover
+        goal = CONDENSED_RTOL * np.linalg.norm(b)
+        x = apply(b)
+        for _ in range(3):
+            r = b - self.M @ x
+            if np.linalg.norm(r) <= goal:
+                self.updates += 1
+                return x
+            x = x + apply(r)
+        return None
+
+    def _gmres(self, b):
+        """x with |M x - b| <= CONDENSED_RTOL |b| in at most ``_condensed_max_iterations`` GMRES
+        iterations, right-preconditioned by the old factors; None if not reached. The recurrence's
+        residual estimate drifts from the true one in floating point: the true one decides, and
+        the iteration restarts from it while the budget lasts."""
+        M = self.M
+        budget = _condensed_max_iterations(len(b))
+        goal = CONDENSED_RTOL * np.linalg.norm(b)
+        x = np.zeros_like(b)
+        r = b
+        while True:
+            beta = np.linalg.norm(r)
+            if beta <= goal:
+                return x
+            if budget <= 0:
+                return None
+            y, V = self._arnoldi(r, beta, 0.5 * goal, budget)
+            budget -= len(y)
+            x = x + self._precondition(y @ V)
+            r = b - M @ x
+
+    def _arnoldi(self, r, beta, goal, m):
+        """GMRES cycle on M z = r (z = P^-1 v): the least-squares coefficients y and the basis V
+        (rows) once the residual estimate is below ``goal`` or after m iterations. The
+        Hessenberg matrix is reduced by Givens rotations as it grows, so the estimate is the
+        last entry of the rotated right-hand side."""
+        V = np.empty((m + 1, len(r)))
+        H = np.zeros((m + 1, m))
+        cs, sn = np.zeros(m), np.zeros(m)
+        g = np.zeros(m + 1)
+        g[0] = beta
+        V[0] = r / beta
+        for j in range(m):
+            w = self.M @ self._precondition(V[j])
+            # classical Gram-Schmidt twice: as stable as modified, in two matrix products
+            h = V[:j + 1] @ w
+            w -= h @ V[:j + 1]
+            h2 = V[:j + 1] @ w
+            w -= h2 @ V[:j + 1]
+            col = np.append(h + h2, np.linalg.norm(w))
+            for i in range(j):  # the earlier rotations, then a new one zeroing the subdiagonal
+                col[i], col[i + 1] = cs[i] * col[i] + sn[i] * col[i + 1], -sn[i] * col[i] + cs[i] * col[i + 1]
+            rho = np.hypot(col[j], col[j + 1])
+            cs[j], sn[j] = (col[j] / rho, col[j + 1] / rho) if rho > 0.0 else (1.0, 0.0)
+            H[:j + 1, j] = col[:j + 1]
+            H[j, j] = rho
+            g[j + 1] = -sn[j] * g[j]
+            g[j] *= cs[j]
+            self.iterations += 1
+            if abs(g[j + 1]) <= goal or col[j + 1] == 0.0 or j == m - 1:
+                y = scipy.linalg.solve_triangular(H[:j + 1, :j + 1], g[:j + 1], check_finite=False)
+                return y, V[:j + 1]
+            V[j + 1] = w / col[j + 1]

@@ -17,6 +17,7 @@ continues from its natural size afterwards.
 from __future__ import annotations
 
 import json
+import math
 import time as _time
 import tomllib
 from pathlib import Path
@@ -81,7 +82,7 @@ class Simulation:
         self.stopped = None              # why the run stopped early (meta["stopped"]), or None
         # a quasi-static instability can only be told from the slip rate of a rate-dependent law
         self.watch_instability = contact is not None and contact.law.rate_dependent
-        self.recorder = Recorder(self.disc)
+        self.recorder = Recorder(self.disc, scene)
         self.recorder.record(0.0, self.x, fault_at_rest(self.disc, self.x), slip_rate=0.0,
                              flow_rate=0.0, volume=0.0, leaked=0.0, iterations=0, cuts=0, dt=0.0)
         self.build_time = _time.perf_counter() - wall0
@@ -91,7 +92,7 @@ class Simulation:
     @property
     def last_row(self) -> dict:
         """The newest recorded output row (fault arrays at the Gauss points, scalars)."""
-        return self.recorder.rows[-1]
+        return self.recorder.last
 
     def _injection_value(self, volume, pressure, t_next) -> Callable[[float, float], float]:
         """value(t0, t1) of a step: injected volume (rate control) or overpressure at t1."""
@@ -264,7 +265,12 @@ class Simulation:
 
     # ------------------------------------------------------------------ results
     def result(self) -> Result:
-        """The Result of everything recorded so far."""
+        """The Result of everything recorded so far (in memory; a run streamed to a file is
+        read back with ``Result.load``)."""
+        return self.recorder.result(self.scene, self.meta())
+
+    def meta(self) -> dict:
+        """The run's metadata (``Result.meta``): versions, unknowns, physics, wall times."""
         disc = self.disc
         meta = dict(wall_time=self.wall_time, build_time=self.build_time, version=__version__,
                     dofs=disc.n_dofs, dof_counts=disc.dof_counts(),
@@ -272,9 +278,51 @@ class Simulation:
                     physics=self.physics.names(), factorizations=self.solver.factorizations,
                     damped_retries=self.damped_retries, continuation_steps=self.continuation_steps,
                     fault_shift=disc.fault.shift)
+        if disc.fault.tips is not None:  # a finite fault: where its snapped tips are (s, m)
+            meta["fault_tips"] = list(disc.fault.tips)
         if self.stopped is not None:
             meta["stopped"] = dict(self.stopped)
-        return self.recorder.result(self.scene, meta)
+        return meta
+
+    # ------------------------------------------------------------------ streaming
+    def stream_to(self, path, *, streams: dict | None = None, meta: dict | None = None):
+        """Stream the results to the HDF5 file ``path`` from now on (the rows so far first):
+        memory then holds the newest row only. ``streams``: the caller's own growing datasets
+        (stream name -> {dataset path: (dtype, record shape)}, e.g. ``/screening/``), appended
+        with ``self.writer.append``. The file can be read while the run goes (HDF5 SWMR);
+        :meth:`close_stream` finishes it. Returns the writer."""
+        from .result_stream import ResultWriter
+
+        rec = self.recorder
+        disc = self.disc
+        fixed = {"/fault/x": disc.fault_points.s - disc.injection.s, "/fault/xy": disc.fault_points.xy,
+                 "/fault/weight": disc.fault_points.weight}
+        all_streams = dict(rec.stream_specs())
+        all_streams.update(streams or {})
+        attrs = {"scene": self.scene.to_toml(),
+                 "meta": json.dumps({**self.meta(), **(meta or {}), "streaming": True}, default=float)}
+        writer = ResultWriter.create(path, streams=all_streams, fixed=fixed, attrs=attrs)
+        rec.stream(writer)
+        return writer
+
+    @property
+    def writer(self):
+        """The ResultWriter the results stream to, or None (kept in memory)."""
+        return self.recorder.writer
+
+    def flush(self) -> None:
+        """Write the streamed rows so far to the result file (readers see them)."""
+        self.recorder.flush()
+
+    def close_stream(self, *, meta: dict | None = None, groups: dict | None = None):
+        """Finish the streamed result file: the last row's profile, ``meta`` added to the run's
+        metadata, the ``groups`` known only at the end (e.g. ``/events``). Returns its path."""
+        rec = self.recorder
+        rec.keep_profile()          # the last step always has its profile
+        rec.flush()
+        path = rec.writer.close(meta={**self.meta(), **(meta or {})}, groups=groups)
+        rec.writer = None
+        return path
 
     # ------------------------------------------------------------------ checkpoints
     def checkpoint(self, path) -> Path:
@@ -299,15 +347,34 @@ class Simulation:
                 h5["history"] = self.history
             if self.solver.scale is not None:
                 h5["solver_scale"] = self.solver.scale
-            rows = h5.create_group("rows")
-            for key in self.recorder.rows[0]:
-                rows[key] = np.array([r[key] for r in self.recorder.rows])
+            for key, value in self.solver.checkpoint_state().items():
+                h5[f"solver/{key}"] = value
+            rec = self.recorder
+            h5.attrs["recorder"] = json.dumps(rec.state())
+            if rec.writer is not None:
+                # the rows are in the result file: the checkpoint keeps how many, and the newest
+                rec.flush()
+                h5.attrs["stream"] = json.dumps(dict(
+                    path=str(Path(rec.writer.path).resolve()), counts=rec.writer.counts(),
+                    streams={k: {p: [_descr(d), list(shape)] for p, (d, shape) in v.items()}
+                             for k, v in rec.writer.streams.items()}))
+                last = h5.create_group("last_row")
+                for key, v in rec.last.items():
+                    last[key] = v
+            else:
+                rows = h5.create_group("rows")
+                for key in rec.rows[0]:
+                    rows[key] = np.array([r[key] for r in rec.rows])
         return path
 
     @classmethod
-    def restore(cls, path) -> "Simulation":
-        """A Simulation continuing exactly from a checkpoint."""
+    def restore(cls, path, *, stream_to=None) -> "Simulation":
+        """A Simulation continuing exactly from a checkpoint. A run that streamed its results
+        continues its result file (``stream_to``, default the file it streamed to), truncated
+        to the rows the checkpoint counts."""
         import h5py
+
+        from .result_stream import ResultWriter
 
         with h5py.File(path, "r") as h5:
             if int(h5.attrs.get("format", -1)) != CHECKPOINT_FORMAT:
@@ -329,14 +396,45 @@ class Simulation:
             sim.history = h5["history"][()] if "history" in h5 else None
             if "solver_scale" in h5:
                 sim.solver.scale = h5["solver_scale"][()]
-            rows = {k: h5["rows"][k][()] for k in h5["rows"]}
+            if "solver" in h5:
+                sim.solver.restore_state({k: h5["solver"][k][()] for k in h5["solver"]})
+            rec_state = json.loads(h5.attrs["recorder"]) if "recorder" in h5.attrs else None
+            stream = json.loads(h5.attrs["stream"]) if "stream" in h5.attrs else None
+            if stream is not None:
+                last = {k: _scalar(h5["last_row"][k][()]) for k in h5["last_row"]}
+            else:
+                rows = {k: h5["rows"][k][()] for k in h5["rows"]}
+        rec = sim.recorder
+        if stream is not None:
+            target = stream_to if stream_to is not None else stream["path"]
+            streams = {k: {p: (_dtype(d), tuple(shape)) for p, (d, shape) in v.items()}
+                       for k, v in stream["streams"].items()}
+            writer = ResultWriter.reopen(target, stream["counts"], streams=streams)
+            rec.rows = []
+            rec.writer = writer
+            rec.set_state(rec_state, last)
+            return sim
         n = len(next(iter(rows.values())))
-        sim.recorder.rows = [{k: _scalar(v[i]) for k, v in rows.items()} for i in range(n)]
+        rec.rows = [{k: _scalar(v[i]) for k, v in rows.items()} for i in range(n)]
+        for r in rec.rows:
+            r.setdefault("profile", True)        # checkpoints before [output]
+        rec.set_state(rec_state or dict(count=n), rec.rows[-1])
         return sim
 
 
 def _scalar(v):
     return v.item() if np.ndim(v) == 0 else v
+
+
+def _descr(dtype_str):
+    """A dtype as JSON (compound types too)."""
+    return np.lib.format.dtype_to_descr(np.dtype(dtype_str))
+
+
+def _dtype(descr):
+    if isinstance(descr, list):
+        descr = [tuple(f) for f in descr]
+    return np.lib.format.descr_to_dtype(descr)
 
 
 def _boundary_inflow(disc: Discretisation, reactions: np.ndarray) -> float:
@@ -347,11 +445,25 @@ def _boundary_inflow(disc: Discretisation, reactions: np.ndarray) -> float:
 
 
 class Recorder:
-    """One row of outputs per accepted step (and the in-situ state at t = 0)."""
+    """One row of outputs per accepted step (and the in-situ state at t = 0), kept in memory
+    (``rows``) or streamed to a result file (:meth:`stream`: then only the newest row is kept).
 
-    def __init__(self, disc: Discretisation):
+    Full fault profiles are kept at the rows the scene's ``[output]`` asks for, the first row,
+    the last row of a result and every row a caller marks (:meth:`keep_profile`, e.g. at a
+    change of the screening level); the per-step series at every row. The newest row stays
+    open to such a mark until the next row or a flush commits it to the file."""
+
+    def __init__(self, disc: Discretisation, scene: Scene):
         self.disc = disc
+        self.number_of_fractures = scene.injection.number_of_fractures
+        output = scene.output
         self.rows: list[dict] = []
+        self.last: dict | None = None     # the newest row
+        self.count = 0                    # rows recorded, the in-situ row included
+        self.writer = None                # ResultWriter when streaming
+        self._open = False                # the newest row is not yet in the file
+        self.profile_every = getattr(output, "profile_every", None)
+        self.profile_interval = getattr(output, "profile_interval", None)
         # fluid stored in the rock and in the fault: linear in the unknowns, so weights formed once
         self.store_weights = {"rock": np.zeros(disc.n_dofs), "fault": np.zeros(disc.n_dofs)}
         self.nonlinear_stores = []
@@ -363,6 +475,7 @@ class Recorder:
                 else:
                     self.store_weights[term.fluid_store] += w
 
+    # -- rows ------------------------------------------------------------------------------
     def record(self, t, x, point, *, slip_rate, flow_rate, volume, leaked, iterations, cuts, dt):
         disc = self.disc
         fp = disc.fault_points
@@ -374,7 +487,7 @@ class Recorder:
         stored = {k: float(w @ x) for k, w in self.store_weights.items()}
         for term in self.nonlinear_stores:
             stored[term.fluid_store] += term.stored_volume(disc, x)
-        self.rows.append(dict(
+        row = dict(
             time=t, overpressure=dp, pressure=fp.p0 + dp, slip=point["slip"], opening=point["opening"],
             slip_rate=np.asarray(slip_rate, dtype=float) * np.ones(ng),
             shear_traction=point["shear_traction"], effective_normal_stress=point["effective_normal_stress"],
@@ -385,33 +498,119 @@ class Recorder:
             inj_aperture=float(aperture[disc.injection.nearest_point]) if ng else 0.0,
             iterations=iterations, cuts=cuts, dt=dt,
             stored_rock=stored["rock"], stored_fault=stored["fault"], leaked=leaked,
-        ))
+        )
+        self._commit()
+        row["profile"] = self._profile_due(self.count, t, self.last["time"] if self.last else None)
+        self.count += 1
+        self.last = row
+        if self.writer is None:
+            self.rows.append(row)
+        else:
+            self._open = True
 
-    def result(self, scene, meta) -> Result:
-        rows = self.rows
-        stack = lambda k: np.array([row[k] for row in rows])
-        fault = {o.name: stack(o.name) for o in SCHEMA if o.group == "fault" and o.shape == "(time, x)"}
-        injection = {
-            "flow_rate": stack("inj_flow"), "pressure": stack("inj_pressure"),
-            "overpressure": stack("inj_overpressure"), "slip": stack("inj_slip"),
-            "opening": stack("inj_opening"), "volume": stack("inj_volume"),
-            "hydraulic_aperture": stack("inj_aperture"),
-        }
+    def _profile_due(self, k: int, t: float, t_before: float | None) -> bool:
+        """On a fixed grid (rows 0, N, 2N...; the first row at or after each multiple of T), so
+        the rows kept do not depend on where the level changed or the run was restarted."""
+        every, interval = self.profile_every, self.profile_interval
+        if (every is None and interval is None) or t_before is None:
+            return True
+        return ((every is not None and k % every == 0)
+                or (interval is not None and math.floor(t / interval) > math.floor(t_before / interval)))
+
+    def keep_profile(self) -> None:
+        """Keep the full fault profile of the newest row (a level changed there, the run ends)."""
+        row = self.last
+        if row is None or row["profile"]:
+            return
+        row["profile"] = True
+        if self.writer is not None and not self._open:     # its series are already in the file
+            self.writer.append("profiles", self.profile_record(row))
+
+    # -- the layout of the result -----------------------------------------------------------
+    def series_record(self, row: dict) -> dict:
+        """The per-step values of ``row`` by dataset path (the ``rows`` stream)."""
         g = self.disc.injection.nearest_point
+        ng = len(self.disc.fault_points.s)
+        out = {"/time": row["time"], "/injection/flow_rate": row["inj_flow"],
+               "/injection/pressure": row["inj_pressure"], "/injection/overpressure": row["inj_overpressure"],
+               "/injection/slip": row["inj_slip"], "/injection/opening": row["inj_opening"],
+               "/injection/volume": row["inj_volume"], "/injection/hydraulic_aperture": row["inj_aperture"]}
         for key in ("slip_rate", "shear_traction", "effective_normal_stress", "friction"):
-            injection[key] = fault[key][:, g] if fault[key].shape[1] else np.zeros(len(rows))
+            out[f"/injection/{key}"] = row[key][g] if ng else 0.0
         # Eq. 29: inflow velocity into the single model fault, Q / (NoF 2h) (m/s); the model's
         # source is 2h times it, so the aperture cancels in the balance
-        nof = scene.injection.number_of_fractures
-        with np.errstate(divide="ignore", invalid="ignore"):
-            injection["fault_inflow_velocity"] = np.where(
-                injection["hydraulic_aperture"] > 0,
-                injection["flow_rate"] / (nof * injection["hydraulic_aperture"]), 0.0)
-        balance = {"stored_rock": stack("stored_rock"), "stored_fault": stack("stored_fault"),
-                   "leaked": stack("leaked")}
-        solver = {"iterations": stack("iterations"), "step_cuts": stack("cuts"), "dt": stack("dt")}
-        fp = self.disc.fault_points
-        return Result(scene=scene, time=stack("time"), fault_x=fp.s - self.disc.injection.s, fault_xy=fp.xy,
-                      fault_weights=fp.weight, fault=fault, injection=injection, balance=balance,
-                      solver=solver, meta=dict(meta))
+        nof = self.number_of_fractures
+        ap = row["inj_aperture"]
+        out["/injection/fault_inflow_velocity"] = row["inj_flow"] / (nof * ap) if ap > 0 else 0.0
+        out.update({"/balance/stored_rock": row["stored_rock"], "/balance/stored_fault": row["stored_fault"],
+                    "/balance/leaked": row["leaked"], "/solver/iterations": row["iterations"],
+                    "/solver/step_cuts": row["cuts"], "/solver/dt": row["dt"]})
+        return out
 
+    @staticmethod
+    def profile_record(row: dict) -> dict:
+        """The fault profiles of ``row`` by dataset path (the ``profiles`` stream)."""
+        out = {"/fault/time": row["time"]}
+        out.update({f"/fault/{name}": row[name] for name in PROFILE_NAMES})
+        return out
+
+    def stream_specs(self) -> dict:
+        """The ``rows`` and ``profiles`` streams: dataset path -> (dtype, record shape)."""
+        row = self.last if self.last is not None else self.rows[-1]
+        spec = lambda rec: {p: (np.asarray(v).dtype.str, np.shape(v)) for p, v in rec.items()}  # noqa: E731
+        return {"rows": spec(self.series_record(row)), "profiles": spec(self.profile_record(row))}
+
+    # -- streaming --------------------------------------------------------------------------
+    def stream(self, writer) -> None:
+        """From now on rows go to ``writer``; the rows kept so far are written to it first."""
+        self.writer = writer
+        rows, self.rows = self.rows, []
+        for row in rows:
+            writer.append("rows", self.series_record(row))
+            if row["profile"]:
+                writer.append("profiles", self.profile_record(row))
+        self._open = False
+
+    def _commit(self) -> None:
+        """Hand the newest row to the writer (its profile mark is final from now on)."""
+        if self.writer is not None and self._open:
+            self.writer.append("rows", self.series_record(self.last))
+            if self.last["profile"]:
+                self.writer.append("profiles", self.profile_record(self.last))
+            self._open = False
+
+    def flush(self) -> None:
+        if self.writer is not None:
+            self._commit()
+            self.writer.flush()
+
+    def state(self) -> dict:
+        return dict(count=self.count)
+
+    def set_state(self, state: dict, last: dict | None) -> None:
+        self.count = int(state["count"])
+        self.last = last
+
+    # -- in memory --------------------------------------------------------------------------
+    def result(self, scene, meta) -> Result:
+        rows = self.rows
+        if self.writer is not None or not rows:
+            raise RuntimeError("the rows of this run were streamed to "
+                               f"{self.writer.path if self.writer else 'a file'}: read them with "
+                               f"Result.load")
+        records = [self.series_record(r) for r in rows]
+        stack = lambda key: np.array([rec[key] for rec in records])  # noqa: E731
+        kept = [r for i, r in enumerate(rows) if r["profile"] or i == len(rows) - 1]
+        fault = {name: np.array([r[name] for r in kept]) for name in PROFILE_NAMES}
+        group = lambda g: {p.rsplit("/", 1)[1]: stack(p) for p in records[0] if p.startswith(f"/{g}/")}  # noqa: E731
+        fp = self.disc.fault_points
+        time = stack("/time")
+        fault_time = np.array([r["time"] for r in kept], dtype=float)
+        return Result(scene=scene, time=time, fault_x=fp.s - self.disc.injection.s, fault_xy=fp.xy,
+                      fault_weights=fp.weight, fault=fault, injection=group("injection"),
+                      balance=group("balance"), solver=group("solver"), meta=dict(meta),
+                      fault_time=None if len(kept) == len(rows) else fault_time)
+
+
+#: the (time, x) fault profiles, in the schema's order
+PROFILE_NAMES = tuple(o.name for o in SCHEMA if o.group == "fault" and o.shape == "(time, x)")

@@ -108,14 +108,17 @@ class FaultGeometry:
     heaviside_enriched: np.ndarray  # (n_nodes,) bool: node carries Heaviside DOFs
     pressure_enriched: np.ndarray  # (n_nodes,) bool: node carries modified-level-set DOFs
     shift: float = 0.0             # m along the normal the fault was moved off mesh nodes
+    #: a finite fault's tips after snapping to element edges (s, m); None: across the whole model
+    tips: tuple[float, float] | None = None
 
     @property
     def length(self) -> float:
         return float(self.fault_node_s[-1] - self.fault_node_s[0])
 
 
-def locate_fault(mesh: StructuredMesh, point, angle_deg: float) -> FaultGeometry:
-    """Cut a straight through-going fault into ``mesh``. Raises ``ValueError`` if it misses."""
+def locate_fault(mesh: StructuredMesh, point, angle_deg: float, length: float | None = None) -> FaultGeometry:
+    """Cut a straight fault into ``mesh``: through the whole model, or with ``length`` (m) a
+    finite one centred on ``point`` (see ``_finite``). Raises ``ValueError`` if it misses."""
     a = np.deg2rad(angle_deg)
     t = np.array([np.cos(a), np.sin(a)])
     n = np.array([-np.sin(a), np.cos(a)])
@@ -185,6 +188,15 @@ def locate_fault(mesh: StructuredMesh, point, angle_deg: float) -> FaultGeometry
     cut_qp, cut_w, cut_side = cut_qp[order], cut_w[order], cut_side[order]
     segment_s = segment_s[order]
     seg_pts = [seg_pts[k] for k in order]
+    beyond_tips = np.zeros(0, dtype=np.int64)
+    tips = None
+    if length is not None:
+        keep, tips = _finite(segment_s, length, float(sizes[cut].min()))
+        beyond_tips = cut[~keep]
+        cut, cut_qp, cut_w, cut_side = cut[keep], cut_qp[keep], cut_w[keep], cut_side[keep]
+        segment_s = segment_s[keep]
+        seg_pts = [p for p, k in zip(seg_pts, keep) if k]
+        n_cut = len(cut)
 
     # 1-D fault nodes: segment ends, merged where consecutive segments meet
     h_min = float(sizes[cut].min())
@@ -220,6 +232,13 @@ def locate_fault(mesh: StructuredMesh, point, angle_deg: float) -> FaultGeometry
             support[node] += wN.sum()
             far_side[node] += wN[cut_side[k] != node_side].sum()
     heav = enriched & (far_side > SLIVER_FRACTION * np.maximum(support, 1e-300))
+    # past a tip the line crosses elements the fault does not cut: a node of one of them (the
+    # tip's edge) gets no jump, so the fault closes at its tip
+    heav[elems[beyond_tips].ravel()] = False
+    if length is not None and not heav.any():
+        raise ValueError(f"fault.length = {length:g} m is too short to slip on this mesh: the "
+                         f"{n_cut} element(s) it cuts have every node on an edge through a tip, where "
+                         f"the jump is 0; make it longer (two elements at least) or refine there")
 
     return FaultGeometry(
         point=point, tangent=t, normal=n, node_phi=phi, cut_elements=cut,
@@ -227,7 +246,31 @@ def locate_fault(mesh: StructuredMesh, point, angle_deg: float) -> FaultGeometry
         **gp, segment_s=segment_s, segment_ref=np.array(seg_pts), fault_node_s=fault_node_s,
         segment_nodes=segment_nodes, segment_element=np.arange(n_cut),
         heaviside_enriched=heav, pressure_enriched=enriched, shift=shift,
+        tips=tips,
     )
+
+
+def _finite(segment_s, length, h_min):
+    """(keep, tips) of a finite fault: the segments (one per cut element, ordered by s) that lie
+    between the tips s = -length/2 and +length/2, each tip snapped to the nearest element edge
+    along the fault (the nearest segment end; the ends of the line where the model ends first).
+
+    Standard X-FEM without tip enrichment: the Heaviside enrichment covers only elements the
+    fault cuts completely, and the nodes of the element edge through a tip are not enriched, so
+    the jump closes linearly over the last element. The stress singularity of a real tip is not
+    represented; the slip of a uniformly loaded crack converges to the elliptical profile as the
+    elements shrink (tests/hard_cases/test_finite_fault.py)."""
+    if not length > 0:
+        raise ValueError(f"fault.length = {length} m must be > 0")
+    ends = np.unique(segment_s.ravel())
+    s_lo = float(ends[np.argmin(np.abs(ends + 0.5 * length))])
+    s_hi = float(ends[np.argmin(np.abs(ends - 0.5 * length))])
+    if not s_hi - s_lo > 1e-9 * h_min:
+        raise ValueError(f"fault.length = {length:g} m is shorter than the element edges it can end on "
+                         f"(the elements it crosses are {h_min:g} m or larger): make it longer or refine there")
+    tol = 1e-9 * h_min
+    keep = (segment_s[:, 0] >= s_lo - tol) & (segment_s[:, 1] <= s_hi + tol)
+    return keep, (s_lo, s_hi)
 
 
 def _fault_gauss_points(segment_s, segment_ref, segment_element) -> dict:

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import sys
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
@@ -122,13 +121,17 @@ def test_run_default_bundled_scene(tmp_path, monkeypatch):
 
 
 def test_run_failure_exit_1_without_result_or_figures(tmp_path, scene_file, monkeypatch):
-    sim = sys.modules["fault_screen.simulate"]
+    # the first step is taken and streamed to the result file; the second fails
+    real = fault_screen.Simulation.advance
+    calls = []
 
-    def failing(scene, *, progress=None, **kw):
-        progress(1, 7.0, 60.0, 0.1)
-        raise SimulationError("step at t = 7 s failed after 8 cuts")
+    def failing(self, t_next, **kw):
+        if calls:
+            raise SimulationError("step at t = 7 s failed after 8 cuts")
+        calls.append(t_next)
+        return real(self, t_next, **kw)
 
-    monkeypatch.setattr(sim, "simulate", failing)
+    monkeypatch.setattr(fault_screen.Simulation, "advance", failing)
     out, figs = tmp_path / "r.h5", tmp_path / "figs"
     r = invoke("run", scene_file, "--out", out, "--plot", figs)
     assert r.exit_code == 1

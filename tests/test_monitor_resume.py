@@ -1,6 +1,8 @@
 """``fault-screen monitor`` with the real stepper on a coarse Rustrel scene: a run over a complete
-log equals ``fault-screen replay`` of it, and a monitor killed with SIGKILL at a random moment
-while the log is being written resumes from its last checkpoint to the very same arrays."""
+log equals ``fault-screen replay`` of it (every array, ``/log`` and ``/screening`` included), the
+result file it streams can be read while it runs, and a monitor killed with SIGKILL at a random
+moment while the log is being written resumes from its last checkpoint (cutting the streamed file
+back to it) to the very same arrays."""
 from __future__ import annotations
 
 import dataclasses
@@ -59,9 +61,15 @@ def case(tmp_path_factory, dist):
 
 def same_arrays(got: Result, want: Result):
     assert np.array_equal(got.time, want.time)
+    assert np.array_equal(got.profile_time, want.profile_time)
     for group in GROUPS:
+        assert getattr(got, group).keys() == getattr(want, group).keys(), group
         for key, arr in getattr(want, group).items():
             assert np.array_equal(getattr(got, group)[key], arr), (group, key)
+    # the samples that drove the model: every one of the log, as replay stores them
+    assert got.extra["log"].keys() == want.extra["log"].keys() == {"time", "flow_rate"}
+    for key, arr in want.extra["log"].items():
+        assert len(arr) == 65 and np.array_equal(got.extra["log"][key], arr), key
     if "screening" in want.extra:
         for key, arr in want.extra["screening"].items():
             nan = arr.dtype.kind == "f"       # missing event metrics are NaN in both
@@ -111,12 +119,18 @@ def test_kill_9_while_following_then_resume_equals_replay(case, dist, tmp_path):
         deadline = time.monotonic() + 120
         while not (tmp_path / "s.h5").exists() and time.monotonic() < deadline:
             time.sleep(0.02)
+        # a reader opens the result file while the monitor writes it (HDF5 SWMR): what it sees
+        # is the start of the replay, at least the rows of the first checkpoint (4 steps)
+        seen = Result.load(tmp_path / "m.h5")
+        n = len(seen.time)
+        assert n >= 5 and np.array_equal(seen.time, case["replay"].time[:n])
+        assert np.array_equal(seen.injection["overpressure"], case["replay"].injection["overpressure"][:n])
+        assert np.array_equal(seen.fault["slip"], case["replay"].fault["slip"][:len(seen.fault["slip"])])
         time.sleep(float(rng.uniform(0.0, 0.3)))
         proc.send_signal(signal.SIGKILL)
     finally:
         proc.wait(timeout=120)
     assert proc.returncode == -signal.SIGKILL, proc.stderr.read().decode()[-3000:]
-    assert not (tmp_path / "m.h5").exists()
     with open(live, "ab") as fh:
         fh.write(b"".join(lines[cut:]))
     r = CliRunner().invoke(main, [*args[:-9], "--alert", f"jsonl:{tmp_path / 'alerts.jsonl'}",

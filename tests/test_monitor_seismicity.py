@@ -127,3 +127,55 @@ def test_site_from_the_scene_puts_the_dip_section_in_the_model_plane():
     along, up, off = site.local(ev)
     assert along == pytest.approx(math.sqrt(200.0)) and abs(off) < 1e-12 and up == -5.0
     assert Site.from_spec(SiteSpec(latitude=43.9, longitude=5.5, depth=280.0)).azimuth == 90.0
+
+
+def test_sta_lta_on_seedlink_records_finds_what_the_sds_archive_gives(tmp_path):
+    """obspy's example waveforms served as 512-byte records by a SeedLink server on loopback
+    (tests/seedlink_fake.py): the same onsets and detections as the SDS path, also when one
+    channel's records come late (the detector waits for every channel, so the P arrival on the
+    three channels is one detection at the earliest onset, 4.99 s on EHE)."""
+    import time
+
+    from fault_screen.monitor import SeedLinkDetector
+    from seedlink_fake import FakeSeedLinkServer, records_of
+
+    st = obspy.read()                    # EHZ, EHN, EHE, in that order
+    records = records_of(st)
+    late = 2 * len(records) // 3 + 2     # EHZ and EHN whole, the first 2 records of EHE
+    server = FakeSeedLinkServer(records, hold_after=late)
+    start = datetime(2009, 8, 24, 0, 20, 3, tzinfo=UTC)
+    opts = dict(sta=0.5, lta=5.0, on=3.0, off=1.0)
+    det = SeedLinkDetector(server.address, "BW_RJOB:EH?", start, merge=1.0, min_channels=2, **opts)
+
+    def received(n):
+        deadline = time.monotonic() + 30
+        while det.client.records < n and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert det.client.records == n
+
+    try:
+        received(late)
+        said = [" ".join(c.split()) for c in server.commands]
+        assert said == ["HELLO", "STATION RJOB BW", "SELECT EH?", "DATA", "END"]
+        # EHE has 2.2 s so far: nothing is analysed beyond it, although EHZ and EHN hold 30 s
+        # (without the wait, their onsets would make a detection at 5.01 s without EHE's 4.99 s)
+        assert det.poll(30.0) == []
+        assert max(det.done.values()) < obspy.UTCDateTime(start) + 3.0
+        server.release()
+        received(len(records))
+        assert sorted(".".join(c) for c in det.client.get_all_nslc()) == \
+            ["BW.RJOB..EHE", "BW.RJOB..EHN", "BW.RJOB..EHZ"]
+        write_sds(tmp_path, st)
+        sds = SdsDetector(tmp_path, start, merge=1.0, min_channels=2, **opts)
+        dets, want = [], []
+        for until in (6.0, 13.5, 21.0, 30.0):               # read in four chunks, as the SDS
+            dets += det.poll(until)
+            want += sds.poll(until)
+        assert [d.time for d in dets] == [d.time for d in want]
+        assert dets[0].time == pytest.approx(4.99, abs=1e-9) and dets[0].kind == "detection"
+        # the buffer keeps only the lead-in of the next chunk (two LTA windows and a second)
+        kept = min(tr.stats.starttime for trs in det.client.traces.values() for tr in trs)
+        assert kept >= obspy.UTCDateTime(start) + 30.0 - 2 * 5.0 - 1.0 - 2.0
+    finally:
+        det.close()
+        server.close()

@@ -199,3 +199,27 @@ def test_sds_detections_reach_the_results(dist, scene_file, tmp_path):
     assert ev["kind"][0] == b"detection" and ev["time"][0] == pytest.approx(4.99, abs=1e-9)
     assert ev["model_time"][0] == 7.0                  # the first step (dt = 7 s) holds it
     assert np.isnan(ev["magnitude"][0])
+
+
+def test_seedlink_detections_reach_the_results(dist, scene_file, tmp_path):
+    """The same P arrival as from the SDS archive, streamed by a SeedLink server on loopback."""
+    import obspy
+    from datetime import datetime, timezone
+
+    from seedlink_fake import FakeSeedLinkServer, records_of
+
+    server = FakeSeedLinkServer(records_of(obspy.read(), interleave=True))
+    log = tmp_path / "elapsed.csv"
+    log.write_text("elapsed[s],flow_rate[L/min]\n"
+                   + "".join(f"{t},10\n" for t in range(0, 36, 5)))
+    try:
+        run_service(scene_file, log, tmp_path / "s.h5", tmp_path / "out.h5", tmp_path / "a.jsonl",
+                    idle_exit=2.0, seedlink=server.address, seedlink_streams="BW_RJOB:EH?",
+                    t0=datetime(2009, 8, 24, 0, 20, 3, tzinfo=timezone.utc),
+                    sta_lta=dict(sta=0.5, lta=5.0, on=3.0, off=1.0, merge=1.0, min_channels=2))
+    finally:
+        server.close()
+    assert server.sent == len(server.records)
+    ev = Result.load(tmp_path / "out.h5").extra["events"]
+    assert ev["kind"][0] == b"detection" and ev["time"][0] == pytest.approx(4.99, abs=1e-9)
+    assert ev["model_time"][0] == 7.0                  # the first step (dt = 7 s) holds it

@@ -204,3 +204,47 @@ def test_events_enter_the_step_containing_them(scene, log):
     assert math.isnan(metrics[28.0]["event_magnitude"])
     # the level went red through the magnitude rule at 35 s
     assert st.transitions[0]["rule"] == "event_magnitude >= 2" and st.transitions[0]["time"] == 35.0
+
+
+def test_dense_samples_let_the_model_take_its_own_longer_steps(tmp_path):
+    """Samples every 5 s, a scene whose steps grow from 5 s by 1.5 up to 120 s: the stage takes
+    the scene's steps (up to 24 samples each), each receiving the exact integral of the samples
+    over it, never ahead of the data, screened at every step; the rows equal a replay's."""
+    from fault_screen import Result
+    from fault_screen.api import simulate
+
+    s = Scene.from_toml(ROOT / "configs" / "rustrel-2015-calibrated.toml")
+    scene = s.replace(mesh=dataclasses.replace(s.mesh, nx=10, ny=11),
+                      time=dataclasses.replace(s.time, end=1500.0, dt=5.0, growth=1.5, dt_max=120.0))
+    t = np.arange(0.0, 1500.0 + 1e-9, 5.0)
+    q = np.where(t < 600.0, 2e-4, np.where(t < 1000.0, 4e-4, 1e-4))   # m3/s, two rate changes
+    stage = Stage(scene, out=tmp_path / "m.h5")
+    rng = np.random.default_rng(7)
+    k = 0
+    while k < t.size:
+        n = int(rng.integers(1, 4))
+        upd = stage.feed_samples(t[k:k + n], q[k:k + n])
+        k = min(k + n, t.size)
+        assert stage.time <= t[k - 1]                     # never ahead of the data
+        assert upd.steps <= 1 or stage.sim.dt >= 5.0
+    stage.close()
+    got = Result.load(tmp_path / "m.h5")
+    dt = got.solver["dt"][1:]
+    assert dt.max() == 120.0 and np.count_nonzero(dt == 120.0) >= 8
+    assert len(got.time) - 1 < t.size / 10                # far fewer steps than samples
+    # each step received the samples' integral: trapezoid of the linear rate over the step
+    def integral(a, b):
+        grid = np.union1d(t[(t > a) & (t < b)], [a, b])
+        return np.trapezoid(np.interp(grid, t, q), grid)
+    want = np.cumsum([0.0] + [integral(a, b) for a, b in zip(got.time[:-1], got.time[1:])])
+    assert np.allclose(got.injection["volume"], want, rtol=1e-12, atol=1e-15)
+    # screened at every model step (and at t = 0)
+    assert got.extra["screening"]["level"].shape == got.time.shape
+    # a replay of the same samples takes the same steps to the same arrays
+    every = SampleBuffer()
+    for tk, qk in zip(t, q):
+        every.append(float(tk), float(qk), None)
+    ref = simulate(scene.replace(time=dataclasses.replace(scene.time, end=float(got.time[-1]))),
+                   injected_volume=every.volume)
+    assert np.array_equal(ref.time, got.time)
+    assert np.array_equal(ref.fault["slip"], got.fault["slip"])

@@ -70,3 +70,130 @@ def test_readme_results_table_is_the_output_schema():
     readme = (ROOT / "README.md").read_text()
     block = readme.split("<!-- outputs table: begin -->\n", 1)[1].split("\n<!-- outputs table: end -->", 1)[0]
     assert block == markdown_table()
+
+
+# ---------------------------------------------------------------------------------------------
+# results streamed to the file as the run goes
+# ---------------------------------------------------------------------------------------------
+SMALL = {
+    "mesh": {"nx": 10, "ny": 11, "lx": 50.0, "ly": 50.0},
+    "initial": {"effective_stress": [-5.649e6, -3.351e6, 0.964e6], "pore_pressure": 2.764e6},
+    "injection": {"number_of_fractures": 10, "schedule": [[0.0, 1e-3], [40.0, 3e-3]]},
+    "time": {"end": 100.0, "dt": 5.0},
+    # a level change at an arbitrary step: the overpressure passes 30 kPa
+    "monitor": {"rules": [{"name": "pressure up", "level": "yellow", "hold": 0.0,
+                           "when": "injection_overpressure > 3e4", "action": "watch"}]},
+}
+
+
+def _every_array(res) -> dict:
+    out = {"time": res.time, "fault/time": res.profile_time}
+    for group in ("fault", "injection", "balance", "solver"):
+        out.update({f"{group}/{k}": v for k, v in getattr(res, group).items()})
+    out.update({f"screening/{k}": v for k, v in res.extra["screening"].items()})
+    return out
+
+
+def _streamed(scene, path, monkeypatch=None):
+    from fault_screen.api import run_streamed
+
+    sim, screening = run_streamed(scene, path)
+    assert sim.recorder.rows == []          # nothing but the newest row stays in memory
+    sim.close_stream()
+    return Result.load(path), screening
+
+
+@pytest.fixture(scope="module")
+def full():
+    """The in-memory run, screened over the whole result: the reference."""
+    from fault_screen.screening import screen_result
+
+    scene = Scene.from_dict(SMALL)
+    res = simulate(scene)
+    screen_result(res)
+    assert len(res.time) == 21 and len(res.extra["screening"]["transitions"]) == 1
+    return res
+
+
+def test_a_streamed_run_equals_the_in_memory_run_array_for_array(full, tmp_path):
+    got, _ = _streamed(Scene.from_dict(SMALL), tmp_path / "s.h5")
+    want = _every_array(full)
+    have = _every_array(got)
+    assert have.keys() == want.keys()
+    for k, v in want.items():
+        assert np.array_equal(have[k], v, equal_nan=v.dtype.kind == "f"), k
+    with h5py.File(tmp_path / "s.h5", "r") as h5:
+        assert h5["injection/volume"].maxshape == (None,) and h5["injection/volume"].chunks
+        assert h5["fault/slip"].maxshape[0] is None and h5["fault/time"].attrs["unit"] == "s"
+
+
+@pytest.mark.parametrize("output, rows", [
+    # every 6 steps: rows 0, 6, 12, 18, the level change and the last (20)
+    ({"profile_every": 6}, "0 6 12 18 20 T"),
+    # the first step at or after each multiple of 32 s (steps of 5 s: 35, 65, 100), the level
+    # change, the last
+    ({"profile_interval": "32 s"}, "0 7 13 20 T"),
+])
+def test_output_table_thins_the_profiles_not_the_series(full, tmp_path, output, rows):
+    scene = Scene.from_dict({**SMALL, "output": output})
+    got, screening = _streamed(scene, tmp_path / "s.h5")
+    t_change = float(full.extra["screening"]["transitions"]["time"][0])
+    i_change = int(np.flatnonzero(full.time == t_change)[0])
+    want_rows = sorted({i_change if r == "T" else int(r) for r in rows.split()})
+    assert np.array_equal(got.profile_time, full.time[want_rows])
+    for k, v in full.fault.items():
+        assert np.array_equal(got.fault[k], v[want_rows]), k
+    # the series and the screening: every step, unchanged
+    for group in ("injection", "balance", "solver"):
+        for k, v in getattr(full, group).items():
+            assert np.array_equal(getattr(got, group)[k], v), (group, k)
+    assert np.array_equal(got.extra["screening"]["level"], full.extra["screening"]["level"])
+    # the in-memory path thins the same way
+    # fault_screen.simulate, in memory, keeps the same rows
+    mem = simulate(scene)
+    assert np.array_equal(mem.profile_time, got.profile_time)
+    assert np.array_equal(mem.fault["slip"], got.fault["slip"])
+
+
+def test_output_table_is_validated():
+    from fault_screen.scene import SceneError
+
+    with pytest.raises(SceneError, match="output.profile_every = 0: must be >= 1"):
+        Scene.from_dict({"output": {"profile_every": 0}})
+    with pytest.raises(SceneError, match="output.profile_interval"):
+        Scene.from_dict({"output": {"profile_interval": "-1 h"}})
+    assert Scene.from_dict({"output": {"profile_interval": "2 h"}}).output.profile_interval == 7200.0
+
+
+def test_a_streamed_run_checkpointed_and_restored_continues_its_file(full, tmp_path):
+    """The checkpoint keeps the rows' count; rows written after it (a run that went on, then
+    died) are cut away on restore and written again, to the same arrays."""
+    from fault_screen import Simulation
+    from fault_screen.api import StepScreening
+
+    scene = Scene.from_dict(SMALL)
+    sim = Simulation(scene)
+    path = tmp_path / "s.h5"
+    sim.stream_to(path)
+    sim.advance(50.0)
+    sim.checkpoint(tmp_path / "state.h5")
+    sim.advance(80.0)                         # rows past the checkpoint reach the file...
+    sim.flush()
+    sim.writer.abandon()                      # ...and the writer stops there
+    with h5py.File(path, "r") as h5:
+        assert len(h5["time"]) == 17
+    back = Simulation.restore(tmp_path / "state.h5")
+    assert back.writer.counts()["rows"] == 11
+    back.advance(100.0)
+    back.close_stream()
+    got = Result.load(path)
+    for k in ("time", "fault/slip", "injection/overpressure", "balance/leaked", "solver/dt"):
+        assert np.array_equal(_every_array_core(got)[k], _every_array_core(full)[k]), k
+    assert StepScreening.streams()["screening"].keys() >= {"/screening/level"}
+
+
+def _every_array_core(res) -> dict:
+    out = {"time": res.time}
+    for group in ("fault", "injection", "balance", "solver"):
+        out.update({f"{group}/{k}": v for k, v in getattr(res, group).items()})
+    return out

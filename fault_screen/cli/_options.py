@@ -82,6 +82,10 @@ def to_exit(exc: BaseException) -> click.ClickException | None:
         return None
     if isinstance(exc, SimulationError):
         return RunFailed(f"simulation failed: {exc}")
+    from ..scene import SceneError
+
+    if isinstance(exc, SceneError):  # found while building the model (fault geometry, in-situ state)
+        return BadInput(str(exc))
     if isinstance(exc, OSError):
         return RunFailed(f"I/O error: {_describe_os_error(exc)}")
     if os.environ.get("FAULT_SCREEN_TRACEBACK"):

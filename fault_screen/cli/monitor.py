@@ -25,6 +25,15 @@ def _sta_lta_callback(ctx, param, value):
     return {"sta": sta, "lta": lta, "on": on, "off": off}
 
 
+def _address_callback(ctx, param, value):
+    if value is None:
+        return None
+    host, sep, port = value.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise BadInput(f"--seedlink {value!r}: expected HOST:PORT (e.g. localhost:18000)")
+    return value
+
+
 def _count_callback(ctx, param, value):
     if value is not None and value < 1:
         raise BadInput(f"--{param.name.replace('_', '-')} {value!r}: must be >= 1")
@@ -40,11 +49,17 @@ def _count_callback(ctx, param, value):
               help="Seismic catalogue (QuakeML, CSV or FDSN text) polled as it grows.")
 @click.option("--waveforms", type=DIR, default=None, metavar="SDS_DIR",
               help="SDS waveform archive: classic STA/LTA detections as it fills.")
+@click.option("--seedlink", default=None, metavar="HOST:PORT", callback=_address_callback,
+              help="SeedLink server: classic STA/LTA detections on its records as they arrive "
+                   "(with --seedlink-streams).")
+@click.option("--seedlink-streams", default=None, metavar="NET_STA[:SEL],...",
+              help="Streams to ask the SeedLink server for, e.g. 'BW_RJOB:EH?,GE_APE:BHZ'.")
 @click.option("--state", type=FILE, default=None, metavar="STATE.h5",
               help="Checkpoint file: written every --checkpoint-every steps and on "
                    "SIGINT/SIGTERM; an existing one is resumed.")
 @click.option("--out", "-o", type=FILE, default=None, metavar="RESULT.h5",
-              help="HDF5 result file written when the monitor stops.")
+              help="HDF5 result file, written as the monitor goes (readable meanwhile, HDF5 "
+                   "SWMR) and completed when it stops.")
 @click.option("--idle-exit", type=float, default=None, metavar="SECONDS",
               callback=_positive_callback,
               help="Stop cleanly (state and results written) after this long without a new "
@@ -86,7 +101,7 @@ def _count_callback(ctx, param, value):
               help="STA/LTA windows (s) and trigger thresholds [default: 0.5,10,3.5,1].")
 @click.option("--quiet", "-q", is_flag=True, help="Only warnings and errors on stderr.")
 @version_option
-def monitor(scene_path, follow, events, waveforms, state, out, idle_exit, alerts, source,
+def monitor(scene_path, follow, events, waveforms, seedlink, seedlink_streams, state, out, idle_exit, alerts, source,
             poll_interval, checkpoint_every, outbox, flow_unit, pressure_unit, max_gap, policy,
             log_date, log_tz, time_column, flow_column, pressure_column, t0, sta_lta, quiet):
     """Follow a growing injection log with the model of SCENE, screen every step, and alert.
@@ -122,7 +137,20 @@ def monitor(scene_path, follow, events, waveforms, state, out, idle_exit, alerts
         raise BadInput(f"--events {events}: file not found")
     if waveforms is not None and not waveforms.is_dir():
         raise BadInput(f"--waveforms {waveforms}: folder not found")
+    if waveforms is not None and seedlink is not None:
+        raise BadInput("--waveforms and --seedlink: give one waveform source")
+    if (seedlink is None) != (seedlink_streams is None):
+        raise BadInput("--seedlink and --seedlink-streams go together: the server, and the "
+                       "streams to ask it for (e.g. --seedlink-streams BW_RJOB:EH?)")
+    if seedlink_streams is not None:
+        import re
+
+        token = r"[A-Za-z0-9]+_[A-Za-z0-9]+(:[A-Za-z0-9?*. ]+)?"
+        if not re.fullmatch(rf"{token}(,{token})*", seedlink_streams.replace(", ", ",")):
+            raise BadInput(f"--seedlink-streams {seedlink_streams!r}: expected NET_STA[:SELECTORS],"
+                           f"... (e.g. BW_RJOB:EH?)")
     cfg = MonitorConfig(follow=follow, state=state, out=out, events=events, waveforms=waveforms,
+                        seedlink=seedlink, seedlink_streams=seedlink_streams or "",
                         idle_exit=idle_exit, alerts=list(alerts), source=source,
                         poll_interval=poll_interval, checkpoint_every=checkpoint_every,
                         outbox=outbox, flow_unit=flow_unit, pressure_unit=pressure_unit,

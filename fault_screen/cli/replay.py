@@ -58,8 +58,8 @@ def replay(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, end,
 
     meta = {"command": "replay", "log_policy": policy, "log_max_gap": max_gap, **plan.meta,
             "log_file": str(log_path)}
-    result, _ = run_scene(plan.scene, scene_label=str(scene_path), out=out, plot_dir=plot_dir,
+    result, _, screening = run_scene(plan.scene, scene_label=str(scene_path), out=out, plot_dir=plot_dir,
                           events_path=events, start=t0 if t0 is not None else log.start, quiet=quiet,
                           injected_volume=plan.injected_volume, meta=meta, extra={"log": plan.log_arrays},
                           stem=scene_path.stem)
-    conclude(result, fail_on)
+    conclude(result, fail_on, screening)

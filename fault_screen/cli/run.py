@@ -98,9 +98,13 @@ def run_scene(scene, *, scene_label: str, out: Path | None, plot_dir: Path | Non
               events_path: Path | None, start: datetime | None, quiet: bool,
               injected_volume=None, meta: dict | None = None, extra: dict | None = None,
               stem: str = "result"):
-    """Simulate ``scene`` and write its result (and figures); returns (result, out path)."""
-    from ..screening import screen_result
-    from ..simulate import simulate
+    """Simulate ``scene`` streaming its result to ``out`` as it goes (under ``out.part``,
+    renamed when complete; a failed run leaves no file), then the figures and the summary;
+    returns (result read back, out path, screening)."""
+    import os
+
+    from ..api import run_streamed
+    from ..result import Result
 
     out = Path(out) if out is not None else Path.cwd() / f"{stem}.h5"
     _check_outputs(out, plot_dir)
@@ -113,25 +117,32 @@ def run_scene(scene, *, scene_label: str, out: Path | None, plot_dir: Path | Non
         click.echo(f"running {scene_label} ({scene.title}; {size}; "
                    f"0 to {scene.time.end:g} s, dt {scene.time.dt:g} s)")
     progress = None if quiet else Progress(sys.stdout)
+    part = out.with_name(out.name + ".part")
     try:
-        result = simulate(scene, progress=progress, injected_volume=injected_volume)
+        try:
+            sim, screening = run_streamed(scene, part, events=catalog, progress=progress,
+                                          injected_volume=injected_volume)
+        finally:
+            if progress is not None:
+                progress.close()
+        meta = dict(meta or {})
+        meta["scene_file"] = scene_label
+        if start is not None:
+            meta["start"] = start.isoformat()
+        groups = dict(extra or {})
+        if catalog is not None:
+            meta["events_file"] = str(events_path)
+            meta["events_start"] = catalog.start.isoformat() if catalog.start else None
+            groups["events"] = catalog.to_arrays(0.0, float(sim.time))
+            for line in events_report(catalog, 0.0, float(sim.time), start):
+                click.echo(line, err=line.startswith("Warning"))
+        sim.close_stream(meta=meta, groups=groups)
+        os.replace(part, out)
     finally:
-        if progress is not None:
-            progress.close()
-
-    result.meta.update(meta or {})
-    result.meta["scene_file"] = scene_label
-    if start is not None:
-        result.meta["start"] = start.isoformat()
-    result.extra.update(extra or {})
-    if catalog is not None:
-        result.meta["events_file"] = str(events_path)
-        result.meta["events_start"] = catalog.start.isoformat() if catalog.start else None
-        result.extra["events"] = catalog.to_arrays(float(result.time[0]), float(result.time[-1]))
-        for line in events_report(catalog, float(result.time[0]), float(result.time[-1]), start):
-            click.echo(line, err=line.startswith("Warning"))
-    screen_result(result, events=catalog)  # /screening/ with the events read
-    result.save(out)
+        if part.exists():
+            part.unlink()
+    result = Result.load(out)
+    screening = screening.screening(result)
 
     figures = []
     if plot_dir is not None:
@@ -139,7 +150,7 @@ def run_scene(scene, *, scene_label: str, out: Path | None, plot_dir: Path | Non
 
         figures = plot_result(result, plot_dir, events=catalog, prefix=f"{out.stem}-")
     _summary(result, out, figures, catalog)
-    return result, out
+    return result, out, screening
 
 
 def slip_split(result) -> tuple[float, float]:
@@ -220,7 +231,7 @@ def run(scene_path, out, plot_dir, events, t0, quiet, fail_on):
         volume, extra = log.volume, {"log": plan.log_arrays}
         meta.update(plan.meta)
         start = t0 if t0 is not None else log.start
-    result, _ = run_scene(scene, scene_label=str(path), out=out, plot_dir=plot_dir, events_path=events,
-                          start=start, quiet=quiet, stem=path.stem, meta=meta, injected_volume=volume,
-                          extra=extra)
-    conclude(result, fail_on)
+    result, _, screening = run_scene(scene, scene_label=str(path), out=out, plot_dir=plot_dir,
+                                     events_path=events, start=start, quiet=quiet, stem=path.stem,
+                                     meta=meta, injected_volume=volume, extra=extra)
+    conclude(result, fail_on, screening)

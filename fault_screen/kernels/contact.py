@@ -33,6 +33,20 @@ def _slip_tangent(sgn, kT, kN, tan_dilation, mu, Fp):
 
 
 @kernel
+def _in_contact(sigma_base, tau_trial, kN, kT, tan_dilation):
+    """Are the walls in contact at the end of the step? Tested on the normal stress after the
+    step's own dilatant slip, not before it: the most plastic slip a step can take is
+    |tau_trial| / kT (all of the trial shear relaxed), which raises sigma_n by kN tan(psi) times
+    it, so the walls touch iff sigma_base + kN tan(psi) |tau_trial| / kT > 0. On that boundary the
+    sliding branch gives sigma_n = tau = 0, the open state's tractions, so the law is continuous.
+    Testing sigma_base alone (as before) made it jump at sigma_base = 0 from open (0, 0) to
+    sliding at sigma_n = kN tan(psi) |tau_trial| / (kT + mu kN tan(psi)), up to MPa: Newton
+    cycled between the two with dilation on (issue 9, stick-slip-cycling-dilation). Without
+    dilation both tests agree. Also false for NaN: never a silent stick."""
+    return sigma_base + kN * tan_dilation * abs(tau_trial) / kT > 0.0
+
+
+@kernel
 def coulomb_point(slip, opening, slip_old, tau_old, dilatant_slip_old, sigma_n0, kN, kT, mu,
                   tan_dilation):
     """Rate-independent Coulomb return map with dilation.
@@ -40,9 +54,9 @@ def coulomb_point(slip, opening, slip_old, tau_old, dilatant_slip_old, sigma_n0,
     Returns (tau, sigma_n, state, plastic slip increment, dtau_ds, dtau_do, dsig_ds, dsig_do);
     sigma_n = sigma_n0 - kN (opening - tan(psi) * cumulative plastic slip)."""
     sigma_base = sigma_n0 - kN * opening + kN * tan_dilation * dilatant_slip_old
-    if not sigma_base > 0.0:  # also catches NaN: treat as open, never as a silent stick
-        return 0.0, 0.0, OPEN, 0.0, 0.0, 0.0, 0.0, 0.0
     tau_trial = tau_old + kT * (slip - slip_old)
+    if not _in_contact(sigma_base, tau_trial, kN, kT, tan_dilation):
+        return 0.0, 0.0, OPEN, 0.0, 0.0, 0.0, 0.0, 0.0
     if abs(tau_trial) <= mu * sigma_base:
         return tau_trial, sigma_base, STICK, 0.0, kT, 0.0, 0.0, -kN
     sgn = 1.0 if tau_trial > 0 else -1.0
@@ -63,9 +77,9 @@ def rate_state_point(slip, opening, slip_old, tau_old, dilatant_slip_old, theta_
     side is 0 at ds = 0). Returns (tau, sigma_n, state, ds, theta, mu, dtau_ds, dtau_do, dsig_ds,
     dsig_do); state is SLIP where the slip rate exceeds ``slip_rate_threshold``."""
     sigma_base = sigma_n0 - kN * opening + kN * tan_dilation * dilatant_slip_old
-    if not sigma_base > 0.0:
-        return 0.0, 0.0, OPEN, 0.0, theta_old, 0.0, 0.0, 0.0, 0.0, 0.0
     tau_trial = tau_old + kT * (slip - slip_old)
+    if not _in_contact(sigma_base, tau_trial, kN, kT, tan_dilation):
+        return 0.0, 0.0, OPEN, 0.0, theta_old, 0.0, 0.0, 0.0, 0.0, 0.0
     Tt = abs(tau_trial)
     sgn = 1.0 if tau_trial >= 0 else -1.0
     lo, hi = 0.0, Tt / kT

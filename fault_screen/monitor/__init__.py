@@ -6,10 +6,11 @@ step and alert operators through plugins.
 * ``service.py`` -- the loop behind ``fault-screen monitor``: a source plugin feeding the stage,
   the outbox delivering its alerts, checkpoints, signals, idle exit.
 * ``outbox.py`` -- durable alert outbox (SQLite); ``plugins.py`` -- entry-point discovery;
-  ``seismicity.py`` -- growing catalogues, SDS STA/LTA detections, association with the model.
+  ``seismicity.py`` -- growing catalogues, STA/LTA detections on an SDS archive or a SeedLink
+  server, association with the model.
 """
 from .stage import LEVELS, SampleBuffer, Stage, Update, alert_id, alert_payload  # noqa: F401
-from .seismicity import CatalogFollower, SdsDetector, SeismicEvent, Site  # noqa: F401
+from .seismicity import CatalogFollower, SdsDetector, SeedLinkDetector, SeismicEvent, Site  # noqa: F401
 
 __all__ = ["Stage", "Update", "SampleBuffer", "alert_id", "alert_payload", "LEVELS",
-           "SeismicEvent", "Site", "CatalogFollower", "SdsDetector"]
+           "SeismicEvent", "Site", "CatalogFollower", "SdsDetector", "SeedLinkDetector"]

@@ -27,7 +27,8 @@ from typing import List, Optional
 
 import numpy as np
 
-__all__ = ["SeismicEvent", "CatalogFollower", "SdsDetector", "Site", "associate",
+__all__ = ["SeismicEvent", "CatalogFollower", "SdsDetector", "SeedLinkDetector", "SeedLinkBuffer",
+           "Site", "associate",
            "EARTH_RADIUS"]
 
 #: mean Earth radius (m) of the local projection
@@ -155,18 +156,23 @@ class SdsDetector:
     ``sta``/``lta`` window lengths (s), ``on``/``off`` trigger thresholds of the STA/LTA ratio,
     ``channels`` a ``NET.STA.LOC.CHA`` glob (default all).  Onsets of several channels closer
     than ``merge`` seconds are one detection; a detection needs ``min_channels`` channels.
+    ``client``: where the waveforms come from instead of the archive ``root`` (anything with
+    obspy's ``get_all_nslc()`` and ``get_waveforms(net, sta, loc, cha, t0, t1)``; the SeedLink
+    detector passes its buffer of received records), so every source takes one STA/LTA path.
     """
 
     def __init__(self, root, start: datetime, *, sta: float = 0.5, lta: float = 10.0,
                  on: float = 3.5, off: float = 1.0, channels: str = "*", merge: float = 2.0,
-                 min_channels: int = 1, log: Optional[logging.Logger] = None):
-        from obspy.clients.filesystem.sds import Client
-
-        if not os.path.isdir(root):
-            raise FileNotFoundError(2, "SDS archive folder not found", os.fspath(root))
+                 min_channels: int = 1, log: Optional[logging.Logger] = None, client=None):
         if not 0 < sta < lta:
             raise ValueError(f"need 0 < sta < lta, got sta={sta} lta={lta}")
-        self.client = Client(os.fspath(root))
+        if client is None:
+            from obspy.clients.filesystem.sds import Client
+
+            if not os.path.isdir(root):
+                raise FileNotFoundError(2, "SDS archive folder not found", os.fspath(root))
+            client = Client(os.fspath(root))
+        self.client = client
         self.start = start
         self.ref = _utc(start)
         self.sta, self.lta, self.on, self.off = float(sta), float(lta), float(on), float(off)
@@ -184,6 +190,11 @@ class SdsDetector:
         from obspy.signal.trigger import classic_sta_lta, trigger_onset
 
         t_end = self.ref + until
+        complete = getattr(self.client, "complete_until", lambda: None)()
+        if complete is not None:
+            # a live stream: only as far as every channel has data, so that the onsets of one
+            # arrival on several channels come in the same call and merge into one detection
+            t_end = min(t_end, complete)
         out = []
         for code in self._nslc():
             done = self.done.get(code, self.ref)
@@ -209,6 +220,9 @@ class SdsDetector:
                 # the last samples lack their successors' check only for 'off'; onsets stand
                 reached = max(reached, tr.stats.endtime + 1.0 / df)
             self.done[code] = min(reached, t_end)
+        if self.done and hasattr(self.client, "forget_before"):
+            # a live buffer keeps only the lead-in the next chunk needs: memory stays bounded
+            self.client.forget_before(min(self.done.values()) - 2 * self.lta - 1.0)
         return sorted(out)
 
     def poll(self, until: float) -> List[SeismicEvent]:
@@ -231,6 +245,137 @@ class SdsDetector:
 
     def restore(self, state: dict) -> None:
         self.done = {code: self.ref + float(t) for code, t in state.items()}
+
+
+class SeedLinkBuffer:
+    """Waveform records received from a SeedLink server, for :class:`SdsDetector` to read like
+    an archive.
+
+    A thread runs obspy's SeedLink connection (multi-station mode: ``HELLO``, then ``STATION``,
+    ``SELECT`` and ``DATA`` for each stream, ``END``; reconnecting by itself) to ``address``
+    (``HOST:PORT``) for ``streams`` in obspy's stream-list form (``NET_STA[:SELECTORS],...``,
+    e.g. ``BW_RJOB:EH?``) and keeps each record's trace until :meth:`forget_before`."""
+
+    def __init__(self, address: str, streams: str, *, log: Optional[logging.Logger] = None):
+        import threading
+
+        from obspy.clients.seedlink.client.seedlinkconnection import SeedLinkConnection
+
+        class Connection(SeedLinkConnection):
+            # no collect() timeout (a quiet network is not an end), but the socket check of
+            # connect() needs one
+            def is_connected(self, timeout=1.0):
+                return super().is_connected(10.0 if timeout is None else timeout)
+
+        self.address, self.streams = address, streams
+        self.log = log or logging.getLogger("fault_screen.monitor.seedlink")
+        self.conn = Connection()
+        self.conn.set_sl_address(address)
+        self.conn.set_net_delay(1)            # s between reconnection attempts
+        if self.conn.parse_stream_list(streams, "") < 1:
+            raise ValueError(f"SeedLink streams {streams!r}: expected NET_STA[:SELECTORS],... "
+                             f"(e.g. BW_RJOB:EH?)")
+        self.traces: dict = {}                # NET.STA.LOC.CHA -> received traces, in order
+        self.records = 0
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="seedlink", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        from obspy.clients.seedlink.slpacket import SLPacket
+
+        while not self._stop.is_set():
+            try:
+                packet = self.conn.collect()
+            except Exception as exc:          # noqa: BLE001 - a network thread must not die silently
+                self.log.warning("SeedLink %s: %s", self.address, exc)
+                return
+            if packet == SLPacket.SLTERMINATE:
+                if self._stop.is_set():
+                    return
+                self.log.warning("SeedLink %s: the server ended the stream; reconnecting",
+                                 self.address)
+                continue
+            if packet == SLPacket.SLERROR or packet is None:
+                continue
+            if packet.get_type() in (SLPacket.TYPE_SLINF, SLPacket.TYPE_SLINFT):
+                continue                      # in-stream INFO: not waveforms
+            try:
+                trace = packet.get_trace()
+            except Exception as exc:          # noqa: BLE001 - one bad record, not the stream
+                self.log.warning("SeedLink %s: unreadable record skipped: %s", self.address, exc)
+                continue
+            with self._lock:
+                self.traces.setdefault(trace.id, []).append(trace)
+                self.records += 1
+
+    # the two methods of obspy's archive clients that SdsDetector uses
+    def get_all_nslc(self):
+        with self._lock:
+            return [tuple(code.split(".")) for code in self.traces]
+
+    def get_waveforms(self, network, station, location, channel, starttime, endtime):
+        from obspy import Stream
+
+        with self._lock:
+            kept = list(self.traces.get(".".join((network, station, location, channel)), ()))
+        return Stream([tr.slice(starttime, endtime) for tr in kept
+                       if tr.stats.endtime >= starttime and tr.stats.starttime <= endtime])
+
+    def complete_until(self):
+        """Stream time (UTCDateTime) up to which every live channel has sent its records; a
+        channel silent for more than ``STALE`` seconds behind the newest is left out."""
+        with self._lock:
+            ends = [kept[-1].stats.endtime for kept in self.traces.values() if kept]
+        if not ends:
+            return None
+        newest = max(ends)
+        return min(e for e in ends if newest - e <= self.STALE)
+
+    #: s a channel may lag the newest before detections go on without it
+    STALE = 60.0
+
+    def forget_before(self, t) -> None:
+        """Drop the records that end before ``t`` (UTCDateTime)."""
+        with self._lock:
+            for code, kept in self.traces.items():
+                self.traces[code] = [tr for tr in kept if tr.stats.endtime >= t]
+
+    def close(self) -> None:
+        import socket
+
+        self._stop.set()
+        # collect() clears the termination flag when it starts, and may wait in a read: ask
+        # and wake it until the thread is out
+        for _ in range(25):
+            self.conn.terminate()
+            sock = self.conn.socket
+            if sock is not None:
+                try:
+                    sock.shutdown(socket.SHUT_RDWR)
+                except OSError:
+                    pass
+            self._thread.join(timeout=0.2)
+            if not self._thread.is_alive():
+                break
+        try:
+            self.conn.close()
+        except Exception:                     # noqa: BLE001 - closing in the way out
+            pass
+
+
+class SeedLinkDetector(SdsDetector):
+    """Classic STA/LTA detections on the waveforms of a SeedLink server as they arrive: the
+    records go to a :class:`SeedLinkBuffer`, read by the same STA/LTA path as an SDS archive
+    (options as :class:`SdsDetector`)."""
+
+    def __init__(self, address: str, streams: str, start: datetime, **options):
+        buffer = SeedLinkBuffer(address, streams, log=options.get("log"))
+        super().__init__(None, start, client=buffer, **options)
+
+    def close(self) -> None:
+        self.client.close()
 
 
 @dataclass(frozen=True)

@@ -24,12 +24,15 @@ from ..io.injection_log import InjectionLogError
 from ..io.log_stream import LogDecoder
 from . import plugins
 from .outbox import Outbox
-from .seismicity import CatalogFollower, SdsDetector, Site
+from .seismicity import CatalogFollower, SdsDetector, SeedLinkDetector, Site
 from .stage import LEVELS, Stage
 
 __all__ = ["MonitorConfig", "MonitorService", "MonitorInputError"]
 
 log = logging.getLogger("fault_screen.monitor")
+
+#: wall seconds between flushes of the streamed result file (beside those of the checkpoints)
+FLUSH_INTERVAL = 2.0
 
 
 class MonitorInputError(ValueError):
@@ -45,6 +48,8 @@ class MonitorConfig:
     out: Optional[Path] = None                 # result file written at the end
     events: Optional[Path] = None              # QuakeML / FDSN text catalogue (polled)
     waveforms: Optional[Path] = None           # SDS archive root
+    seedlink: Optional[str] = None             # SeedLink server HOST:PORT
+    seedlink_streams: str = ""                 # NET_STA[:SELECTORS],... (obspy's stream list)
     idle_exit: Optional[float] = None          # s without a new sample -> clean exit
     alerts: List[str] = field(default_factory=list)   # NAME[:CONFIG] specs
     source: Optional[str] = None               # source plugin (default: csv, or stdin for "-")
@@ -97,13 +102,15 @@ class MonitorService:
         if resuming:
             self.stage, _ = Stage.restore(config.state, scene=scene,
                                           simulation_class=simulation_class,
-                                          screener=screener, metrics=metrics, site=config.site)
+                                          screener=screener, metrics=metrics, site=config.site,
+                                          out=config.out)
             log.info("resumed from %s at model time %.6g s (%d steps, %d samples)",
                      config.state, self.stage.time, self.stage.steps, self.stage.samples.count)
         else:
             sim = simulation_class(scene) if simulation_class is not None else None
             self.stage = Stage(scene, start=config.t0, simulation=sim, screener=screener,
-                               metrics=metrics, site=config.site, label=config.label)
+                               metrics=metrics, site=config.site, label=config.label,
+                               out=config.out)
         box = config.outbox
         if box is None and not all_sinks:
             box = ":memory:"           # no alert plugin: nothing to deliver, no file
@@ -116,6 +123,7 @@ class MonitorService:
         self._detector_state = extra.get("detector")
         self._last_ckpt = self.stage.steps
         self._last_wave_poll = 0.0
+        self._last_flush = time.monotonic()
 
     # -- signals ----------------------------------------------------------------------------
     def request_stop(self, reason: str = "stop requested") -> None:
@@ -136,7 +144,8 @@ class MonitorService:
             st.start = self.decoder.start
         if st.start is None:
             wanted = [o for o, v in (("--events", self.cfg.events),
-                                     ("--waveforms", self.cfg.waveforms)) if v is not None]
+                                     ("--waveforms", self.cfg.waveforms),
+                                     ("--seedlink", self.cfg.seedlink)) if v is not None]
             if wanted and self.decoder.has_clock is False:
                 raise MonitorInputError(
                     f"{' and '.join(wanted)} need the date-time of model time 0, and the log "
@@ -145,8 +154,13 @@ class MonitorService:
         if self.cfg.events is not None and self.catalog is None:
             site = st.site.spec if st.site is not None else None
             self.catalog = CatalogFollower(self.cfg.events, st.start, site=site)
-        if self.cfg.waveforms is not None and self.detector is None:
-            self.detector = SdsDetector(self.cfg.waveforms, st.start, **self.cfg.sta_lta)
+        if self.detector is None and (self.cfg.waveforms is not None or self.cfg.seedlink is not None):
+            if self.cfg.seedlink is not None:
+                # the same STA/LTA path on the records a SeedLink server streams
+                self.detector = SeedLinkDetector(self.cfg.seedlink, self.cfg.seedlink_streams,
+                                                 st.start, **self.cfg.sta_lta)
+            else:
+                self.detector = SdsDetector(self.cfg.waveforms, st.start, **self.cfg.sta_lta)
             if self._detector_state:
                 self.detector.restore(self._detector_state)
 
@@ -182,6 +196,10 @@ class MonitorService:
                         f": {alert['action']}" if alert["action"] else "")
         if self.on_update is not None:
             self.on_update(upd)
+        now = time.monotonic()
+        if now - self._last_flush >= FLUSH_INTERVAL:
+            self.stage.flush()            # a reader of --out sees the newest steps
+            self._last_flush = now
         if checkpoint and self.cfg.state is not None and self.stage.steps - self._last_ckpt >= \
                 self.cfg.checkpoint_every:
             self.checkpoint()
@@ -195,6 +213,10 @@ class MonitorService:
         self._last_ckpt = self.stage.steps
 
     def _write_result(self) -> None:
+        if self.stage.out is not None:
+            if self.stage.close() is not None:
+                log.info("results completed in %s", self.cfg.out)
+            return
         if self.cfg.out is not None and self.stage.steps > 0:
             self.stage.result().save(self.cfg.out)
             log.info("results written to %s", self.cfg.out)
@@ -218,6 +240,8 @@ class MonitorService:
                             "start", left, self.outbox.path)
             self.outbox.close()
             self.source.close()
+            if hasattr(self.detector, "close"):
+                self.detector.close()
             for signum, old in getattr(self, "_old_handlers", {}).items():
                 signal.signal(signum, old)
         st = self.stage

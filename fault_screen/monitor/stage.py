@@ -236,7 +236,8 @@ class Stage:
 
     def __init__(self, scene, *, start: Optional[datetime] = None, simulation=None,
                  screener=None, metrics=None, site: Optional[Site] = None,
-                 event_window: Optional[float] = None, label: str = "", history: int = 16):
+                 event_window: Optional[float] = None, label: str = "", history: int = 16,
+                 out=None):
         if getattr(scene.injection, "control", "rate") != "rate":
             raise ValueError(f"injection.control = {scene.injection.control!r}: the monitor "
                              f"drives the flow rate; use a scene with control = 'rate'")
@@ -263,6 +264,9 @@ class Stage:
         self.alerts_raised = 0
         self._rows: deque = deque(maxlen=max(1, int(history)))
         self._geometry = None
+        # results streamed to this HDF5 file as the stage goes (a stepper that can), else kept
+        self.out = Path(out) if out is not None and hasattr(self.sim, "stream_to") else None
+        self.screened = 0                 # rows screened, the in-situ row included
 
     # -- identity ---------------------------------------------------------------------------
     @property
@@ -295,6 +299,9 @@ class Stage:
             raise ValueError("time, rate and pressure must have the same length")
         if not (np.all(np.isfinite(t)) and np.all(np.isfinite(q)) and np.all(q >= 0)):
             raise ValueError("sample times and rates must be finite, rates >= 0")
+        if self.out is not None and self.sim.writer is None and t.size:
+            self._open_stream(with_pressure=p is not None and p[0] is not None)
+        writer = self.sim.writer if self.out is not None else None
         for k in range(t.size):
             tk = float(t[k])
             last = self.samples.last_time
@@ -303,7 +310,45 @@ class Stage:
                 continue
             pk = None if p is None or p[k] is None else float(p[k])
             self.samples.append(tk, float(q[k]), pk)
+            if writer is not None:
+                rec = {"/log/time": tk, "/log/flow_rate": float(q[k])}
+                if "/log/pressure" in writer.streams["log"]:
+                    rec["/log/pressure"] = math.nan if pk is None else pk
+                writer.append("log", rec)
         return self._advance(align=True)
+
+    # -- streamed results -------------------------------------------------------------------
+    def _open_stream(self, with_pressure: bool) -> None:
+        """Start the result file: the model's rows, the screening of every row and the
+        samples that drive the model (``/log``, as replay writes it) grow in it as the stage
+        goes (readable meanwhile: HDF5 single-writer/multiple-reader)."""
+        from ..api import StepScreening
+
+        streams = dict(StepScreening.streams()) if _is_layer_screener(self.screener) else {}
+        log = {"/log/time": ("<f8", ()), "/log/flow_rate": ("<f8", ())}
+        if with_pressure:
+            log["/log/pressure"] = ("<f8", ())
+        streams["log"] = log
+        self.sim.stream_to(self.out, streams=streams, meta=self._meta())
+
+    def flush(self) -> None:
+        """Write the streamed results so far to the file (readers see them)."""
+        if self.out is not None and self.sim.writer is not None:
+            self.sim.flush()
+
+    def close(self) -> Optional[Path]:
+        """Finish the streamed result file (metadata, level changes, events); returns its path
+        (None when the stage keeps its results in memory: see :meth:`result`)."""
+        if self.out is None or self.sim.writer is None:
+            return None
+        return self.sim.close_stream(meta=self._meta(), groups=self._final_groups())
+
+    def _meta(self) -> dict:
+        meta = {"monitor_samples": self.samples.count, "monitor_ignored_samples": self.ignored,
+                "monitor_alerts": self.alerts_raised}
+        if self.start is not None:
+            meta["start"] = self.start.isoformat()
+        return meta
 
     def feed_events(self, events: Sequence[SeismicEvent]) -> None:
         """Add seismic events or detections (model seconds); they enter the metrics of the step
@@ -336,6 +381,9 @@ class Stage:
         t_last = self.samples.last_time
         if t_last is None or t_last <= self.time:
             return upd
+        if self.screened == 0 and self.steps == 0:
+            # the in-situ state at t = 0 is screened too, as replay screens every output time
+            self._screen_step(dict(self.sim.last_row), upd)
         # one step per call: each step is screened (and its alerts raised) as soon as it is done;
         # the stepper's sequence state makes this the same steps as one call
         while True:
@@ -367,13 +415,31 @@ class Stage:
         self.associations.extend(a.to_dict() for a in assoc)
         metrics.update(self._event_metrics(t, assoc))
         upd.metrics, upd.state = metrics, row
+        self.screened += 1
         if self.screener is None:
             return
         events = {"time": [a.event.time for a in assoc],
                   "magnitude": [a.event.magnitude for a in assoc],
                   "distance": [a.distance_injection for a in assoc]} if assoc else None
+        layer = _is_layer_screener(self.screener)
+        options = {}
+        if layer:     # a run stopped on an unstable fault is red from that row, as in replay
+            options["unstable"] = (getattr(self.sim, "stopped", None) or {}).get("reason") == "unstable"
         # the screening layer adds its own event metrics to ``metrics`` (same definitions)
-        for tr in self.screener.update(t, metrics, events=events) or ():
+        changes = list(self.screener.update(t, metrics, events=events, **options) or ())
+        writer = self.sim.writer if self.out is not None else None
+        if writer is not None and layer:
+            from ..api import StepScreening
+            from ..rules import METRICS
+
+            record = {f"/screening/{k}": float(metrics[k]) for k in METRICS}
+            record["/screening/level"] = self.screener.level
+            writer.append("screening", record)
+            for tr in changes:
+                writer.append("transitions", StepScreening.transition_record(tr))
+        if changes and hasattr(self.sim, "recorder"):
+            self.sim.recorder.keep_profile()      # the fault profile at every level change
+        for tr in changes:
             d = _transition_dict(tr)
             if d["time"] is None:
                 d["time"] = t
@@ -415,6 +481,27 @@ class Stage:
         with (``extra["events"]``, the layout run and replay use) and ``/screening/``."""
         res = self.sim.result()
         extra = dict(getattr(res, "extra", {}) or {})
+        extra.update(self._final_groups())
+        res.extra = extra
+        if _is_layer_screener(self.screener):
+            # /screening/ as replay and run write it: the rules over the whole result, with the
+            # associated events at their origin times
+            from ..screening import Events, screen_result
+
+            a = self.associations
+            screen_result(res, events=Events([x["time"] for x in a],
+                                             [_nan(x["magnitude"]) for x in a],
+                                             [_nan(x["distance_injection"]) for x in a]))
+        meta = dict(getattr(res, "meta", {}) or {})
+        meta.update(monitor_samples=self.samples.count, monitor_ignored_samples=self.ignored,
+                    monitor_alerts=self.alerts_raised)
+        res.meta = meta
+        return res
+
+    def _final_groups(self) -> dict:
+        """``/monitor_transitions`` and ``/events`` (with the state each event was associated
+        with): the groups written when the results are complete."""
+        extra = {}
         if self.transitions:
             extra["monitor_transitions"] = {
                 "time": np.array([d["time"] for d in self.transitions], dtype=float),
@@ -439,21 +526,7 @@ class Stage:
             ev = {k: np.array([_nan(v) for v in vals], dtype=float) for k, vals in ev.items()}
             ev["kind"] = np.array([x["kind"] for x in a], dtype="S")
             extra["events"] = ev
-        res.extra = extra
-        if _is_layer_screener(self.screener):
-            # /screening/ as replay and run write it: the rules over the whole result, with the
-            # associated events at their origin times
-            from ..screening import Events, screen_result
-
-            a = self.associations
-            screen_result(res, events=Events([x["time"] for x in a],
-                                             [_nan(x["magnitude"]) for x in a],
-                                             [_nan(x["distance_injection"]) for x in a]))
-        meta = dict(getattr(res, "meta", {}) or {})
-        meta.update(monitor_samples=self.samples.count, monitor_ignored_samples=self.ignored,
-                    monitor_alerts=self.alerts_raised)
-        res.meta = meta
-        return res
+        return extra
 
     # -- checkpoints ------------------------------------------------------------------------
     def state(self) -> dict:
@@ -470,6 +543,7 @@ class Stage:
             "start": self.start.isoformat() if self.start else None,
             "event_window": self.event_window, "label": self.label,
             "rows": [_row_json(r) for r in self._rows],
+            "screened": self.screened, "out": str(self.out) if self.out is not None else None,
         }
 
     def checkpoint(self, path, extra: Optional[dict] = None) -> Path:
@@ -511,20 +585,27 @@ class Stage:
 
     @classmethod
     def restore(cls, path, *, scene=None, simulation_class=None, screener=None, metrics=None,
-                site: Optional[Site] = None):
+                site: Optional[Site] = None, out=None):
         """A stage continuing exactly from the checkpoint ``path``; returns ``(stage, extra)``.
-        ``simulation_class`` (default ``fault_screen.Simulation``) provides ``restore(path)``."""
+        ``simulation_class`` (default ``fault_screen.Simulation``) provides ``restore(path)``.
+        A stage that streamed its results continues its result file (``out``, default the one
+        it streamed to), cut back to what the checkpoint counts."""
         state = cls._saved_state(path)
         if simulation_class is None:
             simulation_class = _simulation_class()
-        sim = simulation_class.restore(path)
+        streamed = state.get("out") is not None
+        if streamed:
+            sim = simulation_class.restore(path, stream_to=out if out is not None else state["out"])
+        else:
+            sim = simulation_class.restore(path)
         if scene is not None and hasattr(scene, "to_toml") and scene.to_toml() != sim.scene.to_toml():
             raise ValueError(f"{path}: this state was written for another scene; start with "
                              f"the scene it was written for, or without --state")
         scene = scene if scene is not None else sim.scene
         start = datetime.fromisoformat(state["start"]) if state["start"] else None
         st = cls(scene, start=start, simulation=sim, screener=screener, metrics=metrics,
-                 site=site, event_window=state["event_window"], label=state["label"])
+                 site=site, event_window=state["event_window"], label=state["label"],
+                 out=(out if out is not None else state["out"]) if streamed else None)
         if state["screener"] is not None:
             st.screener = _load_screener(state["screener"])
         if state.get("metrics") is not None:
@@ -537,6 +618,7 @@ class Stage:
         st.associations, st.transitions = state["associations"], state["transitions"]
         st.alerts_raised = state["alerts_raised"]
         st._rows.extend(_row_from_json(r) for r in state["rows"])
+        st.screened = state.get("screened", st.steps)
         return st, state.get("extra", {})
 
 
@@ -568,14 +650,19 @@ class _Geometry:
 
 
 def _fault_geometry(sim) -> _Geometry:
-    res = sim.result()          # once per stage: the geometry does not change
-    xy = np.asarray(res.fault_xy, dtype=float).reshape(-1, 2)
-    x = np.asarray(res.fault_x, dtype=float)
+    disc = getattr(sim, "disc", None)
+    if disc is not None:        # the stepper's own fault points (its rows may be in a file)
+        fp = disc.fault_points
+        x, xy, w = fp.s - disc.injection.s, np.asarray(fp.xy, dtype=float).reshape(-1, 2), fp.weight
+    else:
+        res = sim.result()      # once per stage: the geometry does not change
+        xy = np.asarray(res.fault_xy, dtype=float).reshape(-1, 2)
+        x, w = np.asarray(res.fault_x, dtype=float), res.fault_weights
     inj = (0.0, 0.0)
     if xy.size:
         k = int(np.argmin(np.abs(x)))
         inj = (float(xy[k, 0]), float(xy[k, 1]))
-    return _Geometry(x, xy, np.asarray(res.fault_weights, dtype=float), inj)
+    return _Geometry(np.asarray(x, dtype=float), xy, np.asarray(w, dtype=float), inj)
 
 
 def _is_layer_screener(screener) -> bool:

@@ -73,6 +73,17 @@ def _stored_events(result):
     return Events(ev["time"], ev["magnitude"], distance)
 
 
+def _stored_metrics(result) -> dict:
+    """The model metrics of a result whose fault profiles ``[output]`` thinned: those its run
+    stored at every step (the profiles no longer hold every step)."""
+    stored = (getattr(result, "extra", None) or {}).get("screening") or {}
+    names = [k for k in METRICS if not k.startswith("event_")]
+    if not all(k in stored for k in names):
+        raise ValueError("the fault profiles of this result were thinned by [output] and it holds "
+                         "no /screening metrics of every step to screen again")
+    return {k: np.asarray(stored[k], dtype=float).copy() for k in names}
+
+
 def screen_result(result, spec=None, events=None, *, store: bool = True) -> Screening:
     """Screen a whole :class:`~fault_screen.Result` with ``spec`` (default: its scene's
     ``[monitor]``) and ``events`` (default: the events stored in the result, if any); store the
@@ -82,7 +93,7 @@ def screen_result(result, spec=None, events=None, *, store: bool = True) -> Scre
     :class:`Screener` with each event given by its origin time."""
     spec = spec if spec is not None else result.scene.monitor
     events = Events.coerce(events) if events is not None else _stored_events(result)
-    metrics = result_metrics(result)
+    metrics = result_metrics(result) if getattr(result, "fault_time", None) is None else _stored_metrics(result)
     t_stop = stopped_unstable(result)
     times = np.asarray(result.time, dtype=float)
     i_stop = None

@@ -81,11 +81,16 @@ class CsvFollower:
         self.lines.reset()
         return True
 
-    def _drain(self, out):
-        data = self.fh.read()
-        if data:
-            for n, text in self.lines.push(data):
-                out.extend(self.decoder.feed_line(text, n))
+    def _drain(self, out, everything: bool = False):
+        # a bounded read: a monitor catching up on a months-long log holds one piece of it at
+        # a time (the rest is read at the next poll, at once); a rotated file is read to its end
+        while True:
+            data = self.fh.read(READ_BYTES)
+            if data:
+                for n, text in self.lines.push(data):
+                    out.extend(self.decoder.feed_line(text, n))
+            if not everything or len(data) < READ_BYTES:
+                return
 
     def poll(self):
         """Read what is new now; returns the new samples."""
@@ -97,7 +102,7 @@ class CsvFollower:
         except FileNotFoundError:
             st = None           # moved away, the new one not yet created: finish the old one
         if st is not None and (st.st_dev, st.st_ino) != self.ident:
-            self._drain(out)
+            self._drain(out, everything=True)
             out.extend(self._finish_partial())
             self.fh.close()
             self.fh = None
@@ -140,6 +145,10 @@ class CsvFollower:
         if self.fh is not None:
             self.fh.close()
             self.fh = None
+
+
+#: bytes read from the followed file per poll (~6,000 lines of a typical log)
+READ_BYTES = 256 * 1024
 
 
 class StdinSource:

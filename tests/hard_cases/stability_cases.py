@@ -113,12 +113,38 @@ for _a, _b in ((1e-4, 0.0), (0.05, 0.0), (1e-4, 5e-5)):
         "rate-and-state a", family="rate-state")
 CASES["velocity-weakening"] = Case(lambda: load("velocity-weakening"), "unstable: stops cleanly")
 CASES["stick-slip-cycling"] = Case(lambda: load("stick-slip-cycling"), "runs to the end")
+CASES["stick-slip-cycling-dilation"] = Case(lambda: load("stick-slip-cycling", effects__dilation=True),
+                                            "cycles three times; opening = tan(psi) plastic slip")
+CASES["finite-fault"] = Case(lambda: load("finite-fault"), "ends in the rock: elliptical slip", family="finite")
 
 #: cases the benchmark runs but the tests do not: known open failures (README, Numerical stability)
-OPEN_CASES: dict[str, Case] = {
-    "stick-slip-cycling-dilation": Case(lambda: load("stick-slip-cycling", effects__dilation=True),
-                                        "open: fails at the first jump past failure"),
+OPEN_CASES: dict[str, Case] = {}
+
+
+def _point_refined(offset, size):
+    """The 30-degree rate-controlled point case with elements of ``size`` (m) around the point,
+    the point ``offset`` of an element off the node."""
+    return lambda: load("injection-point-anywhere", fault__point=[offset * size, offset * size],
+                        fault__angle=30.0, initial__effective_stress=rotated_stress(30.0),
+                        injection__control="rate", injection__schedule=[[0.0, 1e-3]],
+                        mesh__refinement=dict(center=[0.0, 0.0], half_width=[6.0, 4.0], size=size,
+                                              growth=1.35))
+
+
+#: the rate-controlled point off the node under refinement (a slow test, not the benchmark):
+#: "point-<offset>-30deg-rate-h<element size in m>"
+REFINED_CASES: dict[str, Case] = {
+    f"point-{_label}-30deg-rate-h{_h:g}": Case(_point_refined(_o, _h), "mesh convergence", family="refined")
+    for _h in (1.0, 0.5, 0.25) for _o, _label in ((0.0, "node"), (0.3, "0.3"), (0.5, "0.5"))
 }
+#: the finite fault under refinement: "finite-fault-h<element size in m>"
+REFINED_CASES.update({
+    f"finite-fault-h{_h:g}": Case(
+        (lambda h: lambda: load("finite-fault", mesh__refinement=dict(center=[0.0, 0.0], half_width=[5.0, 3.0],
+                                                                     size=h, growth=1.3)))(_h),
+        "mesh convergence", family="refined")
+    for _h in (1.0, 0.5, 0.25)
+})
 
 
 @dataclass
@@ -139,7 +165,7 @@ def run_case(name: str) -> Run:
         return _RUNS[name]
     from fault_screen import Simulation
 
-    case = CASES[name] if name in CASES else OPEN_CASES[name]
+    case = {**CASES, **OPEN_CASES, **REFINED_CASES}[name]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         scene = case.scene()
