@@ -24,7 +24,7 @@ def main():
             try:
                 r = simulate(base.replace(initial=ini))
             except SceneError as exc:
-                print(f"{name:12s} {kind:16s} refused: {str(exc)[:90]}", flush=True)
+                print(f"{name:12s} {kind:16s} refused: {exc}", flush=True)
                 continue
             g = int(np.argmin(np.abs(r.fault_x)))
             sliding = np.flatnonzero(r.fault["contact_state"][:, g] == 1)

@@ -361,6 +361,23 @@ def run_ensemble(base: Scene, variants: Sequence[Variant], *, workers: int = 1,
         return runner.run(base, variants, **kwargs)
 
 
+#: event -> the summary entry whose finite value (a time, s) says the run reached it
+REACHED = {"slip": "slip_onset", "yellow": "time_first_yellow", "red": "time_first_red"}
+
+
+def reach_probabilities(outcomes: Iterable[TaskOutcome]) -> dict:
+    """Over the successful runs: event (the fault slips at the injection point, the traffic light
+    reaches yellow, reaches red) -> (fraction of runs that reached it, half-width of its 95 %
+    interval by the normal approximation, 1.96 sqrt(p (1 - p) / n); NaN for one run)."""
+    ok = [o for o in outcomes if o.ok]
+    n = len(ok)
+    out = {}
+    for event, key in REACHED.items():
+        p = float(np.mean([np.isfinite(o.summary.get(key, np.nan)) for o in ok])) if n else float("nan")
+        out[event] = (p, 1.96 * float(np.sqrt(p * (1 - p) / n)) if n > 1 else float("nan"))
+    return out
+
+
 def throughput(outcomes: Iterable[TaskOutcome], elapsed_s: float) -> float:
     """Finished runs per minute over an elapsed wall time."""
     n = sum(1 for _ in outcomes)

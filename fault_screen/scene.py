@@ -737,7 +737,8 @@ RANGES: dict[str, tuple[str, tuple, tuple]] = {
     "initial.pore_pressure_gradient": ("Pa/m", (-1e6, 1e6), (0.0, 3e4)),
     "initial.lateral_stress_ratio": ("-", (0.0, 100.0), (0.1, 10.0)),
     "boundary.traction": ("Pa", (-1e10, 1e10), (-3e8, 3e8)),
-    "injection.number_of_fractures": ("-", (1.0, 1e4), (1.0, 100.0)),
+    # Rustrel 2015: 46-120 within one SD (Tables 1-2); 2 SD of its log-normal spread reach ~220
+    "injection.number_of_fractures": ("-", (1.0, 1e4), (1.0, 300.0)),
     # the same bound as an injection log's flow rate (fault_screen.io.injection_log)
     "injection.schedule.rate": ("m3/s", (0.0, 10.0), (0.0, 1.0)),
     "injection.schedule.flowback_rate": ("m3/s", (-10.0, 10.0), (-1.0, 1.0)),

@@ -7,8 +7,8 @@ import pytest
 
 from conftest import CONFIGS
 from fault_screen import Scene, simulate
-from fault_screen.ensemble import (Variant, default_summary, read_ensemble, run_ensemble,
-                                   scene_with)
+from fault_screen.ensemble import (TaskOutcome, Variant, default_summary, reach_probabilities,
+                                   read_ensemble, run_ensemble, scene_with)
 from fault_screen.scene import SceneError
 
 
@@ -75,3 +75,32 @@ def test_local_dask_cluster_gives_the_in_process_numbers(tiny, tmp_path):
         assert t.summary["peak_overpressure"] == h.summary["peak_overpressure"]
         assert t.summary["injection_slip"] == h.summary["injection_slip"]
     assert len(read_ensemble(tmp_path / "d.h5")) == 2
+
+
+def test_existing_scheduler_gives_the_in_process_numbers(tiny):
+    """``scheduler="tcp://..."``: the tasks go to a cluster the runner did not start (here an
+    in-process one, started by the test) and come back with the same numbers."""
+    from distributed import LocalCluster
+
+    variants = [Variant("nof46", {"injection.number_of_fractures": 46.0})]
+    here = run_ensemble(tiny, variants, workers=0)
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, protocol="tcp",
+                      host="127.0.0.1", dashboard_address=None) as cluster:
+        assert cluster.scheduler_address.startswith("tcp://")
+        there = run_ensemble(tiny, variants, scheduler=cluster.scheduler_address)
+        assert "run_task" in cluster.scheduler.task_prefixes   # the task ran there
+        assert len(cluster.scheduler.workers) == 1          # and the runner left the cluster as it was
+    assert there[0].ok
+    assert there[0].summary["peak_overpressure"] == here[0].summary["peak_overpressure"]
+
+
+def test_reach_probabilities_count_the_successful_runs():
+    nan = float("nan")
+    times = [(100.0, 40.0, nan), (nan, 60.0, nan), (300.0, 80.0, 500.0), (nan, nan, nan)]
+    outs = [TaskOutcome(i, f"r{i}", {}, True, {"slip_onset": a, "time_first_yellow": b, "time_first_red": c})
+            for i, (a, b, c) in enumerate(times)]
+    outs.append(TaskOutcome(4, "failed", {"fault.friction": -1.0}, False, error="SceneError"))  # not counted
+    p = reach_probabilities(outs)
+    assert p["slip"] == (0.5, pytest.approx(1.96 * (0.25 / 4) ** 0.5))
+    assert p["yellow"][0] == 0.75 and p["yellow"][1] == pytest.approx(1.96 * (0.75 * 0.25 / 4) ** 0.5)
+    assert p["red"][0] == 0.25

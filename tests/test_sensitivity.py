@@ -122,6 +122,10 @@ def test_ensemble_and_sensitivity_commands(linear, tmp_path):
     runs = list(csv.DictReader(open(tmp_path / "ensemble.csv")))
     assert len(runs) == 5 and all(x["ok"] == "True" for x in runs)
     assert "probability that the fault slips at the injection point: 0.000" in r.output
+    # the traffic light's levels, as often as the runs' first-yellow / first-red times are set
+    for level in ("yellow", "red"):
+        reached = np.mean([x[f"time_first_{level}"] != "nan" for x in runs])
+        assert f"probability that the traffic light reaches {level}: {reached:.3f}" in r.output
     r = CliRunner().invoke(main, ["sensitivity", str(d / "linear.toml"), "--parameters", str(d / "params.toml"),
                                   "--workers", "0", "--out", str(tmp_path), "-q"])
     assert r.exit_code == 0, r.output

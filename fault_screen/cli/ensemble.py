@@ -15,7 +15,8 @@ from .run import load_scene
 
 #: quantity -> (scale, unit) for the table and the figure
 SHOWN = {"peak_overpressure": (1e-6, "MPa"), "injection_slip": (1e3, "mm"),
-         "peak_fault_slip": (1e3, "mm"), "slipping_length": (1.0, "m"), "slip_onset": (1.0, "s")}
+         "peak_fault_slip": (1e3, "mm"), "slipping_length": (1.0, "m"), "slip_onset": (1.0, "s"),
+         "time_first_yellow": (1.0, "s"), "time_first_red": (1.0, "s")}
 
 
 @click.command("ensemble")
@@ -32,14 +33,15 @@ SHOWN = {"peak_overpressure": (1e-6, "MPa"), "injection_slip": (1e3, "mm"),
 @version_option
 def ensemble(scene_path, params_path, samples, distribution, seed, free, out_dir, workers, scheduler, quiet, sets):
     """Run SCENE with N random parameter sets: the probability that the fault slips at the
-    injection point and the distributions of peak overpressure and slip.
+    injection point and that the traffic light (the scene's [monitor] rules) reaches yellow and
+    red, and the distributions of peak overpressure, slip and those times.
 
     Writes to --out: runs.h5 (every run's parameters and summary, failures included),
     ensemble.csv (one row per run), distribution.csv (mean, SD, percentiles per quantity) and
     ensemble.png (histograms).
     """
     from ..calibration import sample_parameters
-    from ..ensemble import Variant
+    from ..ensemble import Variant, reach_probabilities
 
     scene_path = Path(scene_path)
     scene = apply_sets(load_scene(scene_path), sets)
@@ -81,15 +83,14 @@ def ensemble(scene_path, params_path, samples, distribution, seed, free, out_dir
         w = csv.writer(fh)
         w.writerow(["quantity", "unit", "runs", "mean", "sd", "p5", "p50", "p95"])
         w.writerows(rows)
-    slipped = np.array([np.isfinite(o.summary["slip_onset"]) for o in ok])
-    p = slipped.mean()
-    half = 1.96 * np.sqrt(p * (1 - p) / len(ok)) if len(ok) > 1 else float("nan")
+    reached = reach_probabilities(ok)
     _figure(ok, out / "ensemble.png")
     click.echo(f"{len(outs)} runs in {elapsed:.1f} s ({60 * len(outs) / elapsed:.1f} runs/min), "
                f"{len(outs) - len(ok)} failed")
-    click.echo(f"probability that the fault slips at the injection point: {p:.3f} (+/- {half:.3f}, 95 %)")
-    # HOOK(screening): with fault_screen.screening, the probability of reaching each traffic-light
-    # level goes here, from the time_first_yellow / time_first_red columns of the summaries.
+    for event, what in (("slip", "the fault slips at the injection point"),
+                        ("yellow", "the traffic light reaches yellow"), ("red", "the traffic light reaches red")):
+        p, half = reached[event]
+        click.echo(f"probability that {what}: {p:.3f} (+/- {half:.3f}, 95 %)")
     click.echo(f"{'quantity':<18} {'unit':<4} {'runs':>5} {'mean':>10} {'sd':>10} {'p5':>10} {'p50':>10} {'p95':>10}")
     for r in rows:
         click.echo(f"{r[0]:<18} {r[1]:<4} {r[2]:>5} " + " ".join(f"{x:>10}" for x in r[3:]))
