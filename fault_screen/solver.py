@@ -51,8 +51,11 @@ STALLED_ITERATIONS = 3
 CONDENSATION_BLOCK_BYTES = 32 * 2 ** 20
 
 
-#: condensed (nonlinear) blocks up to this many unknowns are solved with one BLAS thread
-SINGLE_THREAD_BLAS_UP_TO = 2000
+#: condensed (nonlinear) blocks up to this many unknowns are solved with one BLAS thread: with
+#: the factors reused (``_CondensedSolver``) the work is mostly matrix-vector solves and products,
+#: which threads do not speed up and which spin against the other processes of a busy machine
+#: (the fine 30 deg scene, 2059 fault unknowns: 323 s of CPU for 465 s of wall at load 7-10)
+SINGLE_THREAD_BLAS_UP_TO = 6000
 
 
 @functools.cache
@@ -381,7 +384,9 @@ class NewtonSolver:
         if self._AH is None:  # A and Hf stacked: both products of the convergence test in one pass
             self._AH = sp.vstack([self.A, self.Hf]).tocsr()
         stored_n = (self.C @ x_n) / dt
-        rhs = stored_n - (1.0 - th) * (self.Hf @ x_n) + disc.load
+        rhs = stored_n + disc.load
+        if th != 1.0:  # backward Euler (the default) has no known part of the conduction
+            rhs -= (1.0 - th) * (self.Hf @ x_n)
         injection = disc.physics.injection
         if injection is not None:
             injection.load(disc, self.source, rhs, injection_value, dt, th)
