@@ -269,9 +269,10 @@ class NewtonSolver:
         self._dt = dt
 
     def _condensation(self, keep_W):
-        """B^-1 L_BN, a block of columns at a time (CONDENSATION_BLOCK_BYTES): yields (column indices, block); keeps the whole of it
-        as W when ``keep_W``. Columns of L_BN that are empty (fault unknowns no bulk unknown
-        couples to: the fault pressures when the rock is impermeable) are zero: not solved for."""
+        """B^-1 L_BN, a block of columns at a time (CONDENSATION_BLOCK_BYTES): yields (column
+        indices, block); keeps the whole of it as W when ``keep_W``. Columns of L_BN that are
+        empty (fault unknowns no bulk unknown couples to: the fault pressures when the rock is
+        impermeable) are zero: not solved for."""
         N, B = self.N, self.B
         self.W = np.zeros((len(B), len(N))) if keep_W else None
         coupled = np.flatnonzero(np.diff(self.L_BN.indptr) > 0)
