@@ -51,8 +51,11 @@ STALLED_ITERATIONS = 3
 CONDENSATION_BLOCK_BYTES = 32 * 2 ** 20
 
 
-#: condensed (nonlinear) blocks up to this many unknowns are solved with one BLAS thread
-SINGLE_THREAD_BLAS_UP_TO = 2000
+#: condensed (nonlinear) blocks up to this many unknowns are solved with one BLAS thread: with
+#: the factors reused (``_CondensedSolver``) the work is mostly matrix-vector solves and products,
+#: which threads do not speed up and which spin against the other processes of a busy machine
+#: (the fine 30 deg scene, 2059 fault unknowns: 323 s of CPU for 465 s of wall at load 7-10)
+SINGLE_THREAD_BLAS_UP_TO = 6000
 
 
 @functools.cache
@@ -266,9 +269,10 @@ class NewtonSolver:
         self._dt = dt
 
     def _condensation(self, keep_W):
-        """B^-1 L_BN, a block of columns at a time (CONDENSATION_BLOCK_BYTES): yields (column indices, block); keeps the whole of it
-        as W when ``keep_W``. Columns of L_BN that are empty (fault unknowns no bulk unknown
-        couples to: the fault pressures when the rock is impermeable) are zero: not solved for."""
+        """B^-1 L_BN, a block of columns at a time (CONDENSATION_BLOCK_BYTES): yields (column
+        indices, block); keeps the whole of it as W when ``keep_W``. Columns of L_BN that are
+        empty (fault unknowns no bulk unknown couples to: the fault pressures when the rock is
+        impermeable) are zero: not solved for."""
         N, B = self.N, self.B
         self.W = np.zeros((len(B), len(N))) if keep_W else None
         coupled = np.flatnonzero(np.diff(self.L_BN.indptr) > 0)
@@ -381,7 +385,9 @@ class NewtonSolver:
         if self._AH is None:  # A and Hf stacked: both products of the convergence test in one pass
             self._AH = sp.vstack([self.A, self.Hf]).tocsr()
         stored_n = (self.C @ x_n) / dt
-        rhs = stored_n - (1.0 - th) * (self.Hf @ x_n) + disc.load
+        rhs = stored_n + disc.load
+        if th != 1.0:  # backward Euler (the default) has no known part of the conduction
+            rhs -= (1.0 - th) * (self.Hf @ x_n)
         injection = disc.physics.injection
         if injection is not None:
             injection.load(disc, self.source, rhs, injection_value, dt, th)

@@ -42,7 +42,8 @@ def pressure_controlled():
     """The T = 0.4 slip scene on a coarse mesh (4 m at the fault: 2710 unknowns, slipping at 168
     fault points by the end). Its graded mesh ignores nx and ny: the refinement sets the size."""
     s = Scene.from_toml(VERIFICATION / "fluid-driven-slip-T0.4-horizontal.toml")
-    return s.replace(mesh=dataclasses.replace(s.mesh, refinement=dataclasses.replace(s.mesh.refinement, size=4.0)),
+    coarse = dataclasses.replace(s.mesh.refinement, size=4.0)
+    return s.replace(mesh=dataclasses.replace(s.mesh, refinement=coarse),
                      time=dataclasses.replace(s.time, end=0.05))
 
 
