@@ -837,6 +837,25 @@ def flow_rate_cell(num, cell: str, q_hi: float, qname: str, flowback: bool):
     return v, why
 
 
+def _locate_columns(tab, names, time_column, flow_column, pressure_column):
+    """(time, flow-rate, pressure, date) column indices of a log's table: the named ones, else
+    detected from the headers; pressure and date may be None. One place for the file reader and
+    the live stream decoder, so both accept and refuse the same headers."""
+    it = (tab.named(time_column, names["time_column"]) if time_column is not None else
+          tab.detected("time", _TIME_EXACT, _TIME_PREFIXES, names["time_column"], True))
+    iq = (tab.named(flow_column, names["flow_column"]) if flow_column is not None else
+          tab.detected("flow-rate", _FLOW_EXACT, _FLOW_PREFIXES, names["flow_column"], True, (it,)))
+    ip = (tab.named(pressure_column, names["pressure_column"]) if pressure_column is not None else
+          tab.detected("pressure", _PRESSURE_EXACT, _PRESSURE_PREFIXES, names["pressure_column"],
+                       False, (it, iq)))
+    used = [i for i in (it, iq, ip) if i is not None]
+    if len(set(used)) < len(used):
+        raise tab.error(tab.hline, None, "the time, flow-rate and pressure columns must be "
+                        "different columns")
+    idate = next((i for i, (b, _, _) in enumerate(tab.cols) if b in _DATE_EXACT and i not in used), None)
+    return it, iq, ip, idate
+
+
 def read_injection_log(path, *, flow_unit: Optional[str] = None,
                        pressure_unit: Optional[str] = None,
                        max_gap: Optional[float] = 600.0,
@@ -876,19 +895,7 @@ def read_injection_log(path, *, flow_unit: Optional[str] = None,
     # -- columns and units ----------------------------------------------------------------------
     tab = _Table.read(path, src)
     num = _Numbers(tab.delim)
-    it = (tab.named(time_column, names["time_column"]) if time_column is not None else
-          tab.detected("time", _TIME_EXACT, _TIME_PREFIXES, names["time_column"], True))
-    iq = (tab.named(flow_column, names["flow_column"]) if flow_column is not None else
-          tab.detected("flow-rate", _FLOW_EXACT, _FLOW_PREFIXES, names["flow_column"], True, (it,)))
-    ip = (tab.named(pressure_column, names["pressure_column"]) if pressure_column is not None else
-          tab.detected("pressure", _PRESSURE_EXACT, _PRESSURE_PREFIXES, names["pressure_column"],
-                       False, (it, iq)))
-    used_cols = [i for i in (it, iq, ip) if i is not None]
-    if len(set(used_cols)) < len(used_cols):
-        raise tab.error(tab.hline, None, "the time, flow-rate and pressure columns must be "
-                        "different columns")
-    idate = next((i for i, (b, _, _) in enumerate(tab.cols)
-                  if b in _DATE_EXACT and i not in used_cols), None)
+    it, iq, ip, idate = _locate_columns(tab, names, time_column, flow_column, pressure_column)
     tcol, qcol = tab.cols[it][2], tab.cols[iq][2]
     pcol = tab.cols[ip][2] if ip is not None else None
 

@@ -33,10 +33,9 @@ from typing import Callable, List, Optional
 
 from .. import units as _units
 from .injection_log import (
-    _DATE_EXACT, _FLOW_EXACT, _FLOW_PREFIXES, _PRESSURE_EXACT, _PRESSURE_PREFIXES, _TIME_EXACT,
-    _TIME_PREFIXES, FLOW_RATE_RANGE, HOLD_EPS, KEYWORD_NAMES, POLICIES,
+    FLOW_RATE_RANGE, HOLD_EPS, KEYWORD_NAMES, POLICIES,
     PRESSURE_RANGE, InjectionLogError, _arg, _as_date, _Clock, _delimiter, _norm, _Numbers,
-    _column_units, _split, _Table, _unit_for, _where, _zone, flow_rate_cell,
+    _column_units, _locate_columns, _split, _Table, _unit_for, _where, _zone, flow_rate_cell,
 )
 
 __all__ = ["LogDecoder", "Sample"]
@@ -189,20 +188,7 @@ class LogDecoder:
                      [(n, _split(t, delim)) for n, t in self._pending])
         num = _Numbers(delim)
         time_column, flow_column, pressure_column = self.columns
-        it = (tab.named(time_column, names["time_column"]) if time_column is not None else
-              tab.detected("time", _TIME_EXACT, _TIME_PREFIXES, names["time_column"], True))
-        iq = (tab.named(flow_column, names["flow_column"]) if flow_column is not None else
-              tab.detected("flow-rate", _FLOW_EXACT, _FLOW_PREFIXES, names["flow_column"], True,
-                           (it,)))
-        ip = (tab.named(pressure_column, names["pressure_column"]) if pressure_column is not None
-              else tab.detected("pressure", _PRESSURE_EXACT, _PRESSURE_PREFIXES,
-                                names["pressure_column"], False, (it, iq)))
-        used = [i for i in (it, iq, ip) if i is not None]
-        if len(set(used)) < len(used):
-            raise tab.error(tab.hline, None, "the time, flow-rate and pressure columns must be "
-                            "different columns")
-        idate = next((i for i, (b, _, _) in enumerate(tab.cols)
-                      if b in _DATE_EXACT and i not in used), None)
+        it, iq, ip, idate = _locate_columns(tab, names, time_column, flow_column, pressure_column)
         row_units = tab.take_units_row(num, iq)
         if not tab.rows:
             # only a units row so far: decide again when a data row comes
