@@ -1,0 +1,67 @@
+"""BorderedLU: the Schur complement and the two sweeps against dense linear algebra.
+
+The matrix is a real one (the scaled free block of a small inclined-fault scene with a permeable
+rock, condensed unknowns last), so the factorisation meets the pivoting and the fill it meets in a
+run; the references are numpy's dense solves of the same blocks.
+"""
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from fault_screen import Scene
+from fault_screen.bordered_lu import BorderedLU
+from fault_screen.discretisation import discretise
+from fault_screen.solver import NewtonSolver
+
+from conftest import CONFIGS
+
+TOL = 1e-11  # relative to the largest entry of the reference; round-off of a well scaled system
+
+
+@pytest.fixture(scope="module")
+def system():
+    scene = Scene.from_toml(CONFIGS / "verification" / "mass-balance.toml")
+    solver = NewtonSolver(discretise(scene))
+    x = np.zeros(solver.disc.n_dofs)
+    solver._prepare(scene.time.dt, x, solver.disc.physics.contact.initial_history(solver.disc)
+                    if solver.disc.physics.contact is not None else None)
+    D = sp.diags(solver.scale)
+    M = (D @ solver.L @ D).tocsr()[solver._order][:, solver._order]
+    nB = len(solver.B)
+    dense = M.toarray()
+    return BorderedLU(M.tocsc(), nB), dense, nB
+
+
+def _rel(a, b):
+    return np.max(np.abs(a - b)) / np.max(np.abs(b))
+
+
+def test_schur_complement(system):
+    lu, M, nB = system
+    assert M.shape[0] - nB > 50  # a real fault: tens of condensed unknowns
+    B, BN, NB, NN = M[:nB, :nB], M[:nB, nB:], M[nB:, :nB], M[nB:, nB:]
+    exact = NN - NB @ np.linalg.solve(B, BN)
+    assert _rel(lu.schur, exact) < TOL
+
+
+def test_forward_sweep_gives_the_condensed_right_hand_side(system):
+    lu, M, nB = system
+    rng = np.random.default_rng(3)
+    rB, rN = rng.standard_normal(nB), rng.standard_normal(M.shape[0] - nB)
+    _, condensed = lu.forward(rB, rN)
+    exact = rN - M[nB:, :nB] @ np.linalg.solve(M[:nB, :nB], rB)
+    assert _rel(condensed, exact) < TOL
+
+
+def test_sweeps_solve_the_whole_system(system):
+    """forward, the condensed dense solve, backward: the solution of M x = r."""
+    lu, M, nB = system
+    rng = np.random.default_rng(4)
+    r = rng.standard_normal(M.shape[0])
+    swept, condensed = lu.forward(r[:nB], r[nB:])
+    xN = np.linalg.solve(lu.schur, condensed)
+    xB = lu.backward(swept, xN)
+    exact = np.linalg.solve(M, r)
+    assert _rel(np.concatenate([xB, xN]), exact) < TOL
+    # without a linear right-hand side (None): the bulk's answer to a fault update alone
+    assert _rel(lu.backward(None, xN), -np.linalg.solve(M[:nB, :nB], M[:nB, nB:] @ xN)) < TOL
