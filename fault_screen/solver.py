@@ -112,6 +112,8 @@ class NewtonSolver:
     _AH = None
     _dense = None
     _order = None
+    _blocks_NN = None
+    _blocks_fixed = None
     _restored_P = None
     lu = None
 
@@ -231,8 +233,11 @@ class NewtonSolver:
             diag[diag == 0.0] = 1.0
             self.scale = 1.0 / np.sqrt(diag)
         B, N = self.B, self.N
-        sN = self.scale[N]
-        LNN = (L[N][:, N].toarray() * sN[:, None]) * sN[None, :]
+        if self._blocks_NN is None:  # the condensed block of A, C, Hf (scaled), sliced once
+            sN = self.scale[N]
+            self._blocks_NN = [M[N][:, N].multiply(sN[:, None]).multiply(sN[None, :]).tocsr()
+                               for M in (self.A, self.C, self.Hf)]
+        LNN = self._combine(self._blocks_NN, dt).toarray()
         if self.lu is None or not self._factors_any_dt:
             D = sp.diags(self.scale)
             Ls = (D @ L @ D).tocsr()
@@ -247,8 +252,20 @@ class NewtonSolver:
                 self.P, self._restored_P = self._restored_P, None
         self.schur = LNN - self.P
         self.L = L
-        self._L_fixed_B = L[self._fixed][:, self._order[:len(B)]].tocsr()
+        if self._blocks_fixed is None:  # rows of the fixed unknowns on the linear ones, in order
+            self._blocks_fixed = [M[self._fixed].tocsc()[:, self._linear_order()].tocsr()
+                                  for M in (self.A, self.C, self.Hf)]
+        self._L_fixed_B = self._combine(self._blocks_fixed, dt)
         self._dt = dt
+
+    def _combine(self, blocks, dt):
+        """A + C / dt + theta Hf from the same block of each."""
+        A, C, Hf = blocks
+        return A + C * (1.0 / dt) + Hf * self.time_weight
+
+    def _linear_order(self):
+        """The linear unknowns in the factors' order."""
+        return self._order[:len(self.B)]
 
     def _solve(self, sR, dense, bulk_eliminated, defer):
         """Solve (scaled) J dx = -sR with J = L + nonlinear tangent (on N only).
@@ -261,7 +278,7 @@ class NewtonSolver:
         goes with it: the forward-swept r_B and its effect on the fault rows, L_NB B^-1 r_B.
         Otherwise dx is complete and dxN None."""
         N = self.N
-        linear = self._order[:len(self.B)]  # the linear unknowns in the factors' order
+        linear = self._linear_order()
         out = np.zeros_like(sR)
         rN = -sR[N]
         swept = None
@@ -293,7 +310,7 @@ class NewtonSolver:
         """Bring x[B] up to date with the pending bulk answer (one backward sweep) and the
         residual's rows of fixed unknowns (the reactions) with it: the other rows are up to date
         (see ``_step``) and the nonlinear terms read no bulk unknown."""
-        rows = self._order[:len(self.B)]
+        rows = self._linear_order()
         dxB = self.scale[rows] * self.lu.backward(pending.swept, pending.fault)
         x[rows] += dxB
         R[self._fixed] += self._L_fixed_B @ dxB
