@@ -20,6 +20,7 @@ import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
 
+from ._jit import kernel
 from .assembly import TripletBuilder, add_triplets_to_dense
 from .bordered_lu import BorderedLU
 from .discretisation import Discretisation
@@ -110,10 +111,12 @@ class NewtonSolver:
     """
 
     _AH = None
+    _products = None
     _dense = None
     _order = None
     _blocks_NN = None
     _blocks_fixed = None
+    _blocks_rows_N_fixed = None
     _restored_P = None
     lu = None
 
@@ -256,6 +259,10 @@ class NewtonSolver:
             self._blocks_fixed = [M[self._fixed].tocsc()[:, self._linear_order()].tocsr()
                                   for M in (self.A, self.C, self.Hf)]
         self._L_fixed_B = self._combine(self._blocks_fixed, dt)
+        if self._blocks_rows_N_fixed is None:  # the rows a residual with a pending bulk needs
+            self._rows_N_fixed = np.concatenate([N, self._fixed])
+            self._blocks_rows_N_fixed = [M[self._rows_N_fixed] for M in (self.A, self.C, self.Hf)]
+        self._L_rows_N_fixed = self._combine(self._blocks_rows_N_fixed, dt)
         self._dt = dt
 
     def _combine(self, blocks, dt):
@@ -298,11 +305,15 @@ class NewtonSolver:
         (``_PendingBulk`` or None): the bulk's answer to the step's updates that x[B] does not
         hold yet. On the fault rows it adds L_NB B^-1 (r_B - L_BN dx_N) = shift - P dx_N (P =
         L_NB B^-1 L_BN, dense, from the factorisation); the bulk rows are in balance once it is
-        made (linear bulk, eliminated exactly)."""
-        R = self.L @ x - rhs
-        if pending is not None:
+        made (linear bulk, eliminated exactly), so only the fault rows and those of the fixed
+        unknowns (the reactions) are computed."""
+        if pending is None:
+            R = self.L @ x - rhs
+        else:
+            rows = self._rows_N_fixed
+            R = np.zeros_like(x)
+            R[rows] = self._L_rows_N_fixed @ x - rhs[rows]
             R[self.N] += (pending.shift - self.P @ pending.fault) / self.scale[self.N]
-            R[self.B] = 0.0
         rows, cols, vals, point = self.nonlinear(x, history, dt, R)
         return R, rows, cols, vals, point
 
@@ -338,10 +349,36 @@ class NewtonSolver:
         stored-volume rate plus conduction plus sources (flow); never below the step's first
         residual norms ``ref0``."""
         n, scale, free, mf = self.disc.n_dofs, self.scale, self.free, self.mech_free
-        AHx = self._AH @ x
+        AHx, Cd = self._linear_products(x, x_n)
         s_mech = (scale * AHx[:n])[free]
-        s_flow = (scale * (np.abs(self.C @ (x - x_n)) / dt + np.abs(AHx[n:]) + flow_known))[free]
+        s_flow = (scale * (np.abs(Cd) / dt + np.abs(AHx[n:]) + flow_known))[free]
         return (max(ref0[0], np.linalg.norm(s_mech[mf])), max(ref0[1], np.linalg.norm(s_flow[~mf])))
+
+    def _linear_products(self, x, x_n):
+        """[A; Hf] x and C (x - x_n), for the reference magnitudes. While the bulk's answer is
+        deferred (``_step``), Newton changes x in its condensed unknowns only: the products of
+        the last call are then brought up to date through those columns alone; and a step
+        starts where the last one was accepted, whose products are at hand. (Across steps only
+        products computed whole are reused, so that a restored run repeats them bit for bit.)"""
+        last = self._products
+        if last is not None and (last[0] is x_n or last[4]):
+            d = x - last[1]
+            dN = d[self.N]
+            n_changed = np.count_nonzero(d)
+            if n_changed == 0 and last[0] is x_n:
+                return last[2], last[3]
+            if n_changed == np.count_nonzero(dN):
+                if last[0] is x_n:
+                    AHx, Cd = last[2] + self._AH_N @ dN, last[3] + self._C_N @ dN
+                    self._products = (x_n, x.copy(), AHx, Cd, False)
+                    return AHx, Cd
+                if n_changed == 0:  # a new step from the last accepted state
+                    Cd = self.C @ (x - x_n)
+                    self._products = (x_n, x.copy(), last[2], Cd, True)
+                    return last[2], Cd
+        AHx, Cd = self._AH @ x, self.C @ (x - x_n)
+        self._products = (x_n, x.copy(), AHx, Cd, True)
+        return AHx, Cd
 
     def _bulk_in_balance(self, sR, ref):
         """Is the scaled residual of the linear rows below BULK_BALANCE of what the convergence
@@ -358,6 +395,8 @@ class NewtonSolver:
         scale = self.scale
         if self._AH is None:  # A and Hf stacked: both products of the convergence test in one pass
             self._AH = sp.vstack([self.A, self.Hf]).tocsr()
+            self._AH_N = self._AH.tocsc()[:, self.N].tocsr()
+            self._C_N = self.C.tocsc()[:, self.N].tocsr()
         stored_n = (self.C @ x_n) / dt
         rhs = stored_n + disc.load
         if th != 1.0:  # backward Euler (the default) has no known part of the conduction
@@ -487,7 +526,9 @@ class NewtonSolver:
         add_triplets_to_dense(M, self.n_index, rows, cols, vals, self.scale)
         if self._dense is None:
             self._dense = _CondensedSolver()
-        self._dense.set(M, self._dt)
+        i, j = self.n_index[rows], self.n_index[cols]
+        kept = (i >= 0) & (j >= 0)
+        self._dense.set(M, self._dt, base=self.schur, touched=i[kept] * len(M) + j[kept])
         return self._dense
 
 
@@ -541,10 +582,21 @@ def _condensed_max_iterations(n):
     return min(30, max(12, n // 40))
 
 
-def _largest_difference(A, B, rows=256):
-    """max |A - B| over two equal dense matrices, a block of rows at a time (no n x n temporary)."""
-    return max((float(np.abs(A[i:i + rows] - B[i:i + rows]).max()) for i in range(0, len(A), rows)),
-               default=0.0)
+@kernel
+def _change(M, M0):
+    """Where and how much M differs from M0 (equal square arrays): a mask of the rows and
+    columns holding a difference, and max |M - M0|; one pass, no n x n temporary."""
+    n = M.shape[0]
+    changed = np.zeros(n, dtype=np.bool_)
+    largest = 0.0
+    for i in range(n):
+        for j in range(n):
+            d = M[i, j] - M0[i, j]
+            if d != 0.0:
+                changed[i] = True
+                changed[j] = True
+                largest = max(largest, abs(d))
+    return changed, largest
 
 
 class _CondensedSolver:
@@ -566,6 +618,7 @@ class _CondensedSolver:
 
     def __init__(self):
         self.M = self.M0 = None
+        self._base = self._base0 = self._touched = self._touched0 = None
         self.factors = None
         self.factored = False      # the current M is the factorised one
         self.factored_dt = None    # the step size of M0
@@ -574,9 +627,13 @@ class _CondensedSolver:
         self.iterations = 0        # GMRES iterations, for diagnostics
         self.updates = 0           # low-rank (Woodbury) solves, for diagnostics
 
-    def set(self, M, dt):
+    def set(self, M, dt, base=None, touched=None):
+        """The block to solve with next. ``base``: the array it was made from by adding the
+        nonlinear tangent at the flat positions ``touched`` (duplicates allowed): while the base
+        is that of M0, M and M0 can differ only there (see ``_change_from``)."""
         self.M = M
         self.dt = dt
+        self._base, self._touched = base, touched
         self.factored = False
         if self.factors is None or dt != self.factored_dt:
             self._factorise()
@@ -585,6 +642,8 @@ class _CondensedSolver:
         self.factors = scipy.linalg.lu_factor(self.M, check_finite=False)
         self.factored_dt = self.dt
         self.M0 = self.M
+        self._base0, self._touched0 = self._base, self._touched
+        self._M0_largest = max(float(self.M0.max()), -float(self.M0.min())) if self.M0.size else 0.0
         self.factored = True
         self.factorizations += 1
         # columns of M0^-1 solved for so far (the changed rows only grow until M0 is replaced)
@@ -597,18 +656,34 @@ class _CondensedSolver:
     def solve(self, b):
         if not self.factored:
             M, M0 = self.M, self.M0
-            nz = M != M0
-            K = np.flatnonzero(nz.any(axis=0) | nz.any(axis=1))
-            del nz
+            changed, largest = self._change_from_M0()
+            K = np.flatnonzero(changed)
             x = None
             if len(K) * LOW_RANK_FRACTION <= len(b):
                 x = self._low_rank(b, M[np.ix_(K, K)] - M0[np.ix_(K, K)], K)
-            elif _largest_difference(M, M0) <= SMALL_CHANGE * np.abs(M0).max():
+            elif largest <= SMALL_CHANGE * self._M0_largest:
                 x = self._gmres(b)
             if x is not None:
                 return x
             self._factorise()
         return self._precondition(b)
+
+    def _change_from_M0(self):
+        """Rows and columns where M differs from M0 (mask) and the largest difference, exactly
+        as ``_change`` finds them; read at the tangent's positions alone when M and M0 were made
+        from the same base (the Schur complement of one step size) and the tangent touches few
+        entries: elsewhere they are equal."""
+        n = len(self.M)
+        if (self._base is None or self._base is not self._base0 or self._touched0 is None
+                or 8 * (len(self._touched) + len(self._touched0)) > n * n):
+            return _change(self.M, self.M0)  # (a scattered read of most entries: read them all)
+        at = np.concatenate([self._touched, self._touched0])
+        D = self.M.ravel()[at] - self.M0.ravel()[at]
+        differ = at[D != 0.0]
+        changed = np.zeros(n, dtype=bool)
+        changed[differ // n] = True
+        changed[differ % n] = True
+        return changed, (float(np.abs(D).max()) if D.size else 0.0)
 
     def _low_rank(self, b, DK, K):
         """Woodbury: with M = M0 + E D E^T (E: the columns of the identity at the changed rows
