@@ -259,7 +259,6 @@ class NewtonSolver:
             sN = self.scale[N]
             self._blocks_NN = [M[N][:, N].multiply(sN[:, None]).multiply(sN[None, :]).tocsr()
                                for M in (self.A, self.C, self.Hf)]
-        LNN = self._combine(self._blocks_NN, dt).toarray()
         if self.lu is None or not self._factors_any_dt:
             D = sp.diags(self.scale)
             Ls = (D @ L @ D).tocsr()
@@ -273,12 +272,15 @@ class NewtonSolver:
             self.lu = BorderedLU(M, len(B))
             del M
             self.factorizations += 1
+            LNN = self._combine(self._blocks_NN, dt).toarray()  # (after the factors' peak)
             # P = L_NN - S in the Schur complement's own memory, which the factors then give up
             # (n_N x n_N dense each: 34 MB on the fine 30 deg scene)
             self.P = np.subtract(LNN, self.lu.schur, out=self.lu.schur)
             self.lu.schur = None
             if self._restored_P is not None:
                 self.P, self._restored_P = self._restored_P, None
+        else:
+            LNN = self._combine(self._blocks_NN, dt).toarray()
         self.schur = np.subtract(LNN, self.P, out=LNN)
         self.L = L
         if self._blocks_fixed is None:  # rows of the fixed unknowns on the linear ones, in order
