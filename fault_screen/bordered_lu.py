@@ -53,9 +53,14 @@ class BorderedLU:
 
     Vectors passed to and returned by ``forward``/``backward`` are in ``M``'s order (the caller
     permutes once); ``schur`` is the dense Schur complement on the condensed unknowns (the
-    sweeps do not read it: its owner may take it and set it to None)."""
+    sweeps do not read it: its owner may take it and set it to None).
+
+    ``M`` may also be a function that returns it, so that the caller holds no reference: the
+    matrix then goes before the factors are copied out of SuperLU (the peak)."""
 
     def __init__(self, M, n_linear: int):
+        if callable(M):
+            M = M()
         n = M.shape[0]
         nB = n_linear
         lu = None
@@ -69,6 +74,7 @@ class BorderedLU:
                 break
         else:
             raise PivotingAcrossBlocks("the linear block's factorisation pivoted on a condensed row")
+        del M
         self.n, self.n_linear = n, nB
         # SuperLU's own storage is freed as soon as the factors are copied out of it: perm_r is a
         # view into that object (a slice of it kept alive the whole factorisation, ~340 MB on

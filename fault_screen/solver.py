@@ -242,7 +242,7 @@ class NewtonSolver:
         a restored run repeats the same round-off)."""
         if dt == self._dt:
             return
-        L = (self.A + self.C * (1.0 / dt) + self.Hf * self.time_weight).tocsr()
+        L = self._linear_jacobian(dt)
         if self.scale is None:
             diag = np.abs(L.diagonal())
             rows, cols, vals, _ = self.nonlinear(x_n, history, dt, np.zeros(self.disc.n_dofs))
@@ -265,12 +265,14 @@ class NewtonSolver:
             if self._order is None:  # the pattern of B is that of every step size
                 inner = nested_dissection(Ls[B][:, B], self.disc.dof_coordinates()[B])
                 self._order = np.concatenate([B[inner], N])
-            M = Ls[self._order][:, self._order].tocsc()
-            del Ls
+            # the factorisation's peak (SuperLU's storage and the factors copied out of it) is
+            # reached holding neither L (made again after it) nor the matrix factorised
+            held = [Ls[self._order][:, self._order].tocsc()]
+            del Ls, L
             self.lu = None  # the old factors go before the new ones are made (peak memory)
             release_freed_memory()
-            self.lu = BorderedLU(M, len(B))
-            del M
+            self.lu = BorderedLU(held.pop, len(B))
+            L = self._linear_jacobian(dt)
             self.factorizations += 1
             LNN = self._combine(self._blocks_NN, dt).toarray()  # (after the factors' peak)
             # P = L_NN - S in the Schur complement's own memory, which the factors then give up
@@ -288,6 +290,10 @@ class NewtonSolver:
                                   for M in (self.A, self.C, self.Hf)]
         self._L_fixed_B = self._combine(self._blocks_fixed, dt)
         self._dt = dt
+
+    def _linear_jacobian(self, dt):
+        """A + C / dt + theta Hf (CSR, unscaled)."""
+        return (self.A + self.C * (1.0 / dt) + self.Hf * self.time_weight).tocsr()
 
     def _combine(self, blocks, dt):
         """A + C / dt + theta Hf from the same block of each."""
