@@ -52,9 +52,15 @@ class BorderedLU:
     the order to factorise it and whose last ones are the condensed unknowns.
 
     Vectors passed to and returned by ``forward``/``backward`` are in ``M``'s order (the caller
-    permutes once); ``schur`` is the dense Schur complement on the condensed unknowns."""
+    permutes once); ``schur`` is the dense Schur complement on the condensed unknowns (the
+    sweeps do not read it: its owner may take it and set it to None).
+
+    ``M`` may also be a function that returns it, so that the caller holds no reference: the
+    matrix then goes before the factors are copied out of SuperLU (the peak)."""
 
     def __init__(self, M, n_linear: int):
+        if callable(M):
+            M = M()
         n = M.shape[0]
         nB = n_linear
         lu = None
@@ -68,14 +74,21 @@ class BorderedLU:
                 break
         else:
             raise PivotingAcrossBlocks("the linear block's factorisation pivoted on a condensed row")
+        del M
         self.n, self.n_linear = n, nB
-        rows_of = lu.perm_r   # row i of M is row perm_r[i] of L U
-        self._row_B = np.ascontiguousarray(rows_of[:nB])
-        self._row_N = np.ascontiguousarray(rows_of[nB:] - nB)
-        # the factors are taken one at a time, and no factor is held twice over: the backward
-        # sweep walks U11 reversed (J U11 J, lower triangular), which reversing U's arrays gives
-        # directly, and the forward sweep walks L by columns as SuperLU gives it
-        U = lu.U
+        # SuperLU's own storage is freed as soon as the factors are copied out of it: perm_r is a
+        # view into that object (a slice of it kept alive the whole factorisation, ~340 MB on
+        # Rustrel 200 x 201), so it is copied too. scipy makes L and U together at the first
+        # access; SuperLU's storage and those copies are the peak, which nothing below exceeds
+        # (U11's reversed copy, below, is smaller than SuperLU's storage freed before it).
+        rows_of = np.array(lu.perm_r)   # row i of M is row perm_r[i] of L U
+        U, L = lu.U, lu.L
+        del lu
+        self._row_B = rows_of[:nB].copy()
+        self._row_N = rows_of[nB:] - nB
+        # no factor is held twice over: the backward sweep walks U11 reversed (J U11 J, lower
+        # triangular), which reversing U's arrays gives directly, and the forward sweep walks L
+        # by columns as SuperLU gives it
         U.sort_indices()
         self._U12 = U[:nB, nB:].tocsr()
         U22 = U[nB:, nB:].toarray()
@@ -84,16 +97,13 @@ class BorderedLU:
         indptr = np.zeros(nB + 1, dtype=U.indptr.dtype)
         np.cumsum(lengths, out=indptr[1:])
         self.nnz = U.nnz  # fill, for diagnostics
-        # reversed in place (U's own arrays, cut to U11's columns): one factor's worth at a time
-        indices, data = U.indices[:end_B], U.data[:end_B]
+        # U11's columns reversed, copied out of U's arrays, which then go (with U12 and U22)
+        indices = U.indices[end_B - 1::-1] if end_B else U.indices[:0]
+        indices = np.subtract(nB - 1, indices, dtype=U.indices.dtype)
+        data = U.data[end_B - 1::-1].copy() if end_B else U.data[:0].copy()
         del U
-        indices[:] = indices[::-1]
-        np.subtract(nB - 1, indices, out=indices)
-        data[:] = data[::-1]
         self._U11_reversed = (indptr, indices, data)
         _check_diagonal_first(indptr, indices, nB)
-        L = lu.L
-        del lu
         L.sort_indices()
         self.nnz += L.nnz
         # the trailing columns (L22, dense, n_N^2 / 2) stay in the arrays the sweep reads

@@ -13,8 +13,10 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-#: sets of at most this many unknowns are not split further (kept in the order given)
-LEAF_SIZE = 32
+#: sets of at most this many unknowns are not split further (kept in the order given); 8 has
+#: 2.7-4.4 % fewer non-zeros in L + U than 32 (Rustrel 200 x 201: 34.6M -> 33.0M; the fine
+#: 30 deg scene: 22.0M -> 21.4M), 4 no more than 8
+LEAF_SIZE = 8
 
 
 def nested_dissection(pattern: sp.spmatrix, xy: np.ndarray, leaf: int = LEAF_SIZE) -> np.ndarray:
