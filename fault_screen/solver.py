@@ -139,6 +139,7 @@ class NewtonSolver:
     _blocks_NN = None
     _blocks_fixed = None
     _blocks_rows_N_fixed = None
+    _schur_made = 0     # Schur complements made so far: which one a condensed block came from
     _restored_P = None
     lu = None
 
@@ -287,6 +288,7 @@ class NewtonSolver:
         else:
             LNN = self._combine(self._blocks_NN, dt).toarray()
         self.schur = np.subtract(LNN, self.P, out=LNN)
+        self._schur_made += 1
         self.L = L
         if self._blocks_fixed is None:  # rows of the fixed unknowns on the linear ones, in order
             self._blocks_fixed = [M[self._fixed].tocsc()[:, self._linear_order()].tocsr()
@@ -432,8 +434,8 @@ class NewtonSolver:
         scale = self.scale
         if self._AH is None:  # A and Hf stacked: both products of the convergence test in one pass
             self._AH = sp.vstack([self.A, self.Hf]).tocsr()
-            self._AH_N = self._AH.tocsc()[:, self.N].tocsr()
-            self._C_N = self.C.tocsc()[:, self.N].tocsr()
+            self._AH_N = self._AH[:, self.N]
+            self._C_N = self.C.tocsr()[:, self.N]
         stored_n = (self.C @ x_n) / dt
         rhs = stored_n + disc.load
         if th != 1.0:  # backward Euler (the default) has no known part of the conduction
@@ -565,7 +567,7 @@ class NewtonSolver:
             self._dense = _CondensedSolver()
         i, j = self.n_index[rows], self.n_index[cols]
         kept = (i >= 0) & (j >= 0)
-        self._dense.set(M, self._dt, base=self.schur, touched=i[kept] * len(M) + j[kept])
+        self._dense.set(M, self._dt, base=self._schur_made, touched=i[kept] * len(M) + j[kept])
         return self._dense
 
 
@@ -665,9 +667,10 @@ class _CondensedSolver:
         self.updates = 0           # low-rank (Woodbury) solves, for diagnostics
 
     def set(self, M, dt, base=None, touched=None):
-        """The block to solve with next. ``base``: the array it was made from by adding the
-        nonlinear tangent at the flat positions ``touched`` (duplicates allowed): while the base
-        is that of M0, M and M0 can differ only there (see ``_change_from``)."""
+        """The block to solve with next. ``base``: which array (a count, not the array: that
+        would be held after it is replaced) it was made from by adding the nonlinear tangent at
+        the flat positions ``touched`` (duplicates allowed): while the base is that of M0, M and
+        M0 can differ only there (see ``_change_from_M0``)."""
         self.M = M
         self.dt = dt
         self._base, self._touched = base, touched
@@ -711,7 +714,7 @@ class _CondensedSolver:
         from the same base (the Schur complement of one step size) and the tangent touches few
         entries: elsewhere they are equal."""
         n = len(self.M)
-        if (self._base is None or self._base is not self._base0 or self._touched0 is None
+        if (self._base is None or self._base != self._base0 or self._touched0 is None
                 or 8 * (len(self._touched) + len(self._touched0)) > n * n):
             return _change(self.M, self.M0)  # (a scattered read of most entries: read them all)
         at = np.concatenate([self._touched, self._touched0])
@@ -733,7 +736,7 @@ class _CondensedSolver:
         new = K[~self._have[K]]
         if len(new):
             if self._Z is None:
-                self._Z = np.empty((n, n))
+                self._Z = np.empty((n, n), order="F")  # (pages of unsolved columns stay untouched)
             E = np.zeros((n, len(new)))
             E[new, np.arange(len(new))] = 1.0
             self._Z[:, new] = self._precondition(E)
