@@ -6,9 +6,15 @@ against NaN, and fast-math would let LLVM reorder or drop exactly those comparis
 """
 from numba import njit
 
-JIT_OPTIONS = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
+JIT_OPTIONS = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy",
+               "no_cfunc_wrapper": True}
 
 
 def kernel(fn):
     """Compile ``fn`` with the project's numba options."""
     return njit(**JIT_OPTIONS)(fn)
+
+
+def helper(fn):
+    """A kernel that other kernels call: inlined into them at numba IR level."""
+    return njit(inline="always", **JIT_OPTIONS)(fn)
