@@ -63,7 +63,9 @@ def level_set_basis(N, dN, phi_e):
             gabs[d] += dN[i, d] * abs(phi_e[i])
     sgn = 1.0 if lin > 0 else (-1.0 if lin < 0 else 0.0)
     psi = absn - abs(lin)
-    gpsi = gabs - sgn * glin
+    gpsi = np.empty(2)
+    for d in range(2):
+        gpsi[d] = gabs[d] - sgn * glin[d]
     Ne = np.empty(4)
     dNe = np.empty((4, 2))
     for j in range(4):

@@ -14,13 +14,13 @@ call (kernels/friction.py): after changing those, touch this file (or clear __py
 """
 import numpy as np
 
-from .._jit import kernel
+from .._jit import helper, kernel
 from .friction import aging_state, rate_state_friction
 
 STICK, SLIP, OPEN = 0, 1, 2
 
 
-@kernel
+@helper
 def _slip_tangent(sgn, kT, kN, tan_dilation, mu, Fp):
     """Consistent derivatives of (tau, sigma_n) with respect to (slip, opening) while sliding,
     from the scalar return-map equation |tau_trial| - kT ds - mu sigma_n(ds) = 0 whose
@@ -32,7 +32,7 @@ def _slip_tangent(sgn, kT, kN, tan_dilation, mu, Fp):
     return dtau_ds, dtau_do, dsig_ds, dsig_do
 
 
-@kernel
+@helper
 def _in_contact(sigma_base, tau_trial, kN, kT, tan_dilation):
     """Are the walls in contact at the end of the step? Tested on the normal stress after the
     step's own dilatant slip, not before it: the most plastic slip a step can take is
@@ -46,7 +46,7 @@ def _in_contact(sigma_base, tau_trial, kN, kT, tan_dilation):
     return sigma_base + kN * tan_dilation * abs(tau_trial) / kT > 0.0
 
 
-@kernel
+@helper
 def coulomb_point(slip, opening, slip_old, tau_old, dilatant_slip_old, sigma_n0, kN, kT, mu,
                   tan_dilation):
     """Rate-independent Coulomb return map with dilation.
@@ -67,7 +67,7 @@ def coulomb_point(slip, opening, slip_old, tau_old, dilatant_slip_old, sigma_n0,
     return sgn * mu * sigma_n, sigma_n, SLIP, ds, d[0], d[1], d[2], d[3]
 
 
-@kernel
+@helper
 def rate_state_point(slip, opening, slip_old, tau_old, dilatant_slip_old, theta_old, sigma_n0,
                      kN, kT, tan_dilation, mu0, a, b, V0, Dc, dt, slip_rate_threshold):
     """Viscoplastic return map with rate(-and-state) friction, spring kT in series.
@@ -111,7 +111,7 @@ def rate_state_point(slip, opening, slip_old, tau_old, dilatant_slip_old, theta_
     return sgn * (Tt - kT * ds), sigma_n, state, ds, theta, mu, d[0], d[1], d[2], d[3]
 
 
-@kernel
+@helper
 def contact_local(N, tangent, normal, tau, sigma_n, tau0, sigma_n0, dtau_ds, dtau_do, dsig_ds,
                   dsig_do, weight):
     """Residual (8,) and tangent (8, 8) on the Heaviside DOFs of one cut element.

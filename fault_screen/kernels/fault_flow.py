@@ -7,10 +7,10 @@ m^3/(Pa s)), storativity 2h/Kf (m/Pa), and the opening rate of the fault as stor
 """
 import numpy as np
 
-from .._jit import kernel
+from .._jit import helper, kernel
 
 
-@kernel
+@helper
 def cubic_law_transmissivity(hydraulic_aperture, viscosity, kappa):
     return hydraulic_aperture ** 3 / (12.0 * viscosity * kappa)
 
@@ -48,7 +48,7 @@ def opening_coupling(Np, N, normal, weight):
     return G
 
 
-@kernel
+@helper
 def renshaw_aperture(opening_change, aperture0, sigma_h):
     """Hydraulic aperture 2h from the mechanical opening change (paper Eq. 28, Renshaw 1995):
     2h = 2h0 + d exp(-ln(1 + (sigma_h/d)^2)/2) = 2h0 + d^2 / sqrt(d^2 + sigma_h^2) for d >= 0.

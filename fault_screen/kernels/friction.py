@@ -10,7 +10,7 @@ return map a well-posed, smooth scalar equation at every point and every load.
 """
 import numpy as np
 
-from .._jit import kernel
+from .._jit import helper, kernel
 
 
 #: Small ``a`` (psi/a above 600, e.g. mu0/a = 6800 at a = 1e-4): exp(psi/a) overflows, so the law
@@ -22,7 +22,7 @@ V_FLOOR = 1e-30
 LARGE_PSI_OVER_A = 600.0
 
 
-@kernel
+@helper
 def _regularised_log(V, psi, dpsi_dtheta, a, V0):
     """(mu, dmu/dV, dmu/dtheta) of mu = a asinh(z), z = V exp(psi/a) / (2 V0), for V > 0, with z
     in logarithms (z itself is moderate wherever the fault slides)."""
@@ -34,7 +34,7 @@ def _regularised_log(V, psi, dpsi_dtheta, a, V0):
     return a * np.arcsinh(z), a * (z / V) / root, z / root * dpsi_dtheta
 
 
-@kernel
+@helper
 def rate_state_friction(V, theta, mu0, a, b, V0, Dc):
     """(mu, dmu/dV, dmu/dtheta) of the regularised law; theta is ignored when b == 0."""
     psi = mu0
@@ -56,7 +56,7 @@ def rate_state_friction(V, theta, mu0, a, b, V0, Dc):
     return mu, dmu_dV, dmu_dtheta
 
 
-@kernel
+@helper
 def aging_state(theta_old, V, dt, Dc):
     """Aging law d(theta)/dt = 1 - V theta / Dc by backward Euler over dt:
     (theta_new, d theta_new / dV)."""

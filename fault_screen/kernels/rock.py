@@ -6,7 +6,7 @@ function; strain is Voigt (xx, yy, 2xy); stress tension-positive.
 """
 import numpy as np
 
-from .._jit import kernel
+from .._jit import helper, kernel
 
 
 @kernel
@@ -21,7 +21,7 @@ def plane_strain_elasticity(youngs_modulus, poissons_ratio):
     return D
 
 
-@kernel
+@helper
 def elastic_stiffness(gu, w, D):
     nq, nb = gu.shape[0], gu.shape[1]
     K = np.zeros((2 * nb, 2 * nb))
@@ -34,11 +34,14 @@ def elastic_stiffness(gu, w, D):
             B[1, 2 * b + 1] = gu[q, b, 1]
             B[2, 2 * b] = gu[q, b, 1]
             B[2, 2 * b + 1] = gu[q, b, 0]
-        K += w[q] * (B.T @ (D @ B))
+        BtDB = B.T @ (D @ B)
+        for a in range(2 * nb):
+            for b in range(2 * nb):
+                K[a, b] += w[q] * BtDB[a, b]
     return K
 
 
-@kernel
+@helper
 def biot_coupling(gu, Np, w, biot_coefficient):
     """Q (2 nbu x nbp): volumetric strain of the skeleton against pore pressure."""
     nq, nbu, nbp = gu.shape[0], gu.shape[1], Np.shape[1]
@@ -54,7 +57,7 @@ def biot_coupling(gu, Np, w, biot_coefficient):
     return Q
 
 
-@kernel
+@helper
 def darcy_conductance(gp, w, mobility):
     """H (nbp x nbp) with mobility = permeability / viscosity (m^2 / (Pa s))."""
     nq, nb = gp.shape[0], gp.shape[1]
@@ -66,7 +69,7 @@ def darcy_conductance(gp, w, mobility):
     return H
 
 
-@kernel
+@helper
 def pore_storage(Np, w, inverse_biot_modulus):
     """S (nbp x nbp) with 1/M = (alpha - n)/Ks + n/Kf (1/Pa)."""
     nq, nb = Np.shape[0], Np.shape[1]
@@ -91,12 +94,21 @@ def body_force(Nu, w, force_density):
 
 
 # ---- every element of a group in one compiled pass (arguments per element: leading axis e)
+@helper
+def _store(out, e, local):
+    """out[e] = local, entry by entry: numba compiles an array slice assignment with the
+    formatting of its shape-mismatch message (str, join), 3.5 s of a cold start."""
+    for i in range(local.shape[0]):
+        for j in range(local.shape[1]):
+            out[e, i, j] = local[i, j]
+
+
 @kernel
 def elastic_stiffness_all(gu, w, D):
     n, nb = gu.shape[0], gu.shape[2]
     out = np.empty((n, 2 * nb, 2 * nb))
     for e in range(n):
-        out[e] = elastic_stiffness(gu[e], w[e], D[e])
+        _store(out, e, elastic_stiffness(gu[e], w[e], D[e]))
     return out
 
 
@@ -105,7 +117,7 @@ def biot_coupling_all(gu, Np, w, biot_coefficient):
     n = gu.shape[0]
     out = np.empty((n, 2 * gu.shape[2], Np.shape[2]))
     for e in range(n):
-        out[e] = biot_coupling(gu[e], Np[e], w[e], biot_coefficient[e])
+        _store(out, e, biot_coupling(gu[e], Np[e], w[e], biot_coefficient[e]))
     return out
 
 
@@ -114,7 +126,7 @@ def darcy_conductance_all(gp, w, mobility):
     n, nb = gp.shape[0], gp.shape[2]
     out = np.empty((n, nb, nb))
     for e in range(n):
-        out[e] = darcy_conductance(gp[e], w[e], mobility[e])
+        _store(out, e, darcy_conductance(gp[e], w[e], mobility[e]))
     return out
 
 
@@ -123,5 +135,5 @@ def pore_storage_all(Np, w, inverse_biot_modulus):
     n, nb = Np.shape[0], Np.shape[2]
     out = np.empty((n, nb, nb))
     for e in range(n):
-        out[e] = pore_storage(Np[e], w[e], inverse_biot_modulus[e])
+        _store(out, e, pore_storage(Np[e], w[e], inverse_biot_modulus[e]))
     return out
