@@ -13,6 +13,7 @@ support is cut into a thin sliver well conditioned (the Jacobi part of Béchet e
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 from dataclasses import dataclass
 
@@ -139,6 +140,7 @@ class NewtonSolver:
     _blocks_NN = None
     _blocks_fixed = None
     _blocks_rows_N_fixed = None
+    _blas_limited = False
     _schur_made = 0     # Schur complements made so far: which one a condensed block came from
     _restored_P = None
     lu = None
@@ -375,13 +377,27 @@ class NewtonSolver:
         overshoot and cycle, and under pressure control a shorter step does not reduce the jump.
         ``x0``: the first guess (default x_n).
 
-        BLAS runs on one thread while the condensed block is small: its dense products and LU
+        BLAS threads: see ``blas_threads``."""
+        with self.blas_threads():
+            return self._step(x_n, history, dt, injection_value, damped, x0)
+
+    @contextlib.contextmanager
+    def blas_threads(self):
+        """Run BLAS on one thread while the condensed block is small: its dense products and LU
         take a millisecond or less, where OpenBLAS's threads only add start-up and, on a busy
-        machine, spin against the other processes (a 3-14x slow-down measured, issue 15)."""
-        if len(self.N) > SINGLE_THREAD_BLAS_UP_TO:
-            return self._step(x_n, history, dt, injection_value, damped, x0)
-        with _blas_controller().limit(limits=1, user_api="blas"):
-            return self._step(x_n, history, dt, injection_value, damped, x0)
+        machine, spin against the other processes (a 3-14x slow-down measured, issue 15). A
+        caller that takes many steps holds this around all of them: limiting and restoring the
+        threads at every step cost a BLAS thread spinning beside the run (CPU 1.8x the wall
+        time on the T = 0.4 scene). Re-entrant."""
+        if len(self.N) > SINGLE_THREAD_BLAS_UP_TO or self._blas_limited:
+            yield
+            return
+        self._blas_limited = True
+        try:
+            with _blas_controller().limit(limits=1, user_api="blas"):
+                yield
+        finally:
+            self._blas_limited = False
 
     def _reference(self, x, x_n, dt, ref0, flow_known):
         """Reference magnitudes of the convergence test at x: internal forces (mechanics);

@@ -140,6 +140,14 @@ class Simulation:
         (a caller that checkpoints or polls in between). ``progress(step, t, t_next, wall)`` after
         each step; ``observer(t, x, disc)`` sees every accepted state vector."""
         value = self._injection_value(volume, pressure, t_next)
+        wall0 = _time.perf_counter()
+        with self.solver.blas_threads():  # held over all the steps (see there)
+            taken = self._advance(t_next, value, align, max_steps, progress, observer)
+        self.wall_time += _time.perf_counter() - wall0
+        return taken
+
+    def _advance(self, t_next, value, align, max_steps, progress, observer):
+        """The steps of ``advance``, ``value`` the injection value of a step (t0, t1)."""
         scene = self.scene
         ts = scene.time
         dt_max = ts.dt_max if ts.dt_max is not None else ts.dt
@@ -211,7 +219,6 @@ class Simulation:
                 if limit < self.dt:
                     self.dt_recover = max(self.dt_recover, self.dt)  # grow back once it slows
                     self.dt = limit
-        self.wall_time += _time.perf_counter() - wall0
         return taken
 
     def _check_instability(self, t, slip_rate):
