@@ -16,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import functools
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import scipy.linalg
@@ -304,7 +305,7 @@ class NewtonSolver:
 
     def _linear_jacobian(self, dt):
         """A + C / dt + theta Hf (CSR, unscaled)."""
-        return (self.A + self.C * (1.0 / dt) + self.Hf * self.time_weight).tocsr()
+        return self._combine((self.A, self.C, self.Hf), dt).tocsr()
 
     def _combine(self, blocks, dt):
         """A + C / dt + theta Hf from the same block of each."""
@@ -416,23 +417,23 @@ class NewtonSolver:
         starts where the last one was accepted, whose products are at hand. (Across steps only
         products computed whole are reused, so that a restored run repeats them bit for bit.)"""
         last = self._products
-        if last is not None and (last[0] is x_n or last[4]):
-            d = x - last[1]
+        if last is not None and (last.x_n is x_n or last.whole):
+            d = x - last.x
             dN = d[self.N]
             n_changed = np.count_nonzero(d)
-            if n_changed == 0 and last[0] is x_n:
-                return last[2], last[3]
+            if n_changed == 0 and last.x_n is x_n:
+                return last.AHx, last.Cd
             if n_changed == np.count_nonzero(dN):
-                if last[0] is x_n:
-                    AHx, Cd = last[2] + self._AH_N @ dN, last[3] + self._C_N @ dN
-                    self._products = (x_n, x.copy(), AHx, Cd, False)
+                if last.x_n is x_n:
+                    AHx, Cd = last.AHx + self._AH_N @ dN, last.Cd + self._C_N @ dN
+                    self._products = _Products(x_n, x.copy(), AHx, Cd, False)
                     return AHx, Cd
                 if n_changed == 0:  # a new step from the last accepted state
                     Cd = self.C @ (x - x_n)
-                    self._products = (x_n, x.copy(), last[2], Cd, True)
-                    return last[2], Cd
+                    self._products = _Products(x_n, x.copy(), last.AHx, Cd, True)
+                    return last.AHx, Cd
         AHx, Cd = self._AH @ x, self.C @ (x - x_n)
-        self._products = (x_n, x.copy(), AHx, Cd, True)
+        self._products = _Products(x_n, x.copy(), AHx, Cd, True)
         return AHx, Cd
 
     def _bulk_in_balance(self, sR, ref):
@@ -585,6 +586,16 @@ class NewtonSolver:
         kept = (i >= 0) & (j >= 0)
         self._dense.set(M, self._dt, base=self._schur_made, touched=i[kept] * len(M) + j[kept])
         return self._dense
+
+
+class _Products(NamedTuple):
+    """``NewtonSolver._linear_products`` at x: [A; Hf] x and C (x - x_n); ``whole``: computed
+    as whole products (not brought up to date through the condensed columns)."""
+    x_n: np.ndarray
+    x: np.ndarray
+    AHx: np.ndarray
+    Cd: np.ndarray
+    whole: bool
 
 
 class _PendingBulk:
