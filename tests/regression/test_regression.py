@@ -7,8 +7,8 @@ solver.tolerance of balance, so round-off moves the accepted iterate by up to ab
 tolerance, and rate-and-state friction (slip rate exponential in the shear stress) carries it on.
 Measured: the same code and baseline on two machines of this project's kind differed by 2.5e-8
 in slip rate and 9e-10 in slip (rate-and-state Rustrel, solver.tolerance 1e-8) while pressures
-and openings agreed at 1e-15, and a step whose residual sits at the tolerance took 4 Newton
-iterations instead of 3. The bound is therefore ROUNDOFF_CARRY times the case's solver
+and openings agreed at 1e-15, and 4 steps whose residuals sit at the tolerance took 4 Newton
+iterations instead of 3 or back. The bound is therefore ROUNDOFF_CARRY times the case's solver
 tolerance (1e-7 at the default 1e-8), never below 1e-10: far below any change in physics or
 numerics (a changed discretisation or law moves these arrays by 1e-4 and more), above what the
 solver leaves undetermined. Newton iteration counts are discrete: each step's count may differ
@@ -29,8 +29,10 @@ RTOL = 1e-10
 #: bound = ROUNDOFF_CARRY x solver.tolerance (see above)
 ROUNDOFF_CARRY = 10.0
 
-#: steps whose Newton iteration count may differ (by one) from the baseline's, as a fraction
-ITERATION_STEPS_FRACTION = 0.02
+#: steps whose Newton iteration count may differ (by one) from the baseline's, as a fraction:
+#: on round-off alone, 4 (this baseline on another CPU) and 6 (a reordered elimination, commit
+#: 5b3b511) of rustrel-impermeable's 281 steps, whose residuals sit at the tolerance
+ITERATION_STEPS_FRACTION = 0.05
 
 #: discrete arrays compared by ``iterations_agree`` instead
 COUNTS = {"solver/iterations"}
