@@ -37,7 +37,10 @@ from dataclasses import replace
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+#: the source tree whose fault_screen a case runs (benchmarks/before_after.py sets it to a
+#: checkout of another revision); the scenes and these scripts are this tree's
+TREE = Path(os.environ.get("FAULT_SCREEN_TREE", ROOT))
+sys.path.insert(0, str(TREE))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 RUSTREL = ROOT / "configs" / "rustrel-2015-calibrated.toml"
 SLIP_SCENES = ["fluid-driven-slip-T0.4-horizontal", "fluid-driven-slip-T0.4-dip30",
@@ -114,9 +117,11 @@ def cli_run(env) -> tuple[float, float]:
     return wall, float(rss[-1]) / 1024.0
 
 
-def _env(**extra):
+def _env(tree=ROOT, **extra):
+    """The environment of a case's process: default BLAS threading, ``tree``'s fault_screen."""
     env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
-    env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    env["PYTHONPATH"] = str(tree) + os.pathsep + env.get("PYTHONPATH", "")
+    env["FAULT_SCREEN_TREE"] = str(tree)
     env.update(extra)
     return env
 
