@@ -352,9 +352,9 @@ class NewtonSolver:
         if pending is None:
             R = self.L @ x - rhs
         else:
-            rows = self._rows_N_fixed
+            needed = self._rows_N_fixed
             R = np.zeros_like(x)
-            R[rows] = self._L_rows_N_fixed @ x - rhs[rows]
+            R[needed] = self._L_rows_N_fixed @ x - rhs[needed]
             R[self.N] += (pending.shift - self.P @ pending.fault) / self.scale[self.N]
         rows, cols, vals, point = self.nonlinear(x, history, dt, R)
         return R, rows, cols, vals, point

@@ -142,19 +142,19 @@ class Simulation:
         value = self._injection_value(volume, pressure, t_next)
         wall0 = _time.perf_counter()
         with self.solver.blas_threads():  # held over all the steps (see there)
-            taken = self._advance(t_next, value, align, max_steps, progress, observer)
+            taken = self._advance(t_next, value, align, max_steps, progress, observer, wall0)
         self.wall_time += _time.perf_counter() - wall0
         return taken
 
-    def _advance(self, t_next, value, align, max_steps, progress, observer):
-        """The steps of ``advance``, ``value`` the injection value of a step (t0, t1)."""
+    def _advance(self, t_next, value, align, max_steps, progress, observer, wall0):
+        """The steps of ``advance``, ``value`` the injection value of a step (t0, t1), ``wall0``
+        when the call began (for ``progress``)."""
         scene = self.scene
         ts = scene.time
         dt_max = ts.dt_max if ts.dt_max is not None else ts.dt
         injection = self.physics.injection
         nof = scene.injection.number_of_fractures
         contact = self.physics.contact
-        wall0 = _time.perf_counter()
         taken = 0
         while self.time < t_next * (1 - 1e-12):
             if self.stopped is not None or (max_steps is not None and taken >= max_steps):
