@@ -15,10 +15,13 @@ one sparse factorisation gives everything the Newton iteration on the fault need
 A step thus costs one sweep each way through the factors instead of two solves with B (or one
 solve and a product with the dense n_B x n_N matrix B^-1 L_BN).
 
-The sweeps are column-oriented numba loops over the factors as SuperLU gives them (CSC); the
-upper factor is stored with its rows and columns reversed (J U11 J is lower triangular), so that
-the backward sweep too reads memory forwards (three times faster than walking it backwards on
-this machine), and no factor is ever held twice over.
+The sweeps are numba loops over the factors packed by supernodes (runs of columns with one row
+pattern; nested dissection makes its separators such runs): L by columns, U by rows (the columns
+of U^T), each stored in the order its sweep reads it, so both read memory forwards. Below its
+triangle a supernode is a dense block: a row index is read once per block row, not per entry,
+and the sums run four at a time (one sum alone is a chain of dependent adds). On Rustrel the
+packed factors take a quarter less memory than in CSC (14 against 19 MB) and the two sweeps take 1.35 ms instead of 1.81 ms
+(2.7 instead of 4.0 ms with the factors out of cache). No factor is ever held twice over.
 """
 from __future__ import annotations
 
@@ -29,17 +32,145 @@ from ._jit import kernel
 
 
 @kernel
-def _lower_solve_by_columns(indptr, indices, data, r, n_columns, unit_diagonal):
-    """Forward substitution with the first ``n_columns`` columns of a lower triangular matrix in
-    CSC with sorted row indices (the diagonal first in each column): r[:n_columns] becomes the
-    solution and the rows below are updated with it (they receive L21 y)."""
-    for j in range(n_columns):
-        start = indptr[j]
-        yj = r[j] if unit_diagonal else r[j] / data[start]
-        r[j] = yj
-        if yj != 0.0:
-            for k in range(start + 1, indptr[j + 1]):
-                r[indices[k]] -= data[k] * yj
+def _supernodes(indptr, indices, n):
+    """Starts of the fundamental supernodes of the first ``n`` columns of a lower triangular CSC
+    matrix (sorted rows, diagonal first), and n at the end: column j + 1 joins column j's
+    supernode when its rows are column j's without j."""
+    starts = np.empty(n + 1, dtype=np.int64)
+    count = 0
+    for j in range(n):
+        same = j > 0 and indptr[j + 1] - indptr[j] == indptr[j] - indptr[j - 1] - 1
+        if same:
+            a, b = indptr[j - 1] + 1, indptr[j]
+            for k in range(indptr[j + 1] - b):
+                if indices[a + k] != indices[b + k]:
+                    same = False
+                    break
+        if not same:
+            starts[count] = j
+            count += 1
+    starts[count] = n
+    return starts[:count + 1]
+
+
+@kernel
+def _pack(indptr, indices, data, starts, for_backward):
+    """The supernodes ``starts`` of a lower triangular CSC matrix as dense blocks: supernode t
+    (columns j0 .. j0 + w - 1 from ``first``/``width``, the m rows ``rows[row_at[t]:row_at[t+1]]``
+    of column j0, its own first) is a row-major m x w block at ``values[value_at[t]:]``, zeros
+    above the diagonal. ``for_backward``: last supernode first, the order of a backward sweep,
+    so that it too reads memory forwards."""
+    n_sn = len(starts) - 1
+    first = np.empty(n_sn, dtype=np.int64)
+    width = np.empty(n_sn, dtype=np.int64)
+    row_at = np.zeros(n_sn + 1, dtype=np.int64)
+    value_at = np.zeros(n_sn + 1, dtype=np.int64)
+    for t in range(n_sn):
+        s = n_sn - 1 - t if for_backward else t
+        j0, w = starts[s], starts[s + 1] - starts[s]
+        m = indptr[j0 + 1] - indptr[j0]
+        first[t], width[t] = j0, w
+        row_at[t + 1] = row_at[t] + m
+        value_at[t + 1] = value_at[t] + m * w
+    rows = np.empty(row_at[n_sn], dtype=indices.dtype)
+    values = np.zeros(value_at[n_sn])
+    for t in range(n_sn):
+        j0, w = first[t], width[t]
+        r0, v0 = row_at[t], value_at[t]
+        m = row_at[t + 1] - r0
+        for k in range(m):
+            rows[r0 + k] = indices[indptr[j0] + k]
+        for c in range(w):  # column j0 + c holds rows[c:]
+            col = indptr[j0 + c] - c
+            for k in range(c, m):
+                values[v0 + k * w + c] = data[col + k]
+    return first, width, row_at, value_at, rows, values
+
+
+@kernel
+def _forward_sweep(first, width, row_at, value_at, rows, values, r):
+    """Forward substitution with a unit lower triangular matrix packed by ``_pack``: r[:n]
+    becomes the solution (n its columns) and the rows below receive L21 y. A row below a
+    supernode is one dot product with the supernode's solution, read and written once; four
+    rows at a time, so that four sums run side by side (one sum is a chain of dependent adds)."""
+    for t in range(len(first)):
+        j0, w = first[t], width[t]
+        r0, v0 = row_at[t], value_at[t]
+        m = row_at[t + 1] - r0
+        nonzero = False
+        for c in range(w):
+            yc = r[j0 + c]
+            if yc != 0.0:
+                nonzero = True
+                for k in range(c + 1, w):
+                    r[j0 + k] -= values[v0 + k * w + c] * yc
+        if not nonzero:
+            continue
+        k = w
+        while k + 4 <= m:
+            b = v0 + k * w
+            a0 = a1 = a2 = a3 = 0.0
+            for c in range(w):
+                yc = r[j0 + c]
+                a0 += values[b + c] * yc
+                a1 += values[b + w + c] * yc
+                a2 += values[b + 2 * w + c] * yc
+                a3 += values[b + 3 * w + c] * yc
+            r[rows[r0 + k]] -= a0
+            r[rows[r0 + k + 1]] -= a1
+            r[rows[r0 + k + 2]] -= a2
+            r[rows[r0 + k + 3]] -= a3
+            k += 4
+        for k in range(k, m):
+            b = v0 + k * w
+            a0 = 0.0
+            for c in range(w):
+                a0 += values[b + c] * r[j0 + c]
+            r[rows[r0 + k]] -= a0
+
+
+@kernel
+def _backward_sweep(first, width, row_at, value_at, rows, values, x):
+    """Backward substitution with the transpose of a lower triangular matrix V packed by
+    ``_pack(..., for_backward=True)``: solves V^T x = c for x[:n] given c there and, in the rows
+    beyond n, the unknowns already known. Below its triangle a supernode is a gather: each known
+    unknown is read once for all the supernode's columns, four rows of the block at a time (so
+    that each column's sum is a chain a quarter as long)."""
+    acc = np.zeros(max(1, np.max(width)) if len(width) else 1)
+    for t in range(len(first)):
+        j0, w = first[t], width[t]
+        r0, v0 = row_at[t], value_at[t]
+        m = row_at[t + 1] - r0
+        for c in range(w):
+            acc[c] = 0.0
+        k = w
+        while k + 4 <= m:
+            x0, x1 = x[rows[r0 + k]], x[rows[r0 + k + 1]]
+            x2, x3 = x[rows[r0 + k + 2]], x[rows[r0 + k + 3]]
+            b = v0 + k * w
+            for c in range(w):
+                acc[c] += ((values[b + c] * x0 + values[b + w + c] * x1)
+                           + (values[b + 2 * w + c] * x2 + values[b + 3 * w + c] * x3))
+            k += 4
+        for k in range(k, m):
+            xk = x[rows[r0 + k]]
+            b = v0 + k * w
+            for c in range(w):
+                acc[c] += values[b + c] * xk
+        for c in range(w - 1, -1, -1):
+            v = x[j0 + c] - acc[c]
+            for k in range(c + 1, w):
+                v -= values[v0 + k * w + c] * x[j0 + k]
+            x[j0 + c] = v / values[v0 + c * w + c]
+
+
+class _Packed:
+    """The first ``n`` columns of a lower triangular CSC factor packed by supernodes (``_pack``),
+    for the forward sweep or (``for_backward``) for the backward one with its transpose."""
+
+    def __init__(self, indptr, indices, data, n, for_backward):
+        _check_diagonal_first(indptr, indices, n)
+        self.arrays = _pack(indptr, indices, data, _supernodes(indptr, indices, n), for_backward)
 
 
 class PivotingAcrossBlocks(RuntimeError):
@@ -86,32 +217,21 @@ class BorderedLU:
         del lu
         self._row_B = rows_of[:nB].copy()
         self._row_N = rows_of[nB:] - nB
-        # no factor is held twice over: the backward sweep walks U11 reversed (J U11 J, lower
-        # triangular), which reversing U's arrays gives directly, and the forward sweep walks L
-        # by columns as SuperLU gives it
-        U.sort_indices()
-        self._U12 = U[:nB, nB:].tocsr()
-        U22 = U[nB:, nB:].toarray()
-        end_B = int(U.indptr[nB])
-        lengths = np.diff(U.indptr[:nB + 1])[::-1]
-        indptr = np.zeros(nB + 1, dtype=U.indptr.dtype)
-        np.cumsum(lengths, out=indptr[1:])
-        self.nnz = U.nnz  # fill, for diagnostics
-        # U11's columns reversed, copied out of U's arrays, which then go (with U12 and U22)
-        indices = U.indices[end_B - 1::-1] if end_B else U.indices[:0]
-        indices = np.subtract(nB - 1, indices, dtype=U.indices.dtype)
-        data = U.data[end_B - 1::-1].copy() if end_B else U.data[:0].copy()
-        del U
-        self._U11_reversed = (indptr, indices, data)
-        _check_diagonal_first(indptr, indices, nB)
         L.sort_indices()
-        self.nnz += L.nnz
-        # the trailing columns (L22, dense, n_N^2 / 2) stay in the arrays the sweep reads
-        self._L = (L.indptr, L.indices, L.data)
-        _check_diagonal_first(L.indptr, L.indices, nB)
-        S = L[nB:, nB:].toarray() @ U22   # (rows in pivot order) = L22 U22
-        del L, U22
+        U.sort_indices()
+        self.nnz = L.nnz + U.nnz  # fill, for diagnostics
+        S = L[nB:, nB:].toarray() @ U[nB:, nB:].toarray()   # (rows in pivot order) = L22 U22
         self.schur = np.ascontiguousarray(S[self._row_N])
+        del S
+        # each factor packed by supernodes and dropped before the next is: L by columns for the
+        # forward sweep (with L21's rows), U by rows (the columns of U^T, with U12's columns) for
+        # the backward one, whose gathers then read U12 too
+        self._L = _Packed(L.indptr, L.indices, L.data, nB, for_backward=False)
+        del L
+        U = U.tocsr()
+        U.sort_indices()
+        self._U = _Packed(U.indptr, U.indices, U.data, nB, for_backward=True)
+        del U
 
     def forward(self, r_linear, r_condensed):
         """(L11^-1 P r_B, r_N - L_NB B^-1 r_B): the swept linear right-hand side (to hand back to
@@ -120,17 +240,17 @@ class BorderedLU:
         r = np.empty(self.n)
         r[self._row_B] = r_linear
         r[nB + self._row_N] = r_condensed
-        _lower_solve_by_columns(*self._L, r, nB, True)
+        _forward_sweep(*self._L.arrays, r)
         return r[:nB], r[nB:][self._row_N]
 
     def backward(self, c, x_condensed):
         """B^-1 (r_B - L_BN x_N) from the swept c = ``forward(r_B, .)[0]`` (None: r_B = 0)."""
-        z = np.zeros(self.n_linear) if c is None else c.copy()
-        if len(x_condensed):
-            z -= self._U12 @ x_condensed
-        z = z[::-1].copy()
-        _lower_solve_by_columns(*self._U11_reversed, z, self.n_linear, False)
-        return z[::-1]
+        nB = self.n_linear
+        x = np.empty(self.n)
+        x[:nB] = 0.0 if c is None else c
+        x[nB:] = x_condensed
+        _backward_sweep(*self._U.arrays, x)
+        return x[:nB]
 
 
 def _check_diagonal_first(indptr, indices, n):

@@ -81,3 +81,35 @@ def test_matrix_given_by_a_function_factorises_the_same(system):
     xN = np.linalg.solve(other.schur, condensed)
     x = np.concatenate([other.backward(swept, xN), xN])
     assert _rel(x, spla.spsolve(sp.csc_matrix(M), r)) < TOL
+
+
+@pytest.mark.parametrize("shape", ["dense", "diagonal", "arrow"])
+def test_sweeps_on_extreme_supernodes(shape):
+    """The sweeps read the factors packed by supernodes: one supernode holding every linear
+    column (a dense block, 37 columns: none of the four-row groups is whole), none wider than a
+    column (a diagonal block: each column's supernode has no rows below it) and single columns
+    feeding one long dense border (arrow). Each against numpy's dense solve."""
+    rng = np.random.default_rng(6)
+    nB, nN = 37, 6
+    n = nB + nN
+    if shape == "dense":
+        M = rng.standard_normal((n, n))
+    elif shape == "diagonal":
+        M = np.zeros((n, n))
+        M[nB:, :] = rng.standard_normal((nN, n))
+        M[:, nB:] = rng.standard_normal((n, nN))
+    else:
+        M = np.zeros((n, n))
+        M[-1, :] = rng.standard_normal(n)
+        M[:, -1] = rng.standard_normal(n)
+        M[nB:, nB:] = rng.standard_normal((nN, nN))
+    M[np.arange(n), np.arange(n)] += 4.0 * n  # the diagonal pivots SuperLU keeps here
+    lu = BorderedLU(sp.csc_matrix(M), nB)
+    widths = lu._L.arrays[1]
+    assert widths.sum() == nB
+    assert widths.max() == {"dense": nB, "diagonal": 1, "arrow": 1}[shape]
+    r = rng.standard_normal(n)
+    swept, condensed = lu.forward(r[:nB], r[nB:])
+    xN = np.linalg.solve(lu.schur, condensed)
+    x = np.concatenate([lu.backward(swept, xN), xN])
+    assert _rel(x, np.linalg.solve(M, r)) < TOL
