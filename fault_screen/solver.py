@@ -342,7 +342,18 @@ class NewtonSolver:
         out[linear] = self.lu.backward(swept, dxN)
         return out, None, None
 
-    def _residual(self, x, rhs, history, dt, pending):
+    def _linear_times_start(self, x_n, stored_n):
+        """L x_n at a step's start, from A x_n and Hf x_n (the convergence test's products, at
+        hand when the last step was accepted there, else made whole now and kept for the test)
+        and C x_n / dt (the step's stored volume), instead of a product with L. Whole products
+        only, so that a restored run makes the same sums."""
+        last = self._products
+        if last is None or not last.whole or not np.array_equal(last.x, x_n):
+            last = self._products = _Products(x_n, x_n.copy(), self._AH @ x_n, np.zeros_like(x_n), True)
+        n = self.disc.n_dofs
+        return last.AHx[:n] + stored_n + self.time_weight * last.AHx[n:]
+
+    def _residual(self, x, rhs, history, dt, pending, Lx=None):
         """Residual at x and the nonlinear terms' tangent and fault state. ``pending``
         (``_PendingBulk`` or None): the bulk's answer to the step's updates that x[B] does not
         hold yet. On the fault rows it adds L_NB B^-1 (r_B - L_BN dx_N) = shift - P dx_N (P =
@@ -350,7 +361,7 @@ class NewtonSolver:
         made (linear bulk, eliminated exactly), so only the fault rows and those of the fixed
         unknowns (the reactions) are computed."""
         if pending is None:
-            R = self.L @ x - rhs
+            R = (self.L @ x if Lx is None else Lx) - rhs
         else:
             needed = self._rows_N_fixed
             R = np.zeros_like(x)
@@ -429,7 +440,7 @@ class NewtonSolver:
                     self._products = _Products(x_n, x.copy(), AHx, Cd, False)
                     return AHx, Cd
                 if n_changed == 0:  # a new step from the last accepted state
-                    Cd = self.C @ (x - x_n)
+                    Cd = np.zeros_like(x) if np.array_equal(x, x_n) else self.C @ (x - x_n)
                     self._products = _Products(x_n, x.copy(), last.AHx, Cd, True)
                     return last.AHx, Cd
         AHx, Cd = self._AH @ x, self.C @ (x - x_n)
@@ -466,6 +477,7 @@ class NewtonSolver:
         rhs -= known
         flow_known = np.abs(rhs - stored_n)  # sources and the known parts of the flow terms
         x = x_n.copy() if x0 is None else x0.copy()  # x0: a better first guess (continuation)
+        Lx = self._linear_times_start(x_n, stored_n) if x0 is None else None
         free, mf, tol = self.free, self.mech_free, self.tol
         # the bulk's answer to every Newton update would cost a backward sweep: it is summed
         # instead (pending) and swept for once, when the fault looks converged; possible when the
@@ -482,7 +494,8 @@ class NewtonSolver:
         max_it = self.max_it * (DAMPED_ITERATION_FACTOR if damped else 1)
         it = 0
         while True:
-            R, rows, cols, vals, point = self._residual(x, rhs, history, dt, pending)
+            R, rows, cols, vals, point = self._residual(x, rhs, history, dt, pending,
+                                                        Lx if it == 0 else None)
             sR = scale * R
             if not np.all(np.isfinite(sR[free])):
                 raise StepFailed("non-finite residual")
