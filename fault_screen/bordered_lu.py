@@ -28,10 +28,10 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from ._jit import kernel
+from ._jit import helper, kernel
 
 
-@kernel
+@helper
 def _supernodes(indptr, indices, n):
     """Starts of the fundamental supernodes of the first ``n`` columns of a lower triangular CSC
     matrix (sorted rows, diagonal first), and n at the end: column j + 1 joins column j's
@@ -54,12 +54,14 @@ def _supernodes(indptr, indices, n):
 
 
 @kernel
-def _pack(indptr, indices, data, starts, for_backward):
-    """The supernodes ``starts`` of a lower triangular CSC matrix as dense blocks: supernode t
+def _pack(indptr, indices, data, n, for_backward):
+    """The first ``n`` columns of a lower triangular CSC matrix by supernodes (``_supernodes``),
+    each a dense block: supernode t
     (columns j0 .. j0 + w - 1 from ``first``/``width``, the m rows ``rows[row_at[t]:row_at[t+1]]``
     of column j0, its own first) is a row-major m x w block at ``values[value_at[t]:]``, zeros
     above the diagonal. ``for_backward``: last supernode first, the order of a backward sweep,
     so that it too reads memory forwards."""
+    starts = _supernodes(indptr, indices, n)
     n_sn = len(starts) - 1
     first = np.empty(n_sn, dtype=np.int64)
     width = np.empty(n_sn, dtype=np.int64)
@@ -170,7 +172,7 @@ class _Packed:
 
     def __init__(self, indptr, indices, data, n, for_backward):
         _check_diagonal_first(indptr, indices, n)
-        self.arrays = _pack(indptr, indices, data, _supernodes(indptr, indices, n), for_backward)
+        self.arrays = _pack(indptr, indices, data, n, for_backward)
 
 
 class PivotingAcrossBlocks(RuntimeError):
