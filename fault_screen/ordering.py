@@ -19,9 +19,14 @@ import scipy.sparse as sp
 LEAF_SIZE = 8
 
 
-def nested_dissection(pattern: sp.spmatrix, xy: np.ndarray, leaf: int = LEAF_SIZE) -> np.ndarray:
+def nested_dissection(pattern: sp.spmatrix, xy: np.ndarray, leaf: int = LEAF_SIZE,
+                      return_split: bool = False):
     """Permutation (new position -> old index) of the unknowns of a square sparse matrix whose
-    unknown i sits at ``xy[i]`` (m). Only the pattern of ``pattern + pattern^T`` is used."""
+    unknown i sits at ``xy[i]`` (m). Only the pattern of ``pattern + pattern^T`` is used.
+
+    ``return_split``: also the sizes (n_left, n_right, n_separator) of the first cut, in the
+    order the permutation places them (None when the set was not cut): the two halves do not
+    couple, so they can be factorised apart (``bordered_lu.SplitBorderedLU``)."""
     n = pattern.shape[0]
     sym = (abs(pattern) + abs(pattern.T)).tocsr()
     sym.sum_duplicates()
@@ -30,6 +35,7 @@ def nested_dissection(pattern: sp.spmatrix, xy: np.ndarray, leaf: int = LEAF_SIZ
     in_right = np.zeros(n, dtype=bool)
     order: list[np.ndarray] = []
     stack = [(np.arange(n), False)]  # (unknowns, is a separator to place)
+    split = None
     # iterative post-order: left part, right part, then the separator
     while stack:
         ids, emit = stack.pop()
@@ -53,9 +59,11 @@ def nested_dissection(pattern: sp.spmatrix, xy: np.ndarray, leaf: int = LEAF_SIZ
         touches = np.zeros(len(L), dtype=bool)
         touches[owner[in_right[neighbours]]] = True
         in_right[R] = False
+        if split is None:
+            split = (int(np.count_nonzero(~touches)), len(R), int(np.count_nonzero(touches)))
         stack.append((L[touches], True))
         stack.append((R, False))
         stack.append((L[~touches], False))
     perm = np.concatenate(order) if order else np.zeros(0, dtype=np.int64)
     assert len(perm) == n
-    return perm
+    return (perm, split) if return_split else perm

@@ -24,7 +24,7 @@ import scipy.sparse as sp
 
 from ._jit import kernel
 from .assembly import TripletBuilder, add_triplets_to_dense
-from .bordered_lu import BorderedLU
+from .bordered_lu import bordered_lu, release_freed_memory
 from .discretisation import Discretisation
 from .ordering import nested_dissection
 from .physics import ConstantMatrices, Term
@@ -49,28 +49,6 @@ STALLED_ITERATIONS = 3
 #: which threads do not speed up and which spin against the other processes of a busy machine
 #: (the fine 30 deg scene, 2059 fault unknowns: 323 s of CPU for 465 s of wall at load 7-10)
 SINGLE_THREAD_BLAS_UP_TO = 6000
-
-
-@functools.cache
-def _libc_malloc_trim():
-    """glibc's malloc_trim, or None (another C library)."""
-    import ctypes
-    import ctypes.util
-
-    try:
-        return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
-    except (OSError, AttributeError):
-        return None
-
-
-def release_freed_memory():
-    """Hand the heap memory that Python and numpy freed back to the system (glibc keeps it, in
-    pieces too small for its own use by a large allocation, which SuperLU's factors then take
-    from fresh pages: the assembly's triplets, ~150 MB on Rustrel 200 x 201, stayed resident
-    under the factorisation's peak)."""
-    trim = _libc_malloc_trim()
-    if trim is not None:
-        trim(0)
 
 
 @functools.cache
@@ -128,7 +106,8 @@ class NewtonSolver:
     DOFs, evolving-aperture conduction on the fault pressures). The free unknowns are split into
     those (N, a few hundred) and everything else (B), whose Jacobian block is constant for a given
     time step. One sparse LU of the free block with N ordered last (``BorderedLU``) gives the
-    Schur complement on N and the two sweeps that eliminate the bulk. The bulk is linear, so after
+    Schur complement on N and the two sweeps that eliminate the bulk (a large bulk as two halves
+    factorised one after the other, ``SplitBorderedLU``). The bulk is linear, so after
     a step's first Newton update its rows stay in balance: a step sweeps forward once for the
     step's right-hand side, iterates on the fault with the small dense condensed system, and
     sweeps backward once for the bulk's answer to the sum of its fault updates (see ``_step``).
@@ -138,6 +117,7 @@ class NewtonSolver:
     _products = None
     _dense = None
     _order = None
+    _split = None      # the first cut of the bulk's nested dissection (see bordered_lu)
     _blocks_NN = None
     _blocks_fixed = None
     _blocks_rows_N_fixed = None
@@ -270,7 +250,8 @@ class NewtonSolver:
             D = sp.diags(self.scale)
             Ls = (D @ L @ D).tocsr()
             if self._order is None:  # the pattern of B is that of every step size
-                inner = nested_dissection(Ls[B][:, B], self.disc.dof_coordinates()[B])
+                inner, self._split = nested_dissection(Ls[B][:, B], self.disc.dof_coordinates()[B],
+                                                       return_split=True)
                 self._order = np.concatenate([B[inner], N])
             # the factorisation's peak (SuperLU's storage and the factors copied out of it) is
             # reached holding neither L (made again after it) nor the matrix factorised
@@ -278,7 +259,7 @@ class NewtonSolver:
             del Ls, L
             self.lu = None  # the old factors go before the new ones are made (peak memory)
             release_freed_memory()
-            self.lu = BorderedLU(held.pop, len(B))
+            self.lu = bordered_lu(held.pop, len(B), self._split)
             L = self._linear_jacobian(dt)
             self.factorizations += 1
             LNN = self._combine(self._blocks_NN, dt).toarray()  # (after the factors' peak)

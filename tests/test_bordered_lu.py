@@ -113,3 +113,28 @@ def test_sweeps_on_extreme_supernodes(shape):
     xN = np.linalg.solve(lu.schur, condensed)
     x = np.concatenate([lu.backward(swept, xN), xN])
     assert _rel(x, np.linalg.solve(M, r)) < TOL
+
+
+def test_split_factorisation_equals_the_whole(system):
+    """The linear block factorised as the two halves of its first nested-dissection cut, each
+    bordered by the separator and the condensed unknowns (``SplitBorderedLU``): the same Schur
+    complement and sweeps as the one factorisation, against numpy's dense solves."""
+    lu, M, nB = system
+    from fault_screen.bordered_lu import SplitBorderedLU
+
+    scene = Scene.from_toml(CONFIGS / "verification" / "mass-balance.toml")
+    solver = NewtonSolver(discretise(scene))
+    solver._prepare(scene.time.dt, np.zeros(solver.disc.n_dofs), None if solver.disc.physics.contact is None
+                    else solver.disc.physics.contact.initial_history(solver.disc))
+    n1, n2, ns = solver._split
+    assert min(n1, n2) > 10 * ns > 0   # two real halves and a separator between them
+    split = SplitBorderedLU(sp.csc_matrix(M), nB, solver._split)
+    assert np.allclose(M[:n1, n1:n1 + n2], 0.0) and np.allclose(M[n1:n1 + n2, :n1], 0.0)
+    assert _rel(split.schur, lu.schur) < TOL
+    rng = np.random.default_rng(7)
+    r = rng.standard_normal(M.shape[0])
+    swept, condensed = split.forward(r[:nB], r[nB:])
+    assert _rel(condensed, lu.forward(r[:nB], r[nB:])[1]) < TOL
+    xN = np.linalg.solve(split.schur, condensed)
+    assert _rel(np.concatenate([split.backward(swept, xN), xN]), np.linalg.solve(M, r)) < TOL
+    assert _rel(split.backward(None, xN), -np.linalg.solve(M[:nB, :nB], M[:nB, nB:] @ xN)) < TOL
