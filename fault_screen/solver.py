@@ -115,6 +115,7 @@ class NewtonSolver:
 
     _AH = None
     _products = None
+    _Cx_n = None       # (x_n, C x_n) of the current step
     _dense = None
     _order = None
     _split = None      # the first cut of the bulk's nested dissection (see bordered_lu)
@@ -330,7 +331,8 @@ class NewtonSolver:
         only, so that a restored run makes the same sums."""
         last = self._products
         if last is None or not last.whole or not np.array_equal(last.x, x_n):
-            last = self._products = _Products(x_n, x_n.copy(), self._AH @ x_n, np.zeros_like(x_n), True)
+            last = self._products = _Products(x_n, x_n.copy(), self._AH @ x_n, np.zeros_like(x_n), True,
+                                              self._C_times_start(x_n))
         n = self.disc.n_dofs
         return last.AHx[:n] + stored_n + self.time_weight * last.AHx[n:]
 
@@ -424,9 +426,24 @@ class NewtonSolver:
                     Cd = np.zeros_like(x) if np.array_equal(x, x_n) else self.C @ (x - x_n)
                     self._products = _Products(x_n, x.copy(), last.AHx, Cd, True)
                     return last.AHx, Cd
-        AHx, Cd = self._AH @ x, self.C @ (x - x_n)
-        self._products = _Products(x_n, x.copy(), AHx, Cd, True)
+        AHx, Cx = self._AH @ x, self.C @ x
+        Cd = Cx - self._C_times_start(x_n)
+        self._products = _Products(x_n, x.copy(), AHx, Cd, True, Cx)
         return AHx, Cd
+
+    def _C_times_start(self, x_n):
+        """C x_n: the last whole product C x when x_n is that x (the step starts where the last
+        one was accepted), else computed whole (as a restored run does: the same sums)."""
+        known = self._Cx_n
+        if known is not None and known[0] is x_n:
+            return known[1]
+        last = self._products
+        if last is not None and last.Cx is not None and np.array_equal(last.x, x_n):
+            Cx_n = last.Cx
+        else:
+            Cx_n = self.C @ x_n
+        self._Cx_n = (x_n, Cx_n)
+        return Cx_n
 
     def _bulk_in_balance(self, sR, ref):
         """Is the scaled residual of the linear rows below BULK_BALANCE of what the convergence
@@ -445,7 +462,7 @@ class NewtonSolver:
             self._AH = sp.vstack([self.A, self.Hf]).tocsr()
             self._AH_N = self._AH[:, self.N]
             self._C_N = self.C.tocsr()[:, self.N]
-        stored_n = (self.C @ x_n) / dt
+        stored_n = self._C_times_start(x_n) / dt
         rhs = stored_n + disc.load
         if th != 1.0:  # backward Euler (the default) has no known part of the conduction
             rhs -= (1.0 - th) * (self.Hf @ x_n)
@@ -584,12 +601,14 @@ class NewtonSolver:
 
 class _Products(NamedTuple):
     """``NewtonSolver._linear_products`` at x: [A; Hf] x and C (x - x_n); ``whole``: computed
-    as whole products (not brought up to date through the condensed columns)."""
+    as whole products (not brought up to date through the condensed columns); ``Cx``: C x when
+    computed whole (the next step's stored volume if x is accepted), else None."""
     x_n: np.ndarray
     x: np.ndarray
     AHx: np.ndarray
     Cd: np.ndarray
     whole: bool
+    Cx: np.ndarray | None = None
 
 
 class _PendingBulk:
