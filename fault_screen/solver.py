@@ -123,7 +123,6 @@ class NewtonSolver:
     _blocks_fixed = None
     _blocks_rows_N_fixed = None
     _blas_limited = False
-    _schur_made = 0     # Schur complements made so far: which one a condensed block came from
     _restored_P = None
     lu = None
 
@@ -179,14 +178,14 @@ class NewtonSolver:
 
     def checkpoint_state(self) -> dict:
         """Arrays that a restored solver needs to take bit-identical steps: the condensed block
-        last factorised (later solves are preconditioned by its factors) and its step size, and
-        the condensation when it serves every step size (see ``_prepare``)."""
+        last factorised (later solves are preconditioned by its factors) and its 1/dt, and the
+        condensation when it serves every step size (see ``_prepare``)."""
         out = {}
         if self._factors_any_dt and self.lu is not None:
             out["condensation"] = self.P
         d = self._dense
         if d is not None and d.M0 is not None:
-            out.update(condensed_block=d.M0, condensed_dt=np.array(d.factored_dt))
+            out.update(condensed_block=d.M0, condensed_inv_dt=np.array(d.factored_inv_dt))
         return out
 
     def restore_state(self, state: dict):
@@ -194,8 +193,27 @@ class NewtonSolver:
         if "condensation" in state:
             self._restored_P = np.array(state["condensation"])
         if "condensed_block" in state:
-            self._dense = _CondensedSolver()
-            self._dense.set(np.array(state["condensed_block"]), float(state["condensed_dt"]))
+            if "condensed_inv_dt" in state:
+                inv_dt = float(state["condensed_inv_dt"])
+            else:  # (a checkpoint written before 1/dt was stored: 1/dt as _combine makes it)
+                inv_dt = 1.0 / float(state["condensed_dt"])
+            self._dense = self._new_condensed_solver()
+            with self.blas_threads():  # (the factors' round-off depends on the thread count)
+                self._dense.set(np.array(state["condensed_block"]), inv_dt)
+
+    def _new_condensed_solver(self):
+        """The run's dense solver; it is told the storage block when that is all a step-size
+        change alters (``_factors_any_dt``), so that it can keep its factors across step sizes."""
+        return _CondensedSolver(self._condensed_blocks()[1] if self._factors_any_dt else None)
+
+    def _condensed_blocks(self):
+        """The condensed block of A, C, Hf (scaled: needs the scaling), sliced once."""
+        if self._blocks_NN is None:
+            N = self.N
+            sN = self.scale[N]
+            self._blocks_NN = [M[N][:, N].multiply(sN[:, None]).multiply(sN[None, :]).tocsr()
+                               for M in (self.A, self.C, self.Hf)]
+        return self._blocks_NN
 
     def _uncoupled_to_linear(self, nonlinear):
         """Free unknowns whose constant rows or columns touch no other linear unknown: left in
@@ -243,10 +261,7 @@ class NewtonSolver:
             diag[diag == 0.0] = 1.0
             self.scale = 1.0 / np.sqrt(diag)
         B, N = self.B, self.N
-        if self._blocks_NN is None:  # the condensed block of A, C, Hf (scaled), sliced once
-            sN = self.scale[N]
-            self._blocks_NN = [M[N][:, N].multiply(sN[:, None]).multiply(sN[None, :]).tocsr()
-                               for M in (self.A, self.C, self.Hf)]
+        self._condensed_blocks()
         if self.lu is None or not self._factors_any_dt:
             D = sp.diags(self.scale)
             Ls = (D @ L @ D).tocsr()
@@ -273,7 +288,6 @@ class NewtonSolver:
         else:
             LNN = self._combine(self._blocks_NN, dt).toarray()
         self.schur = np.subtract(LNN, self.P, out=LNN)
-        self._schur_made += 1
         self.L = L
         if self._blocks_fixed is None:  # rows of the fixed unknowns on the linear ones, in order
             self._blocks_fixed = [M[self._fixed].tocsc()[:, self._linear_order()].tocsr()
@@ -592,10 +606,13 @@ class NewtonSolver:
         M = self.schur.copy()
         add_triplets_to_dense(M, self.n_index, rows, cols, vals, self.scale)
         if self._dense is None:
-            self._dense = _CondensedSolver()
+            self._dense = self._new_condensed_solver()
         i, j = self.n_index[rows], self.n_index[cols]
         kept = (i >= 0) & (j >= 0)
-        self._dense.set(M, self._dt, base=self._schur_made, touched=i[kept] * len(M) + j[kept])
+        # the Schur complements of one condensation (factorisation of the bulk) differ only in
+        # the storage term, which the dense solver is told of when it serves every step size
+        self._dense.set(M, 1.0 / self._dt, base=self.factorizations,
+                        touched=i[kept] * len(M) + j[kept])
         return self._dense
 
 
@@ -661,20 +678,47 @@ def _condensed_max_iterations(n):
     return min(30, max(12, n // 40))
 
 
+#: entries of the storage pattern differ between blocks of two step sizes by delta * C_ij plus the
+#: round-off of forming each (measured: up to 43 eps of the entry on the 30 deg T = 0.7 scene,
+#: where the terms of an entry cancel); a difference within this many eps of the entries and of
+#: delta * C_ij is taken for that round-off (what is left of it, the check against M resolves)
+STORAGE_ROUNDOFF = 1024 * np.finfo(float).eps
+
+
+#: columns of the inverse of the factorised block are solved for in pages of this many (a
+#: slip front's changed rows are contiguous: few more are solved than needed)
+COLUMN_PAGE = 16
+
+
 @kernel
-def _change(M, M0):
-    """Where and how much M differs from M0 (equal square arrays): a mask of the rows and
-    columns holding a difference, and max |M - M0|; one pass, no n x n temporary."""
+def _change(M, M0, delta, indptr, indices, data, slack):
+    """Where and how much M differs from M0 + delta C (equal square arrays; C in CSR: indptr,
+    indices, data): a mask of the rows and columns holding a difference, and its largest
+    magnitude; one pass, no n x n temporary. Within C's pattern a difference of at most
+    slack (|M_ij| + |M0_ij| + |delta C_ij|) is none (slack = 0: M exactly M0 + delta C there)."""
     n = M.shape[0]
     changed = np.zeros(n, dtype=np.bool_)
     largest = 0.0
+    stored = np.zeros(n)      # row i of delta C, scattered
+    in_storage = np.zeros(n, dtype=np.bool_)
     for i in range(n):
+        for k in range(indptr[i], indptr[i + 1]):
+            stored[indices[k]] = delta * data[k]
+            in_storage[indices[k]] = True
         for j in range(n):
             d = M[i, j] - M0[i, j]
+            if in_storage[j]:
+                s = stored[j]
+                d = d - s
+                if abs(d) <= slack * (abs(M[i, j]) + abs(M0[i, j]) + abs(s)):
+                    continue
             if d != 0.0:
                 changed[i] = True
                 changed[j] = True
                 largest = max(largest, abs(d))
+        for k in range(indptr[i], indptr[i + 1]):
+            stored[indices[k]] = 0.0
+            in_storage[indices[k]] = False
     return changed, largest
 
 
@@ -683,44 +727,60 @@ class _CondensedSolver:
 
     M changes at every Newton iteration that moves a slip front or an aperture, and with every
     step size; a dense LU of it (n = 400-2000) is the largest cost per iteration. The last
-    factorised M0 is kept instead, and M x = b is solved with its factors:
-    - when M - M0 lies in few rows and columns K (a slip front that moved by a few fault points:
+    factorised M0 (at 1/dt0) is kept instead, and M x = b is solved with its factors:
+    - a step-size change, when the block's only part that depends on it is the storage term
+      (``storage``: the condensed, scaled C, nonzero in the flow rows R alone; no rock pore
+      pressure), changes M by delta C with delta = 1/dt - 1/dt0: exactly by the Woodbury identity
+      on the rows R, M1 = M0 + delta E_R C_R, whose capacitance I + delta C_R M0^-1 E_R is an LU of
+      |R| per step size (C_R M0^-1 E_R is made once per M0). M1 is the base that the contact
+      changes below are taken from (without ``storage``, a new step size factorises M);
+    - when M - M1 lies in few rows and columns K (a slip front that moved by a few fault points:
       the contact tangents of those points changed), exactly by the Woodbury identity, at the
-      cost of |K| solves with M0's factors in one block;
+      cost of |K| solves with M1 in one block;
     - when the change is spread but small (rate-dependent friction, an evolving aperture), by
-      GMRES preconditioned with M0's LU (right preconditioning: the true residual of M is what
+      GMRES preconditioned with M1 (right preconditioning: the true residual of M is what
       converges), a few iterations to CONDENSED_RTOL.
-    Either result is checked against M itself. When neither serves, or the step size changed
-    (the Schur complement's flow rows all change: GMRES preconditioned across a step size change
-    of 6 % took 9 iterations per solve on the 30 deg T = 0.7 scene, more than an LU), M is
-    factorised and becomes M0."""
+    Every result is checked against M itself. When none serves, M is factorised and becomes M0.
+    (GMRES preconditioned across a step size change of 6 % took 9 iterations per solve on the
+    30 deg T = 0.7 scene, more than an LU: hence the exact update on R.)"""
 
-    def __init__(self):
+    def __init__(self, storage=None):
         self.M = self.M0 = None
         self._base = self._base0 = self._touched = self._touched0 = None
         self.factors = None
         self.factored = False      # the current M is the factorised one
-        self.factored_dt = None    # the step size of M0
-        self.dt = None
+        self.factored_inv_dt = None    # 1/dt of M0
+        self.inv_dt = None
         self.factorizations = 0
         self.iterations = 0        # GMRES iterations, for diagnostics
         self.updates = 0           # low-rank (Woodbury) solves, for diagnostics
+        self.storage = None
+        if storage is not None:
+            self.storage = sp.csr_matrix(storage, copy=True)
+            self.storage.sum_duplicates()
+            C = self.storage
+            self._storage_rows = np.flatnonzero(np.diff(C.indptr))   # R
+            self._C_R = C[self._storage_rows]
+            coo = C.tocoo()
+            self._storage_at = coo.row.astype(np.int64) * C.shape[0] + coo.col   # flat positions
+            self._storage_values = coo.data
 
-    def set(self, M, dt, base=None, touched=None):
-        """The block to solve with next. ``base``: which array (a count, not the array: that
-        would be held after it is replaced) it was made from by adding the nonlinear tangent at
-        the flat positions ``touched`` (duplicates allowed): while the base is that of M0, M and
-        M0 can differ only there (see ``_change_from_M0``)."""
+    def set(self, M, inv_dt, base=None, touched=None):
+        """The block to solve with next, at step size 1/``inv_dt``. ``base``: which condensation
+        (a count, not the array: that would be held after it is replaced) it was made from by
+        adding the nonlinear tangent at the flat positions ``touched`` (duplicates allowed):
+        while the base is that of M0, M and M0 can differ only there and, across step sizes, in
+        the storage pattern (see ``_change_from_M0``)."""
         self.M = M
-        self.dt = dt
+        self.inv_dt = inv_dt
         self._base, self._touched = base, touched
         self.factored = False
-        if self.factors is None or dt != self.factored_dt:
+        if self.factors is None or (inv_dt != self.factored_inv_dt and self.storage is None):
             self._factorise()
 
     def _factorise(self):
         self.factors = scipy.linalg.lu_factor(self.M, check_finite=False)
-        self.factored_dt = self.dt
+        self.factored_inv_dt = self.inv_dt
         self.M0 = self.M
         self._base0, self._touched0 = self._base, self._touched
         self._M0_largest = max(float(self.M0.max()), -float(self.M0.min())) if self.M0.size else 0.0
@@ -729,71 +789,158 @@ class _CondensedSolver:
         # columns of M0^-1 solved for so far (the changed rows only grow until M0 is replaced)
         self._Z = None
         self._have = np.zeros(len(self.M), dtype=bool)
+        # M0^-1 E_R and C_R M0^-1 E_R: made at the first step-size change, from M0 alone (in one
+        # block: a restored run makes them bit for bit)
+        self._Z_R = self._K_R = None
+        self._new_step_size(0.0)
+
+    def _new_step_size(self, delta):
+        """The base M1 = M0 + delta E_R C_R: its capacitance's LU and the columns of M1^-1 kept
+        for it (``_base_columns``)."""
+        self._delta = delta
+        self._capacitance_R = None
+        self._Z1 = None
+        self._have1 = np.zeros(len(self.M0), dtype=bool)
+
+    def _step_size_update(self):
+        """Make the base M1 that of the current step size; False when its capacitance cannot be
+        factorised."""
+        delta = self.inv_dt - self.factored_inv_dt
+        if delta == self._delta:
+            return True
+        self._new_step_size(delta)
+        if self._Z_R is None:
+            R = self._storage_rows
+            E = np.zeros((len(self.M0), len(R)))
+            E[R, np.arange(len(R))] = 1.0
+            self._Z_R = scipy.linalg.lu_solve(self.factors, E, check_finite=False)
+            self._K_R = np.asarray(self._C_R @ self._Z_R)
+        capacitance = np.eye(len(self._K_R)) + delta * self._K_R
+        try:
+            self._capacitance_R = scipy.linalg.lu_factor(capacitance, check_finite=False)
+        except (np.linalg.LinAlgError, ValueError):
+            return False
+        return True
+
+    def _step_size_correction(self, W):
+        """M1^-1 V from W = M0^-1 V (a vector or columns): W - delta Z_R (I + delta K_R)^-1 C_R W."""
+        if self._delta == 0.0:
+            return W
+        t = scipy.linalg.lu_solve(self._capacitance_R, self._C_R @ W, check_finite=False)
+        return W - self._delta * (self._Z_R @ t)
 
     def _precondition(self, v):
-        return scipy.linalg.lu_solve(self.factors, v, check_finite=False)
+        """M1^-1 v (M0^-1 v while M is of M0's step size)."""
+        return self._step_size_correction(scipy.linalg.lu_solve(self.factors, v, check_finite=False))
 
     def solve(self, b):
         if not self.factored:
             M, M0 = self.M, self.M0
-            changed, largest = self._change_from_M0()
-            K = np.flatnonzero(changed)
             x = None
-            if len(K) * LOW_RANK_FRACTION <= len(b):
-                x = self._low_rank(b, M[np.ix_(K, K)] - M0[np.ix_(K, K)], K)
-            elif largest <= SMALL_CHANGE * self._M0_largest:
-                x = self._gmres(b)
+            if self._step_size_update():
+                changed, largest = self._change_from_M0()
+                K = np.flatnonzero(changed)
+                if len(K) * LOW_RANK_FRACTION <= len(b):
+                    DK = M[np.ix_(K, K)] - M0[np.ix_(K, K)]
+                    if self._delta != 0.0:
+                        DK -= self._delta * self.storage[K][:, K].toarray()
+                    x = self._low_rank(b, DK, K)
+                elif largest <= SMALL_CHANGE * self._M0_largest:
+                    x = self._gmres(b)
             if x is not None:
                 return x
             self._factorise()
         return self._precondition(b)
 
     def _change_from_M0(self):
-        """Rows and columns where M differs from M0 (mask) and the largest difference, exactly
-        as ``_change`` finds them; read at the tangent's positions alone when M and M0 were made
-        from the same base (the Schur complement of one step size) and the tangent touches few
-        entries: elsewhere they are equal."""
+        """Rows and columns where M differs from M1 = M0 + delta C (mask) and the largest
+        difference, exactly as ``_change`` finds them; read at the tangent's positions (and the
+        storage pattern) alone when M and M0 were made from the same condensation and the tangent
+        touches few entries: elsewhere they are equal."""
         n = len(self.M)
+        delta = self._delta
+        storage = self.storage
+        if storage is None:
+            storage = sp.csr_matrix((n, n))
+        slack = STORAGE_ROUNDOFF if delta != 0.0 else 0.0
         if (self._base is None or self._base != self._base0 or self._touched0 is None
-                or 8 * (len(self._touched) + len(self._touched0)) > n * n):
-            return _change(self.M, self.M0)  # (a scattered read of most entries: read them all)
+                or 8 * (len(self._touched) + len(self._touched0) + storage.nnz) > n * n):
+            # (a scattered read of most entries: read them all)
+            return _change(self.M, self.M0, delta, storage.indptr, storage.indices, storage.data,
+                           slack)
         at = np.concatenate([self._touched, self._touched0])
         D = self.M.ravel()[at] - self.M0.ravel()[at]
+        if delta != 0.0:
+            # the storage pattern, with the step-size change taken out as _change does
+            at_s = self._storage_at
+            Ms, M0s = self.M.ravel()[at_s], self.M0.ravel()[at_s]
+            s = delta * self._storage_values
+            Ds = (Ms - M0s) - s
+            beyond = np.abs(Ds) > slack * (np.abs(Ms) + np.abs(M0s) + np.abs(s))
+            # a tangent position in the pattern is judged by the pattern's rule
+            outside = ~np.isin(at, at_s)
+            at = np.concatenate([at[outside], at_s[beyond]])
+            D = np.concatenate([D[outside], Ds[beyond]])
         differ = at[D != 0.0]
         changed = np.zeros(n, dtype=bool)
         changed[differ // n] = True
         changed[differ % n] = True
+        D = D[D != 0.0]
         return changed, (float(np.abs(D).max()) if D.size else 0.0)
 
+    def _base_columns(self, K):
+        """M1^-1 E_K: the columns of M0^-1 at K (kept while M0 is: K grows as a front advances),
+        corrected for the step size (kept while it is that of M1). Both are made a page of
+        COLUMN_PAGE columns at a time, each page alone: a column's round-off then does not depend
+        on which others were asked for with it, so a restored run, which starts with none kept,
+        repeats them bit for bit."""
+        n = len(self.M0)
+        if self._Z is None:
+            self._Z = np.empty((n, n), order="F")  # (pages of unsolved columns stay untouched)
+        for page in self._pages(K, self._have):
+            E = np.zeros((n, len(page)))
+            E[page, np.arange(len(page))] = 1.0
+            self._Z[:, page] = scipy.linalg.lu_solve(self.factors, E, check_finite=False)
+            self._have[page] = True
+        if self._delta == 0.0:
+            return self._Z[:, K]
+        if self._Z1 is None:
+            self._Z1 = np.empty((n, n), order="F")
+        for page in self._pages(K, self._have1):
+            self._Z1[:, page] = self._step_size_correction(self._Z[:, page])
+            self._have1[page] = True
+        return self._Z1[:, K]
+
+    @staticmethod
+    def _pages(K, have):
+        """The pages (column ranges of COLUMN_PAGE) holding a column of K not in ``have``."""
+        n = len(have)
+        for first in np.unique(K[~have[K]] // COLUMN_PAGE) * COLUMN_PAGE:
+            yield np.arange(first, min(first + COLUMN_PAGE, n))
+
     def _low_rank(self, b, DK, K):
-        """Woodbury: with M = M0 + E D E^T (E: the columns of the identity at the changed rows
-        and columns K), M^-1 b = y - Z (I + D Z_K)^-1 D y_K, y = M0^-1 b, Z = M0^-1 E (its
-        columns kept while M0 is: K grows as a front advances). None when the result misses the
-        check."""
-        n = len(b)
-        if len(K) == 0:
-            return self._precondition(b)
-        new = K[~self._have[K]]
-        if len(new):
-            if self._Z is None:
-                self._Z = np.empty((n, n), order="F")  # (pages of unsolved columns stay untouched)
-            E = np.zeros((n, len(new)))
-            E[new, np.arange(len(new))] = 1.0
-            self._Z[:, new] = self._precondition(E)
-            self._have[new] = True
-        Z = self._Z[:, K]
-        capacitance = np.eye(len(K)) + DK @ Z[K]
-        try:
-            cap = scipy.linalg.lu_factor(capacitance, check_finite=False)
-        except (np.linalg.LinAlgError, ValueError):
-            return None
+        """Woodbury: with M = M1 + E D E^T (E: the columns of the identity at the changed rows
+        and columns K), M^-1 b = y - Z (I + D Z_K)^-1 D y_K, y = M1^-1 b, Z = M1^-1 E. None when
+        the result misses the check."""
+        if len(K) == 0 and self._delta == 0.0:
+            return self._precondition(b)  # M is M0
+        if len(K):
+            Z = self._base_columns(K)
+            capacitance = np.eye(len(K)) + DK @ Z[K]
+            try:
+                cap = scipy.linalg.lu_factor(capacitance, check_finite=False)
+            except (np.linalg.LinAlgError, ValueError):
+                return None
 
-        def apply(r):
-            y = self._precondition(r)
-            return y - Z @ scipy.linalg.lu_solve(cap, DK @ y[K], check_finite=False)
+            def apply(r):
+                y = self._precondition(r)
+                return y - Z @ scipy.linalg.lu_solve(cap, DK @ y[K], check_finite=False)
+        else:  # only the step size changed
+            apply = self._precondition
 
-        # a slip front's tangents change the stiff shear penalty: the identity loses digits
-        # there, which up to two steps of refinement with it recover
+        # a slip front's tangents change the stiff shear penalty, and M1 differs from M by the
+        # round-off of the storage change: the identity loses digits there, which up to two
+        # steps of refinement with it recover
         goal = CONDENSED_RTOL * np.linalg.norm(b)
         x = apply(b)
         for _ in range(3):
