@@ -603,10 +603,14 @@ class NewtonSolver:
         (see ``_CondensedSolver``)."""
         if not len(self.N):
             return None
-        M = self.schur.copy()
-        add_triplets_to_dense(M, self.n_index, rows, cols, vals, self.scale)
         if self._dense is None:
             self._dense = self._new_condensed_solver()
+        M = self._dense.spare()
+        if M is None:
+            M = self.schur.copy()
+        else:
+            np.copyto(M, self.schur)
+        add_triplets_to_dense(M, self.n_index, rows, cols, vals, self.scale)
         i, j = self.n_index[rows], self.n_index[cols]
         kept = (i >= 0) & (j >= 0)
         # the Schur complements of one condensation (factorisation of the bulk) differ only in
@@ -722,6 +726,37 @@ def _change(M, M0, delta, indptr, indices, data, slack):
     return changed, largest
 
 
+@kernel
+def _change_at(M, M0, touched, touched0, in_storage=None, storage_at=None, stored=None, slack=0.0):
+    """``_change`` read at the flat positions ``touched`` and ``touched0`` (and, given the storage
+    pattern: ``in_storage`` a flat mask of it, ``storage_at`` its positions and ``stored`` the
+    step-size change delta C there, at those), where alone M and M0 + delta C may differ."""
+    n = M.shape[0]
+    changed = np.zeros(n, dtype=np.bool_)
+    largest = 0.0
+    Mf, M0f = M.ravel(), M0.ravel()
+    for at in (touched, touched0):
+        for p in at:
+            if in_storage is not None and in_storage[p]:
+                continue  # (judged below with the step-size change taken out)
+            d = Mf[p] - M0f[p]
+            if d != 0.0:
+                changed[p // n] = True
+                changed[p % n] = True
+                largest = max(largest, abs(d))
+    if storage_at is not None:
+        for k in range(len(storage_at)):
+            p = storage_at[k]
+            s = stored[k]
+            d = Mf[p] - M0f[p]
+            d = d - s
+            if abs(d) > slack * (abs(Mf[p]) + abs(M0f[p]) + abs(s)):
+                changed[p // n] = True
+                changed[p % n] = True
+                largest = max(largest, abs(d))
+    return changed, largest
+
+
 class _CondensedSolver:
     """Solves with the condensed block M of the current Newton iteration.
 
@@ -764,6 +799,8 @@ class _CondensedSolver:
             coo = C.tocoo()
             self._storage_at = coo.row.astype(np.int64) * C.shape[0] + coo.col   # flat positions
             self._storage_values = coo.data
+            self._in_storage = np.zeros(C.shape[0] * C.shape[1], dtype=bool)
+            self._in_storage[self._storage_at] = True
 
     def set(self, M, inv_dt, base=None, touched=None):
         """The block to solve with next, at step size 1/``inv_dt``. ``base``: which condensation
@@ -777,6 +814,13 @@ class _CondensedSolver:
         self.factored = False
         if self.factors is None or (inv_dt != self.factored_inv_dt and self.storage is None):
             self._factorise()
+
+    def spare(self):
+        """The last block given, for the caller to overwrite with the next one (a fresh n x n
+        array at every Newton iteration costs more than the copy into it), or None: it is M0,
+        which the solves still read. Call ``set`` next."""
+        M, self.M = self.M, None
+        return None if M is None or M is self.M0 else M
 
     def _factorise(self):
         self.factors = scipy.linalg.lu_factor(self.M, check_finite=False)
@@ -859,34 +903,18 @@ class _CondensedSolver:
         touches few entries: elsewhere they are equal."""
         n = len(self.M)
         delta = self._delta
-        storage = self.storage
-        if storage is None:
-            storage = sp.csr_matrix((n, n))
         slack = STORAGE_ROUNDOFF if delta != 0.0 else 0.0
+        stored = 0 if self.storage is None else self.storage.nnz
         if (self._base is None or self._base != self._base0 or self._touched0 is None
-                or 8 * (len(self._touched) + len(self._touched0) + storage.nnz) > n * n):
+                or 8 * (len(self._touched) + len(self._touched0) + stored) > n * n):
             # (a scattered read of most entries: read them all)
+            storage = self.storage if self.storage is not None else sp.csr_matrix((n, n))
             return _change(self.M, self.M0, delta, storage.indptr, storage.indices, storage.data,
                            slack)
-        at = np.concatenate([self._touched, self._touched0])
-        D = self.M.ravel()[at] - self.M0.ravel()[at]
-        if delta != 0.0:
-            # the storage pattern, with the step-size change taken out as _change does
-            at_s = self._storage_at
-            Ms, M0s = self.M.ravel()[at_s], self.M0.ravel()[at_s]
-            s = delta * self._storage_values
-            Ds = (Ms - M0s) - s
-            beyond = np.abs(Ds) > slack * (np.abs(Ms) + np.abs(M0s) + np.abs(s))
-            # a tangent position in the pattern is judged by the pattern's rule
-            outside = ~np.isin(at, at_s)
-            at = np.concatenate([at[outside], at_s[beyond]])
-            D = np.concatenate([D[outside], Ds[beyond]])
-        differ = at[D != 0.0]
-        changed = np.zeros(n, dtype=bool)
-        changed[differ // n] = True
-        changed[differ % n] = True
-        D = D[D != 0.0]
-        return changed, (float(np.abs(D).max()) if D.size else 0.0)
+        if delta == 0.0:  # (one condensation, one step size: the same Schur complement)
+            return _change_at(self.M, self.M0, self._touched, self._touched0)
+        return _change_at(self.M, self.M0, self._touched, self._touched0, self._in_storage,
+                          self._storage_at, delta * self._storage_values, slack)
 
     def _base_columns(self, K):
         """M1^-1 E_K: the columns of M0^-1 at K (kept while M0 is: K grows as a front advances),
