@@ -683,9 +683,9 @@ def _condensed_max_iterations(n):
 
 
 #: entries of the storage pattern differ between blocks of two step sizes by delta * C_ij plus the
-#: round-off of forming each (measured: up to 43 eps of the entry on the 30 deg T = 0.7 scene,
-#: where the terms of an entry cancel); a difference within this many eps of the entries and of
-#: delta * C_ij is taken for that round-off (what is left of it, the check against M resolves)
+#: round-off of forming each (measured: up to 5 eps of |M_ij| + |M0_ij| + |delta C_ij| on the
+#: 30 deg T = 0.7 scene); a difference within this many eps of that sum is taken for round-off
+#: (what is left of it, the check against M resolves), a larger one for a change of the tangent
 STORAGE_ROUNDOFF = 1024 * np.finfo(float).eps
 
 
