@@ -25,7 +25,6 @@ packed factors take a quarter less memory than in CSC (14 against 19 MB) and the
 """
 from __future__ import annotations
 
-import concurrent.futures
 import functools
 
 import numpy as np
@@ -318,7 +317,6 @@ class SplitBorderedLU:
             raise ValueError(f"split {split} does not add up to {n_linear} linear unknowns")
         self.n, self.n_linear = n, n_linear
         self._n1, self._n2 = n1, n2
-        self._worker = None
         W = np.arange(n1 + n2, n)
         halves = [np.concatenate([np.arange(n1), W]), np.concatenate([np.arange(n1, n1 + n2), W])]
         M_WW = M[W][:, W].tocoo()   # (sparse: dense, it would be one more |W|^2 array)
@@ -346,21 +344,12 @@ class SplitBorderedLU:
         self._R_NS = np.ascontiguousarray(R[ns:, :ns])
         self.nnz += R.size
 
-    def _both_halves(self, sweep, args):
-        """``sweep(half, *arguments)`` for each half, the second in a worker thread while this
-        one does the first: the halves' sweeps read disjoint factors and release the GIL, and
-        each is memory-bound, so two cores nearly halve the time (one worker, no spinning)."""
-        if self._worker is None:
-            self._worker = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="fault_screen-sweep")
-        second = self._worker.submit(sweep, self._halves[1], *args[1])
-        return sweep(self._halves[0], *args[0]), second.result()
-
     def forward(self, r_linear, r_condensed):
         n1, n2 = self._n1, self._n2
         ns = self.n_linear - n1 - n2
         zero_W = np.zeros(self.n - n1 - n2)
-        (c1, g1), (c2, g2) = self._both_halves(
-            BorderedLU.forward, ((r_linear[:n1], zero_W), (r_linear[n1:n1 + n2], zero_W)))
+        c1, g1 = self._halves[0].forward(r_linear[:n1], zero_W)
+        c2, g2 = self._halves[1].forward(r_linear[n1:n1 + n2], zero_W)
         g = np.concatenate([r_linear[n1 + n2:], r_condensed]) + g1 + g2
         y_S = scipy.linalg.lu_solve(self._R_SS, g[:ns], check_finite=False)
         return np.concatenate([c1, c2, y_S]), g[ns:] - self._R_NS @ y_S
@@ -372,7 +361,8 @@ class SplitBorderedLU:
             x_S += c[n1 + n2:]
         x_W = np.concatenate([x_S, x_condensed])
         c1, c2 = (None, None) if c is None else (c[:n1], c[n1:n1 + n2])
-        x1, x2 = self._both_halves(BorderedLU.backward, ((c1, x_W), (c2, x_W)))
+        x1 = self._halves[0].backward(c1, x_W)
+        x2 = self._halves[1].backward(c2, x_W)
         return np.concatenate([x1, x2, x_S])
 
 
