@@ -971,13 +971,14 @@ class _CondensedSolver:
         # steps of refinement with it recover
         goal = CONDENSED_RTOL * np.linalg.norm(b)
         x = apply(b)
-        for _ in range(3):
+        for refinements in range(3):
             r = b - self.M @ x
             if np.linalg.norm(r) <= goal:
                 self.updates += 1
                 return x
+            if refinements == 2:  # (a third correction would go unchecked)
+                return None
             x = x + apply(r)
-        return None
 
     def _gmres(self, b):
         """x with |M x - b| <= CONDENSED_RTOL |b| in at most ``_condensed_max_iterations`` GMRES
