@@ -20,8 +20,10 @@ pattern; nested dissection makes its separators such runs): L by columns, U by r
 of U^T), each stored in the order its sweep reads it, so both read memory forwards. Below its
 triangle a supernode is a dense block: a row index is read once per block row, not per entry,
 and the sums run four at a time (one sum alone is a chain of dependent adds). On Rustrel the
-packed factors take a quarter less memory than in CSC (14 against 19 MB) and the two sweeps take 1.35 ms instead of 1.81 ms
-(2.7 instead of 4.0 ms with the factors out of cache). No factor is ever held twice over.
+packed factors take a quarter less memory than in CSC (14 against 19 MB) and the two sweeps
+1.35 ms instead of 1.81 ms (2.7 instead of 4.0 ms with the factors out of cache). No factor is
+ever held twice over. A large linear block is factorised as two halves, one after the other
+(``SplitBorderedLU``), which halves the factorisation's peak memory.
 """
 from __future__ import annotations
 
@@ -298,7 +300,7 @@ class SplitBorderedLU:
     halves that do not couple, each bordered by the separator S and the condensed unknowns N.
 
     The peak memory of a sparse LU is SuperLU's storage with scipy's copy of its factors beside
-    it; one half at a time halves it (Rustrel 200 x 201: 1076 -> 870 MB; see the README). With
+    it; one half at a time halves it (Rustrel 200 x 201: the run's peak 1076 -> 915 MB). With
     M = [B1 . E1; . B2 E2; W1 W2 M_WW] (W = S + N), each half's factorisation of
     [B_i E_i; W_i M_WW] gives R_i = M_WW - W_i B_i^-1 E_i (the border's block keeps its trailing
     factors regular), so R = R_1 + R_2 - M_WW is M with both halves eliminated, dense on W, and
@@ -345,6 +347,7 @@ class SplitBorderedLU:
         self.nnz += R.size
 
     def forward(self, r_linear, r_condensed):
+        """As ``BorderedLU.forward``: each half's sweep, then S eliminated from the border."""
         n1, n2 = self._n1, self._n2
         ns = self.n_linear - n1 - n2
         zero_W = np.zeros(self.n - n1 - n2)
@@ -355,6 +358,7 @@ class SplitBorderedLU:
         return np.concatenate([c1, c2, y_S]), g[ns:] - self._R_NS @ y_S
 
     def backward(self, c, x_condensed):
+        """As ``BorderedLU.backward``: the separator from the border, then each half's sweep."""
         n1, n2 = self._n1, self._n2
         x_S = -(self._S_from_N @ x_condensed)
         if c is not None:

@@ -20,8 +20,8 @@ from typing import NamedTuple
 
 import numpy as np
 import scipy.linalg
-from scipy.linalg.lapack import dgetrs as _getrs
 import scipy.sparse as sp
+from scipy.linalg.lapack import dgetrs as _getrs
 
 from ._jit import kernel
 from .assembly import TripletBuilder, add_triplets_to_dense
@@ -353,8 +353,8 @@ class NewtonSolver:
         only, so that a restored run makes the same sums."""
         last = self._products
         if last is None or not last.whole or not np.array_equal(last.x, x_n):
-            last = self._products = _Products(x_n, x_n.copy(), self._AH_times(x_n), np.zeros_like(x_n), True,
-                                              self._C_times_start(x_n))
+            last = self._products = _Products(x_n, x_n.copy(), self._AH_times(x_n),
+                                              np.zeros_like(x_n), True, self._C_times_start(x_n))
         n = self.disc.n_dofs
         return last.AHx[:n] + stored_n + self.time_weight * last.AHx[n:]
 
@@ -605,16 +605,16 @@ class NewtonSolver:
         return alpha
 
     def _condensed_system(self, rows, cols, vals):
-        """The condensed system (Schur complement L_NN - P plus scaled nonlinear tangent) handed to the
-        run's one dense solver, which factorises it only when the factors it has stop serving
-        (see ``_CondensedSolver``)."""
+        """The condensed system (Schur complement L_NN - P plus scaled nonlinear tangent) handed
+        to the run's one dense solver, which factorises it only when the factors it has stop
+        serving (see ``_CondensedSolver``)."""
         if not len(self.N):
             return None
         if self._dense is None:
             self._dense = self._new_condensed_solver()
         M = np.negative(self.P, out=self._dense.spare())   # (None: a new array)
-        i, j, v = self._LNN_entries
-        M[i, j] += v                                          # Schur complement L_NN - P
+        LNN_rows, LNN_cols, LNN_values = self._LNN_entries
+        M[LNN_rows, LNN_cols] += LNN_values                   # Schur complement L_NN - P
         add_triplets_to_dense(M, self.n_index, rows, cols, vals, self.scale)
         i, j = self.n_index[rows], self.n_index[cols]
         kept = (i >= 0) & (j >= 0)
@@ -881,7 +881,8 @@ class _CondensedSolver:
         return True
 
     def _step_size_correction(self, W):
-        """M1^-1 V from W = M0^-1 V (a vector or columns): W - delta Z_R (I + delta K_R)^-1 C_R W."""
+        """M1^-1 V from W = M0^-1 V (a vector or columns):
+        W - delta Z_R (I + delta K_R)^-1 C_R W."""
         if self._delta == 0.0:
             return W
         t = _lu_solve(self._capacitance_R, self._C_R @ W)

@@ -124,8 +124,9 @@ def test_split_factorisation_equals_the_whole(system):
 
     scene = Scene.from_toml(CONFIGS / "verification" / "mass-balance.toml")
     solver = NewtonSolver(discretise(scene))
-    solver._prepare(scene.time.dt, np.zeros(solver.disc.n_dofs), None if solver.disc.physics.contact is None
-                    else solver.disc.physics.contact.initial_history(solver.disc))
+    contact = solver.disc.physics.contact
+    solver._prepare(scene.time.dt, np.zeros(solver.disc.n_dofs),
+                    None if contact is None else contact.initial_history(solver.disc))
     n1, n2, ns = solver._split
     assert min(n1, n2) > 10 * ns > 0   # two real halves and a separator between them
     split = SplitBorderedLU(sp.csc_matrix(M), nB, solver._split)

@@ -36,7 +36,7 @@ def elastic_stiffness(gu, w, D):
             B[2, 2 * b] = gu[q, b, 1]
             B[2, 2 * b + 1] = gu[q, b, 0]
         # B^T D B by loops: numba's matrix product brings BLAS's typing into the compilation
-        # (16 MB and 0.5 s of a cold start for a 3 x 3 by 3 x 2nb product)
+        # (8-10 MB of a cold start's memory for a 3 x 3 by 3 x 2nb product)
         for i in range(3):
             for b in range(2 * nb):
                 DB[i, b] = D[i, 0] * B[0, b] + D[i, 1] * B[1, b] + D[i, 2] * B[2, b]
