@@ -10,7 +10,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from fault_screen import Scene
-from fault_screen.bordered_lu import BorderedLU
+from fault_screen.bordered_lu import BorderedLU, SplitBorderedLU
 from fault_screen.discretisation import discretise
 from fault_screen.solver import NewtonSolver
 
@@ -20,12 +20,19 @@ TOL = 1e-11  # relative to the largest entry of the reference; round-off of a we
 
 
 @pytest.fixture(scope="module")
-def system():
+def prepared():
+    """The Newton solver of the scene, its linear Jacobian made for the first step."""
     scene = Scene.from_toml(CONFIGS / "verification" / "mass-balance.toml")
     solver = NewtonSolver(discretise(scene))
     x = np.zeros(solver.disc.n_dofs)
     solver._prepare(scene.time.dt, x, solver.disc.physics.contact.initial_history(solver.disc)
                     if solver.disc.physics.contact is not None else None)
+    return solver
+
+
+@pytest.fixture(scope="module")
+def system(prepared):
+    solver = prepared
     D = sp.diags(solver.scale)
     M = (D @ solver.L @ D).tocsr()[solver._order][:, solver._order]
     nB = len(solver.B)
@@ -115,21 +122,14 @@ def test_sweeps_on_extreme_supernodes(shape):
     assert _rel(x, np.linalg.solve(M, r)) < TOL
 
 
-def test_split_factorisation_equals_the_whole(system):
+def test_split_factorisation_equals_the_whole(system, prepared):
     """The linear block factorised as the two halves of its first nested-dissection cut, each
     bordered by the separator and the condensed unknowns (``SplitBorderedLU``): the same Schur
     complement and sweeps as the one factorisation, against numpy's dense solves."""
     lu, M, nB = system
-    from fault_screen.bordered_lu import SplitBorderedLU
-
-    scene = Scene.from_toml(CONFIGS / "verification" / "mass-balance.toml")
-    solver = NewtonSolver(discretise(scene))
-    contact = solver.disc.physics.contact
-    solver._prepare(scene.time.dt, np.zeros(solver.disc.n_dofs),
-                    None if contact is None else contact.initial_history(solver.disc))
-    n1, n2, ns = solver._split
+    n1, n2, ns = prepared._split
     assert min(n1, n2) > 10 * ns > 0   # two real halves and a separator between them
-    split = SplitBorderedLU(sp.csc_matrix(M), nB, solver._split)
+    split = SplitBorderedLU(sp.csc_matrix(M), nB, prepared._split)
     assert np.allclose(M[:n1, n1:n1 + n2], 0.0) and np.allclose(M[n1:n1 + n2, :n1], 0.0)
     assert _rel(split.schur, lu.schur) < TOL
     rng = np.random.default_rng(7)
