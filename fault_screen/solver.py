@@ -23,7 +23,7 @@ import scipy.linalg
 import scipy.sparse as sp
 from scipy.linalg.lapack import dgetrs as _getrs
 
-from ._jit import kernel
+from ._jit import helper, kernel
 from .assembly import TripletBuilder, add_triplets_to_dense
 from .bordered_lu import bordered_lu, release_freed_memory
 from .discretisation import Discretisation
@@ -708,6 +708,14 @@ def _lu_solve(factors, b):
     return x
 
 
+@helper
+def _beyond_roundoff(m, m0, s, slack):
+    """m - m0 - s, or 0 when it is within slack (|m| + |m0| + |s|): an entry of the storage
+    pattern whose difference is the step-size change s and its round-off."""
+    d = (m - m0) - s
+    return 0.0 if abs(d) <= slack * (abs(m) + abs(m0) + abs(s)) else d
+
+
 @kernel
 def _change(M, M0, delta, indptr, indices, data, slack):
     """Where and how much M differs from M0 + delta C (equal square arrays; C in CSR: indptr,
@@ -724,12 +732,10 @@ def _change(M, M0, delta, indptr, indices, data, slack):
             stored[indices[k]] = delta * data[k]
             in_storage[indices[k]] = True
         for j in range(n):
-            d = M[i, j] - M0[i, j]
             if in_storage[j]:
-                s = stored[j]
-                d = d - s
-                if abs(d) <= slack * (abs(M[i, j]) + abs(M0[i, j]) + abs(s)):
-                    continue
+                d = _beyond_roundoff(M[i, j], M0[i, j], stored[j], slack)
+            else:
+                d = M[i, j] - M0[i, j]
             if d != 0.0:
                 changed[i] = True
                 changed[j] = True
@@ -761,10 +767,8 @@ def _change_at(M, M0, touched, touched0, in_storage=None, storage_at=None, store
     if storage_at is not None:
         for k in range(len(storage_at)):
             p = storage_at[k]
-            s = stored[k]
-            d = Mf[p] - M0f[p]
-            d = d - s
-            if abs(d) > slack * (abs(Mf[p]) + abs(M0f[p]) + abs(s)):
+            d = _beyond_roundoff(Mf[p], M0f[p], stored[k], slack)
+            if d != 0.0:
                 changed[p // n] = True
                 changed[p % n] = True
                 largest = max(largest, abs(d))
