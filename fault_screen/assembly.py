@@ -36,19 +36,6 @@ def scatter_matrices(local, row_map, col_map):
     return rows[:k], cols[:k], vals[:k]
 
 
-@kernel
-def add_triplets_to_dense(M, position, rows, cols, vals, scale):
-    """M[position[r], position[c]] += scale[r] vals scale[c] for every triplet whose row and column
-    both have a position (>= 0), in triplet order (duplicates summed like ``np.add.at``)."""
-    for k in range(rows.shape[0]):
-        r = rows[k]
-        c = cols[k]
-        i = position[r]
-        j = position[c]
-        if i >= 0 and j >= 0:
-            M[i, j] += vals[k] * scale[r] * scale[c]
-
-
 class TripletBuilder:
     """Collects COO blocks and turns them into one CSR matrix (duplicates summed)."""
 

@@ -23,8 +23,8 @@ import scipy.linalg
 import scipy.sparse as sp
 from scipy.linalg.lapack import dgetrs as _getrs
 
-from ._jit import helper, kernel
-from .assembly import TripletBuilder, add_triplets_to_dense
+from ._jit import kernel
+from .assembly import TripletBuilder
 from .bordered_lu import bordered_lu, release_freed_memory
 from .discretisation import Discretisation
 from .ordering import nested_dissection
@@ -125,6 +125,7 @@ class NewtonSolver:
     _blocks_rows_N_fixed = None
     _blas_limited = False
     _restored_P = None
+    _restored_condensed = None   # (tangent, dt) of the checkpoint's condensed block
     lu = None
 
     def __init__(self, disc: Discretisation):
@@ -178,29 +179,33 @@ class NewtonSolver:
         self._factors_any_dt = not (CH[on_B].nnz or CH[:, on_B].nnz)
 
     def checkpoint_state(self) -> dict:
-        """Arrays that a restored solver needs to take bit-identical steps: the condensed block
-        last factorised (later solves are preconditioned by its factors) and its 1/dt, and the
-        condensation when it serves every step size (see ``_prepare``)."""
+        """Arrays that a restored solver needs to take bit-identical steps: the nonlinear tangent
+        and step size of the condensed block last factorised (later solves are preconditioned by
+        its factors; the block is formed again from them), whether it was formed from the
+        current condensation, and the condensation when it serves every step size (see
+        ``_prepare``)."""
         out = {}
         if self._factors_any_dt and self.lu is not None:
             out["condensation"] = self.P
         d = self._dense
-        if d is not None and d.M0 is not None:
-            out.update(condensed_block=d.M0, condensed_inv_dt=np.array(d.factored_inv_dt))
+        if d is not None and d.tangent0 is not None:
+            rows, cols, vals = d.tangent0
+            out.update(condensed_tangent_rows=rows, condensed_tangent_cols=cols,
+                       condensed_tangent_values=vals, condensed_step=np.array(d.factored_step),
+                       condensed_current=np.array(d._base0 == self.factorizations))
         return out
 
     def restore_state(self, state: dict):
-        """Undo ``checkpoint_state`` (the factors are recomputed: LAPACK repeats them exactly)."""
+        """Undo ``checkpoint_state``. The condensed block is formed and factorised again at the
+        first Newton iteration, once the condensation is at hand (LAPACK repeats the factors
+        exactly). (A checkpoint written before the tangent was stored holds the block itself:
+        it is not used, the first iteration factorises its own block.)"""
         if "condensation" in state:
             self._restored_P = np.array(state["condensation"])
-        if "condensed_block" in state:
-            if "condensed_inv_dt" in state:
-                inv_dt = float(state["condensed_inv_dt"])
-            else:  # (a checkpoint written before 1/dt was stored: 1/dt as _combine makes it)
-                inv_dt = 1.0 / float(state["condensed_dt"])
-            self._dense = self._new_condensed_solver()
-            with self.blas_threads():  # (the factors' round-off depends on the thread count)
-                self._dense.set(np.array(state["condensed_block"]), inv_dt)
+        if "condensed_tangent_rows" in state and bool(state["condensed_current"]):
+            self._restored_condensed = (
+                (np.array(state["condensed_tangent_rows"]), np.array(state["condensed_tangent_cols"]),
+                 np.array(state["condensed_tangent_values"])), float(state["condensed_step"]))
 
     def _new_condensed_solver(self):
         """The run's dense solver; it is told the storage block when that is all a step-size
@@ -287,10 +292,9 @@ class NewtonSolver:
             del LNN
             if self._restored_P is not None:
                 self.P, self._restored_P = self._restored_P, None
-        # the Schur complement L_NN - P is not held: each Newton iteration writes -P into the
-        # condensed block and adds L_NN's entries (the same sums, one n_N x n_N array less)
-        LNN = self._combine(self._blocks_NN, dt).tocoo()
-        self._LNN_entries = (LNN.row, LNN.col, LNN.data)
+        # the Schur complement L_NN - P is not held: the condensed solver is handed P and L_NN's
+        # entries, and forms the block only to factorise it (one n_N x n_N array less)
+        self._LNN_entries = self._linear_entries(dt)
         self.L = L
         if self._blocks_fixed is None:  # rows of the fixed unknowns on the linear ones, in order
             self._blocks_fixed = [M[self._fixed].tocsc()[:, self._linear_order()].tocsr()
@@ -606,23 +610,30 @@ class NewtonSolver:
 
     def _condensed_system(self, rows, cols, vals):
         """The condensed system (Schur complement L_NN - P plus scaled nonlinear tangent) handed
-        to the run's one dense solver, which factorises it only when the factors it has stop
-        serving (see ``_CondensedSolver``)."""
+        to the run's one dense solver, which forms and factorises it only when the factors it
+        has stop serving (see ``_CondensedSolver``)."""
         if not len(self.N):
             return None
         if self._dense is None:
             self._dense = self._new_condensed_solver()
-        M = np.negative(self.P, out=self._dense.spare())   # (None: a new array)
-        LNN_rows, LNN_cols, LNN_values = self._LNN_entries
-        M[LNN_rows, LNN_cols] += LNN_values                   # Schur complement L_NN - P
-        add_triplets_to_dense(M, self.n_index, rows, cols, vals, self.scale)
-        i, j = self.n_index[rows], self.n_index[cols]
-        kept = (i >= 0) & (j >= 0)
+            if self._restored_condensed is not None:
+                # the block of the restored checkpoint: formed from the condensation it was
+                # formed from (the restored one, or the one made again at its step size)
+                tangent, dt0 = self._restored_condensed
+                self._restored_condensed = None
+                if self._factors_any_dt or dt0 == self._dt:
+                    self._dense.set(self.P, self._linear_entries(dt0), tangent, dt0,
+                                    base=self.factorizations)
+        tangent = _condensed_tangent(self.n_index, self.scale, rows, cols, vals)
         # the Schur complements of one condensation (factorisation of the bulk) differ only in
         # the storage term, which the dense solver is told of when it serves every step size
-        self._dense.set(M, 1.0 / self._dt, base=self.factorizations,
-                        touched=i[kept] * len(M) + j[kept])
+        self._dense.set(self.P, self._LNN_entries, tangent, self._dt, base=self.factorizations)
         return self._dense
+
+    def _linear_entries(self, dt):
+        """L_NN's entries at step size dt (scaled; rows, columns, values)."""
+        LNN = self._combine(self._blocks_NN, dt).tocoo()
+        return LNN.row.astype(np.int64), LNN.col.astype(np.int64), LNN.data
 
 
 class _Products(NamedTuple):
@@ -676,22 +687,22 @@ CONDENSED_RTOL = 1e-10
 #: 1/LOW_RANK_FRACTION of its rows and columns (its cost: that many solves with the old factors)
 LOW_RANK_FRACTION = 6
 
-#: a change of the condensed block spread over more rows is left to GMRES when no entry changed
-#: by more than this fraction of its largest entry (else M is factorised anew)
+#: a change of the condensed block spread over more rows is left to iteration (refinement, then
+#: GMRES) when no entry changed by more than this fraction of its largest entry (else M is
+#: factorised anew)
 SMALL_CHANGE = 0.05
+
+#: steps of iterative refinement tried before GMRES, each while the last one cut the residual to
+#: at most REFINEMENT_GAIN of what it was (Rustrel's rate-and-state tangents: 2.7 steps a solve
+#: where GMRES took 3.5 solves and products)
+REFINEMENTS = 3
+REFINEMENT_GAIN = 1e-3
 
 #: GMRES iterations allowed before the condensed block is factorised anew: measured on this
 #: machine, an LU of n unknowns costs as much as 12 iterations (each a product with M and a
 #: solve with the old factors) at n = 400, where fixed costs dominate, and about n/40 beyond
 def _condensed_max_iterations(n):
     return min(30, max(12, n // 40))
-
-
-#: entries of the storage pattern differ between blocks of two step sizes by delta * C_ij plus the
-#: round-off of forming each (measured: up to 5 eps of |M_ij| + |M0_ij| + |delta C_ij| on the
-#: 30 deg T = 0.7 scene); a difference within this many eps of that sum is taken for round-off
-#: (what is left of it, the check against M resolves), a larger one for a change of the tangent
-STORAGE_ROUNDOFF = 1024 * np.finfo(float).eps
 
 
 #: columns of the inverse of the factorised block are solved for in pages of this many (a
@@ -708,104 +719,135 @@ def _lu_solve(factors, b):
     return x
 
 
-@helper
-def _beyond_roundoff(m, m0, s, slack):
-    """m - m0 - s, or 0 when it is within slack (|m| + |m0| + |s|): an entry of the storage
-    pattern whose difference is the step-size change s and its round-off."""
-    d = (m - m0) - s
-    return 0.0 if abs(d) <= slack * (abs(m) + abs(m0) + abs(s)) else d
+@kernel
+def _condensed_tangent(position, scale, rows, cols, vals):
+    """The nonlinear tangent's triplets whose row and column are both condensed, at their
+    positions in the condensed block and scaled like it: (i, j, scale_r vals scale_c)."""
+    n = 0
+    for k in range(rows.shape[0]):
+        if position[rows[k]] >= 0 and position[cols[k]] >= 0:
+            n += 1
+    i = np.empty(n, dtype=np.int64)
+    j = np.empty(n, dtype=np.int64)
+    v = np.empty(n)
+    m = 0
+    for k in range(rows.shape[0]):
+        r, c = rows[k], cols[k]
+        if position[r] >= 0 and position[c] >= 0:
+            i[m] = position[r]
+            j[m] = position[c]
+            v[m] = vals[k] * scale[r] * scale[c]
+            m += 1
+    return i, j, v
 
 
 @kernel
-def _change(M, M0, delta, indptr, indices, data, slack):
-    """Where and how much M differs from M0 + delta C (equal square arrays; C in CSR: indptr,
-    indices, data): a mask of the rows and columns holding a difference, and its largest
-    magnitude; one pass, no n x n temporary. Within C's pattern a difference of at most
-    slack (|M_ij| + |M0_ij| + |delta C_ij|) is none (slack = 0: M exactly M0 + delta C there)."""
-    n = M.shape[0]
-    changed = np.zeros(n, dtype=np.bool_)
-    largest = 0.0
-    stored = np.zeros(n)      # row i of delta C, scattered
-    in_storage = np.zeros(n, dtype=np.bool_)
-    for i in range(n):
-        for k in range(indptr[i], indptr[i + 1]):
-            stored[indices[k]] = delta * data[k]
-            in_storage[indices[k]] = True
-        for j in range(n):
-            if in_storage[j]:
-                d = _beyond_roundoff(M[i, j], M0[i, j], stored[j], slack)
-            else:
-                d = M[i, j] - M0[i, j]
-            if d != 0.0:
-                changed[i] = True
-                changed[j] = True
-                largest = max(largest, abs(d))
-        for k in range(indptr[i], indptr[i + 1]):
-            stored[indices[k]] = 0.0
-            in_storage[indices[k]] = False
-    return changed, largest
+def _slot_sums(n_slots, slots, vals):
+    """The sum of ``vals`` at each slot, in the triplets' order (duplicates of an entry summed)."""
+    out = np.zeros(n_slots)
+    for k in range(slots.shape[0]):
+        out[slots[k]] += vals[k]
+    return out
 
 
 @kernel
-def _change_at(M, M0, touched, touched0, in_storage=None, storage_at=None, stored=None, slack=0.0):
-    """``_change`` read at the flat positions ``touched`` and ``touched0`` (and, given the storage
-    pattern: ``in_storage`` a flat mask of it, ``storage_at`` its positions and ``stored`` the
-    step-size change delta C there, at those), where alone M and M0 + delta C may differ."""
-    n = M.shape[0]
+def _tangent_change(n, slot_rows, slot_cols, slots, vals, vals0):
+    """Per slot, the tangent's sum minus the first tangent's (each summed alone, in the same
+    order: an entry whose triplets are equal differs by exactly 0); a mask of the rows and
+    columns holding a difference and its largest magnitude."""
+    m = slot_rows.shape[0]
+    now = np.zeros(m)
+    then = np.zeros(m)
+    for k in range(slots.shape[0]):
+        now[slots[k]] += vals[k]
+        then[slots[k]] += vals0[k]
     changed = np.zeros(n, dtype=np.bool_)
     largest = 0.0
-    Mf, M0f = M.ravel(), M0.ravel()
-    for at in (touched, touched0):
-        for p in at:
-            if in_storage is not None and in_storage[p]:
-                continue  # (judged below with the step-size change taken out)
-            d = Mf[p] - M0f[p]
-            if d != 0.0:
-                changed[p // n] = True
-                changed[p % n] = True
-                largest = max(largest, abs(d))
-    if storage_at is not None:
-        for k in range(len(storage_at)):
-            p = storage_at[k]
-            d = _beyond_roundoff(Mf[p], M0f[p], stored[k], slack)
-            if d != 0.0:
-                changed[p // n] = True
-                changed[p % n] = True
-                largest = max(largest, abs(d))
-    return changed, largest
+    for s in range(m):
+        now[s] -= then[s]
+        if now[s] != 0.0:
+            changed[slot_rows[s]] = True
+            changed[slot_cols[s]] = True
+            largest = max(largest, abs(now[s]))
+    return now, changed, largest
+
+
+@kernel
+def _sparse_times(indptr, indices, values, v, out):
+    """out += S v (S in CSR)."""
+    for i in range(indptr.shape[0] - 1):
+        acc = 0.0
+        for k in range(indptr[i], indptr[i + 1]):
+            acc += values[k] * v[indices[k]]
+        out[i] += acc
+
+
+class _BlockPattern:
+    """Where the sparse part of the condensed block lies: the union of L_NN's entries and the
+    nonlinear tangent's triplets (a term's triplets keep their pattern from one iteration to the
+    next: its kernels list zero entries too), each position once in CSR order (a slot), and the
+    slot of every entry and triplet."""
+
+    def __init__(self, n, linear, tangent):
+        self.n = n
+        self._linear_at = (linear[0], linear[1])
+        self._tangent_at = (tangent[0], tangent[1])
+        keys = np.concatenate([linear[0] * n + linear[1], tangent[0] * n + tangent[1]])
+        self.keys, slots = np.unique(keys, return_inverse=True)
+        self.linear_slots = slots[:len(linear[0])]
+        self.tangent_slots = slots[len(linear[0]):]
+        self.rows, self.cols = self.keys // n, self.keys % n
+        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(self.rows, minlength=n))])
+
+    def holds(self, linear, tangent):
+        """Are these L_NN entries and tangent triplets at this pattern's positions, in its order?"""
+        return all(len(a) == len(b) and np.array_equal(a, b) for a, b in (
+            (linear[0], self._linear_at[0]), (linear[1], self._linear_at[1]),
+            (tangent[0], self._tangent_at[0]), (tangent[1], self._tangent_at[1])))
+
+    def values(self, linear, tangent):
+        """L_NN + T at the slots (L_NN's entries first, then the triplets, each in order)."""
+        return _slot_sums(len(self.keys), np.concatenate([self.linear_slots, self.tangent_slots]),
+                          np.concatenate([linear[2], tangent[2]]))
 
 
 class _CondensedSolver:
-    """Solves with the condensed block M of the current Newton iteration.
+    """Solves with the condensed block of the current Newton iteration,
+    M = -P + L_NN + T: the bulk's condensation P (dense), the linear Jacobian's condensed block
+    L_NN (sparse, of the step size) and the scaled nonlinear tangent T (triplets).
 
     M changes at every Newton iteration that moves a slip front or an aperture, and with every
-    step size; a dense LU of it (n = 400-2000) is the largest cost per iteration. The last
-    factorised M0 (at 1/dt0) is kept instead, and M x = b is solved with its factors:
+    step size; a dense LU of it (n = 400-2000) is the largest cost per iteration. M is formed
+    only to be factorised (then M0, at 1/dt0 with the tangent T0; its LU is all that is kept of
+    it): otherwise it is applied as -P v + (L_NN + T) v, and M x = b is solved with M0's factors:
     - a step-size change, when the block's only part that depends on it is the storage term
       (``storage``: the condensed, scaled C, nonzero in the flow rows R alone; no rock pore
       pressure), changes M by delta C with delta = 1/dt - 1/dt0: exactly by the Woodbury identity
       on the rows R, M1 = M0 + delta E_R C_R, whose capacitance I + delta C_R M0^-1 E_R is an LU of
-      |R| per step size (C_R M0^-1 E_R is made once per M0). M1 is the base that the contact
-      changes below are taken from (without ``storage``, a new step size factorises M);
-    - when M - M1 lies in few rows and columns K (a slip front that moved by a few fault points:
-      the contact tangents of those points changed), exactly by the Woodbury identity, at the
-      cost of |K| solves with M1 in one block;
-    - when the change is spread but small (rate-dependent friction, an evolving aperture), by
-      GMRES preconditioned with M1 (right preconditioning: the true residual of M is what
-      converges), a few iterations to CONDENSED_RTOL.
+      |R| per step size (C_R M0^-1 E_R is made once per M0). M1 is the base that the tangent's
+      change below is taken from (without ``storage``, a new step size factorises M);
+    - M - M1 = T - T0 (the same condensation: ``base``), read off the tangents' triplets. When
+      it lies in few rows and columns K (a slip front that moved by a few fault points), exactly
+      by the Woodbury identity, at the cost of |K| solves with M1 in one block;
+    - when it is spread but small (rate-dependent friction, an evolving aperture), by iterative
+      refinement with M1's factors and, if that contracts slowly, GMRES preconditioned with them
+      (right preconditioning: the true residual of M is what converges), to CONDENSED_RTOL.
     Every result is checked against M itself. When none serves, M is factorised and becomes M0.
     (GMRES preconditioned across a step size change of 6 % took 9 iterations per solve on the
     30 deg T = 0.7 scene, more than an LU: hence the exact update on R.)"""
 
     def __init__(self, storage=None):
-        self.M = self.M0 = None
-        self._base = self._base0 = self._touched = self._touched0 = None
+        self.P = None
+        self._pattern = None
+        self._base = self._base0 = None
         self.factors = None
         self.factored = False      # the current M is the factorised one
         self.factored_inv_dt = None    # 1/dt of M0
+        self.factored_step = None      # and its dt
+        self.tangent0 = None           # T0 (triplets: condensed rows, columns, values)
         self.inv_dt = None
         self.factorizations = 0
-        self.iterations = 0        # GMRES iterations, for diagnostics
+        self.iterations = 0        # GMRES and refinement iterations, for diagnostics
         self.updates = 0           # low-rank (Woodbury) solves, for diagnostics
         self.storage = None
         if storage is not None:
@@ -814,43 +856,56 @@ class _CondensedSolver:
             C = self.storage
             self._storage_rows = np.flatnonzero(np.diff(C.indptr))   # R
             self._C_R = C[self._storage_rows]
-            coo = C.tocoo()
-            self._storage_at = coo.row.astype(np.int64) * C.shape[0] + coo.col   # flat positions
-            self._storage_values = coo.data
-            self._in_storage = np.zeros(C.shape[0] * C.shape[1], dtype=bool)
-            self._in_storage[self._storage_at] = True
 
-    def set(self, M, inv_dt, base=None, touched=None):
-        """The block to solve with next, at step size 1/``inv_dt``. ``base``: which condensation
-        (a count, not the array: that would be held after it is replaced) it was made from by
-        adding the nonlinear tangent at the flat positions ``touched`` (duplicates allowed):
-        while the base is that of M0, M and M0 can differ only there and, across step sizes, in
-        the storage pattern (see ``_change_from_M0``)."""
-        self.M = M
-        self.inv_dt = inv_dt
-        self._base, self._touched = base, touched
+    def set(self, P, linear, tangent, dt, base=None):
+        """The block to solve with next, M = -P + L_NN + T at step size ``dt``: ``linear``, L_NN's
+        entries and ``tangent``, T's triplets (rows, columns, values at condensed positions;
+        duplicates summed). ``base`` tells which condensation P is (a count, not the array);
+        blocks of the same base and pattern differ by the tangent and the step size alone."""
+        self.P = P
+        self.inv_dt = 1.0 / dt
+        self._step = dt
+        self._base = base
+        self._tangent = tangent
+        n = len(P)
+        if self._pattern is None or not self._pattern.holds(linear, tangent):
+            self._pattern = _BlockPattern(n, linear, tangent)
+            self.factors = None  # (the tangent of M0 is on another pattern)
+        pattern = self._pattern
+        self._sparse = pattern.values(linear, tangent)
         self.factored = False
-        if self.factors is None or (inv_dt != self.factored_inv_dt and self.storage is None):
+        if (self.factors is None or base is None or base != self._base0
+                or (self.inv_dt != self.factored_inv_dt and self.storage is None)):
             self._factorise()
 
-    def spare(self):
-        """The last block given, for the caller to overwrite with the next one (a fresh n x n
-        array at every Newton iteration costs more than the copy into it), or None: it is M0,
-        which the solves still read. Call ``set`` next."""
-        M, self.M = self.M, None
-        return None if M is None or M is self.M0 else M
+    def _times(self, v):
+        """M v = -P v + (L_NN + T) v."""
+        out = -(self.P @ v)
+        p = self._pattern
+        _sparse_times(p.indptr, p.cols, self._sparse, v, out)
+        return out
+
+    def _form(self):
+        """M as a dense array (the one n x n array of its own this solver makes)."""
+        M = np.negative(self.P)
+        M.reshape(-1)[self._pattern.keys] += self._sparse  # (each position once)
+        return M
 
     def _factorise(self):
-        self.factors = scipy.linalg.lu_factor(self.M, check_finite=False)
+        M = self._form()
+        self._M0_largest = max(float(M.max()), -float(M.min())) if M.size else 0.0
+        self.factors = None  # (the old factors go before the new ones are made)
+        self.factors = scipy.linalg.lu_factor(M, overwrite_a=True, check_finite=False)
+        del M
         self.factored_inv_dt = self.inv_dt
-        self.M0 = self.M
-        self._base0, self._touched0 = self._base, self._touched
-        self._M0_largest = max(float(self.M0.max()), -float(self.M0.min())) if self.M0.size else 0.0
+        self.factored_step = self._step
+        self._base0 = self._base
+        self.tangent0 = self._tangent
         self.factored = True
         self.factorizations += 1
         # columns of M0^-1 solved for so far (the changed rows only grow until M0 is replaced)
         self._Z = None
-        self._have = np.zeros(len(self.M), dtype=bool)
+        self._have = np.zeros(len(self.P), dtype=bool)
         # M0^-1 E_R and C_R M0^-1 E_R: made at the first step-size change, from M0 alone (in one
         # block: a restored run makes them bit for bit)
         self._Z_R = self._K_R = None
@@ -862,7 +917,7 @@ class _CondensedSolver:
         self._delta = delta
         self._capacitance_R = None
         self._Z1 = None
-        self._have1 = np.zeros(len(self.M0), dtype=bool)
+        self._have1 = np.zeros(len(self.P), dtype=bool)
 
     def _step_size_update(self):
         """Make the base M1 that of the current step size; False when its capacitance cannot be
@@ -873,7 +928,7 @@ class _CondensedSolver:
         self._new_step_size(delta)
         if self._Z_R is None:
             R = self._storage_rows
-            E = np.zeros((len(self.M0), len(R)))
+            E = np.zeros((len(self.P), len(R)))
             E[R, np.arange(len(R))] = 1.0
             self._Z_R = _lu_solve(self.factors, E)
             self._K_R = np.asarray(self._C_R @ self._Z_R)
@@ -898,42 +953,33 @@ class _CondensedSolver:
 
     def solve(self, b):
         if not self.factored:
-            M, M0 = self.M, self.M0
             x = None
             if self._step_size_update():
-                changed, largest = self._change_from_M0()
-                K = np.flatnonzero(changed)
+                D, K, DK, largest = self._tangent_change()
                 if len(K) * LOW_RANK_FRACTION <= len(b):
-                    DK = M[np.ix_(K, K)] - M0[np.ix_(K, K)]
-                    if self._delta != 0.0:
-                        DK -= self._delta * self.storage[K][:, K].toarray()
                     x = self._low_rank(b, DK, K)
                 elif largest <= SMALL_CHANGE * self._M0_largest:
-                    x = self._gmres(b)
+                    x = self._iterate(b)
             if x is not None:
                 return x
             self._factorise()
         return self._precondition(b)
 
-    def _change_from_M0(self):
-        """Rows and columns where M differs from M1 = M0 + delta C (mask) and the largest
-        difference, exactly as ``_change`` finds them; read at the tangent's positions (and the
-        storage pattern) alone when M and M0 were made from the same condensation and the tangent
-        touches few entries: elsewhere they are equal."""
-        n = len(self.M)
-        delta = self._delta
-        slack = STORAGE_ROUNDOFF if delta != 0.0 else 0.0
-        stored = 0 if self.storage is None else self.storage.nnz
-        if (self._base is None or self._base != self._base0 or self._touched0 is None
-                or 8 * (len(self._touched) + len(self._touched0) + stored) > n * n):
-            # (a scattered read of most entries: read them all)
-            storage = self.storage if self.storage is not None else sp.csr_matrix((n, n))
-            return _change(self.M, self.M0, delta, storage.indptr, storage.indices, storage.data,
-                           slack)
-        if delta == 0.0:  # (one condensation, one step size: the same Schur complement)
-            return _change_at(self.M, self.M0, self._touched, self._touched0)
-        return _change_at(self.M, self.M0, self._touched, self._touched0, self._in_storage,
-                          self._storage_at, delta * self._storage_values, slack)
+    def _tangent_change(self):
+        """M - M1 = T - T0 (same condensation and pattern): its values at the slots, the rows
+        and columns K holding a difference, its dense K x K block and its largest magnitude."""
+        p = self._pattern
+        D, changed, largest = _tangent_change(p.n, p.rows, p.cols, p.tangent_slots,
+                                              self._tangent[2], self.tangent0[2])
+        K = np.flatnonzero(changed)
+        DK = None
+        if len(K) * LOW_RANK_FRACTION <= p.n:
+            at = np.full(p.n, -1)
+            at[K] = np.arange(len(K))
+            DK = np.zeros((len(K), len(K)))
+            nz = np.flatnonzero(D)
+            DK[at[p.rows[nz]], at[p.cols[nz]]] = D[nz]   # (each position once)
+        return D, K, DK, largest
 
     def _base_columns(self, K):
         """M1^-1 E_K: the columns of M0^-1 at K (kept while M0 is: K grows as a front advances),
@@ -941,7 +987,7 @@ class _CondensedSolver:
         COLUMN_PAGE columns at a time, each page alone: a column's round-off then does not depend
         on which others were asked for with it, so a restored run, which starts with none kept,
         repeats them bit for bit."""
-        n = len(self.M0)
+        n = len(self.P)
         if self._Z is None:
             self._Z = np.empty((n, n), order="F")  # (pages of unsolved columns stay untouched)
         for page in self._pages(K, self._have):
@@ -985,13 +1031,12 @@ class _CondensedSolver:
         else:  # only the step size changed
             apply = self._precondition
 
-        # a slip front's tangents change the stiff shear penalty, and M1 differs from M by the
-        # round-off of the storage change: the identity loses digits there, which up to two
-        # steps of refinement with it recover
+        # a slip front's tangents change the stiff shear penalty: the identity loses digits
+        # there, which up to two steps of refinement with it recover
         goal = CONDENSED_RTOL * np.linalg.norm(b)
         x = apply(b)
         for refinements in range(3):
-            r = b - self.M @ x
+            r = b - self._times(x)
             if np.linalg.norm(r) <= goal:
                 self.updates += 1
                 return x
@@ -999,16 +1044,33 @@ class _CondensedSolver:
                 return None
             x = x + apply(r)
 
-    def _gmres(self, b):
-        """x with |M x - b| <= CONDENSED_RTOL |b| in at most ``_condensed_max_iterations`` GMRES
-        iterations, right-preconditioned by the old factors; None if not reached. The recurrence's
-        residual estimate drifts from the true one in floating point: the true one decides, and
-        the iteration restarts from it while the budget lasts."""
-        M = self.M
-        budget = _condensed_max_iterations(len(b))
+    def _iterate(self, b):
+        """x with |M x - b| <= CONDENSED_RTOL |b|, or None: iterative refinement with M1's
+        factors while each step gains REFINEMENT_GAIN (a change of 1e-5 of the block: two
+        steps, each one solve and one product), then GMRES from where it stopped."""
         goal = CONDENSED_RTOL * np.linalg.norm(b)
         x = np.zeros_like(b)
         r = b
+        last = np.linalg.norm(b)
+        for _ in range(REFINEMENTS):
+            x = x + self._precondition(r)
+            r = b - self._times(x)
+            self.iterations += 1
+            norm = np.linalg.norm(r)
+            if norm <= goal:
+                return x
+            if norm > REFINEMENT_GAIN * last:
+                break
+            last = norm
+        return self._gmres(b, x, r, goal)
+
+    def _gmres(self, b, x, r, goal):
+        """From x (residual r = b - M x): x with |M x - b| <= goal in at most
+        ``_condensed_max_iterations`` GMRES iterations, right-preconditioned by the old factors;
+        None if not reached. The recurrence's residual estimate drifts from the true one in
+        floating point: the true one decides, and the iteration restarts from it while the
+        budget lasts."""
+        budget = _condensed_max_iterations(len(b))
         while True:
             beta = np.linalg.norm(r)
             if beta <= goal:
@@ -1018,7 +1080,7 @@ class _CondensedSolver:
             y, V = self._arnoldi(r, beta, 0.5 * goal, budget)
             budget -= len(y)
             x = x + self._precondition(y @ V)
-            r = b - M @ x
+            r = b - self._times(x)
 
     def _arnoldi(self, r, beta, goal, m):
         """GMRES cycle on M z = r (z = P^-1 v): the least-squares coefficients y and the basis V
@@ -1032,7 +1094,7 @@ class _CondensedSolver:
         g[0] = beta
         V[0] = r / beta
         for j in range(m):
-            w = self.M @ self._precondition(V[j])
+            w = self._times(self._precondition(V[j]))
             # classical Gram-Schmidt twice: as stable as modified, in two matrix products
             h = V[:j + 1] @ w
             w -= h @ V[:j + 1]

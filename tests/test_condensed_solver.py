@@ -1,8 +1,8 @@
 """The condensed block's dense solver (``solver._CondensedSolver``): every way it solves M x = b
 (a fresh LU; a step-size change through the storage rows; a slip front's Woodbury update and
-GMRES on top of that) meets CONDENSED_RTOL against M itself and numpy's solve, on a small block
-built like the Newton solver's: M(1/dt) = A + C/dt + H - P + T, C nonzero only in the flow rows,
-T a contact tangent on the mechanical rows."""
+iteration on top of that) meets CONDENSED_RTOL against M itself (formed densely here) and
+numpy's solve, on a small block given like the Newton solver's: M(1/dt) = A + C/dt + H - P + T,
+C nonzero only in the flow rows, T a contact tangent on the mechanical rows (triplets)."""
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -30,24 +30,48 @@ def blocks():
     return A, C, H, P
 
 
-def _schur(blocks, inv_dt):
-    A, C, H, P = blocks
-    return (A + C * inv_dt + H).toarray() - P
+def _linear(blocks, inv_dt):
+    """L_NN's entries (rows, columns, values) at step size 1/inv_dt."""
+    A, C, H, _ = blocks
+    L = (A + C * inv_dt + H).tocoo()
+    return L.row.astype(np.int64), L.col.astype(np.int64), L.data
 
 
 def _tangent(points, stiffness):
-    """A contact tangent on the mechanical rows ``points`` (flat positions, values)."""
+    """A contact tangent on the mechanical rows ``points`` (rows, columns, values)."""
     rows = np.repeat(points, 2)
     cols = np.concatenate([[p, (p + 1) % N_MECH] for p in points])
     vals = np.tile([stiffness, -0.5 * stiffness], len(points))
-    return rows * N + cols, vals
+    return rows, cols, vals
+
+
+def _on(pattern, tangent):
+    """``tangent`` listed on the triplets of ``pattern`` (zeros where it has none), as the
+    nonlinear terms list theirs: the same positions at every iteration."""
+    rows, cols, _ = pattern
+    vals = np.zeros(len(rows))
+    for r, c, v in zip(*tangent):
+        vals[np.flatnonzero((rows == r) & (cols == c))[0]] += v
+    return rows, cols, vals
+
+
+#: every triplet position the tangents below use (one triplet may be listed twice)
+PATTERN = tuple(np.concatenate(parts) for parts in zip(
+    _tangent(np.arange(N_MECH), 1.0), (np.arange(N_MECH), np.arange(N_MECH), np.zeros(N_MECH)),
+    ([FLOW[3]], [FLOW[3]], [0.0]), ([12], [13], [0.0])))
 
 
 def _block(blocks, inv_dt, tangent):
-    M = _schur(blocks, inv_dt)
-    at, vals = tangent
-    np.add.at(M.ravel(), at, vals)
+    """M = L_NN - P + T, dense."""
+    A, C, H, P = blocks
+    M = (A + C * inv_dt + H).toarray() - P
+    np.add.at(M, (tangent[0], tangent[1]), tangent[2])
     return M
+
+
+def _set(dense, blocks, inv_dt, tangent, base=1):
+    dense.set(blocks[3], _linear(blocks, inv_dt), _on(PATTERN, tangent), 1.0 / inv_dt, base=base)
+    return _block(blocks, inv_dt, tangent)
 
 
 def _check(dense, M, rng):
@@ -63,70 +87,79 @@ def test_each_path_solves_the_block_of_its_step_size_and_tangent(blocks):
     contact = _tangent(np.arange(10, 20), 50.0)
     # a fresh LU
     inv0 = 1.0 / 1e-3
-    M = _block(blocks, inv0, contact)
-    dense.set(M, inv0, base=1, touched=contact[0])
+    M = _set(dense, blocks, inv0, contact)
     _check(dense, M, rng)
     assert (dense.factorizations, dense.updates) == (1, 0)
     # a longer step: only the storage rows changed, through the update on them (steps 5 times
     # longer: the storage, most of the flow rows' diagonal, falls by 4/5, so that an update that
     # is not exact misses the tolerance after the refinement it is allowed and M is factorised)
     inv1 = 1.0 / 5e-3
-    M = _block(blocks, inv1, contact)
-    dense.set(M, inv1, base=1, touched=contact[0])
+    M = _set(dense, blocks, inv1, contact)
     _check(dense, M, rng)
     assert (dense.factorizations, dense.updates) == (1, 1)
     # and a slip front moved by a few points: Woodbury on the changed rows, on top of it
     # (and an aperture's conduction in a flow row: a change inside the storage pattern)
     moved = _tangent(np.arange(10, 23), 50.0)
-    moved = moved[0], moved[1] * np.where(moved[0] // N >= 18, 3.0, 1.0)
-    moved = np.append(moved[0], FLOW[3] * (N + 1)), np.append(moved[1], 0.5)
-    M = _block(blocks, inv1, moved)
-    dense.set(M, inv1, base=1, touched=moved[0])
-    changed = np.flatnonzero(dense._change_from_M0()[0])
+    moved = moved[0], moved[1], moved[2] * np.where(moved[0] >= 18, 3.0, 1.0)
+    moved = tuple(np.append(a, v) for a, v in zip(moved, (FLOW[3], FLOW[3], 0.5)))
+    M = _set(dense, blocks, inv1, moved)
+    changed = dense._tangent_change()[1]
     assert 0 < len(changed) * LOW_RANK_FRACTION <= N
     _check(dense, M, rng)
     assert (dense.factorizations, dense.updates) == (1, 2)
-    # a change spread over most rows but small, at yet another step size: GMRES on top of it
+    # a change spread over most rows but small, at yet another step size: iteration on top of it
     inv2 = 1.0 / 5.3e-3
-    spread = (np.arange(N_MECH) * (N + 1), np.full(N_MECH, 0.01))
-    both = np.concatenate([contact[0], spread[0]]), np.concatenate([contact[1], spread[1]])
-    M = _block(blocks, inv2, both)
-    dense.set(M, inv2, base=1, touched=both[0])
+    spread = (np.arange(N_MECH), np.arange(N_MECH), np.full(N_MECH, 0.01))
+    both = tuple(np.concatenate([a, b]) for a, b in zip(contact, spread))
+    M = _set(dense, blocks, inv2, both)
     iterations = dense.iterations
     _check(dense, M, rng)
     assert dense.factorizations == 1 and dense.iterations > iterations
     # a large spread change: M is factorised anew and becomes the base
-    M = _block(blocks, inv2, (spread[0], 100 * spread[1]))
-    dense.set(M, inv2, base=1, touched=spread[0])
+    M = _set(dense, blocks, inv2, (spread[0], spread[1], 100 * spread[2]))
     _check(dense, M, rng)
-    assert dense.factorizations == 2 and dense.M0 is M
+    assert dense.factorizations == 2 and dense.factored_inv_dt == inv2
 
 
-def test_the_change_is_found_alike_at_the_tangent_alone_and_in_the_whole_block(blocks):
-    """The positions read when M and M0 share a condensation find what a read of every entry
-    finds (a restored run reads every entry: its block's origin is unknown)."""
+def test_the_tangent_change_is_read_off_the_triplets_exactly(blocks):
+    """M - M1 is T - T0 entry by entry: nothing where the triplets are equal (a step-size change
+    alone is none), the rows and columns of every entry that changed, a change inside the
+    storage pattern included, and its dense K x K block."""
     dense = _CondensedSolver(blocks[1])
     contact = _tangent(np.arange(10, 20), 50.0)
-    dense.set(_block(blocks, 1e3, contact), 1e3, base=1, touched=contact[0])
-    # a tangent in the storage pattern too, changed beside the step size
-    moved = _tangent(np.arange(12, 24), 60.0)
-    moved = (np.append(moved[0], FLOW[3] * (N + 1)), np.append(moved[1], 0.5))
-    for inv_dt in (1e3, 1e3 / 1.06, 20.0):
-        M = _block(blocks, inv_dt, moved)
-        dense.set(M, inv_dt, base=1, touched=moved[0])
-        dense._step_size_update()
-        at_tangent = dense._change_from_M0()
-        dense._base = None
-        whole = dense._change_from_M0()
-        assert np.array_equal(at_tangent[0], whole[0]) and at_tangent[1] == whole[1]
-        assert at_tangent[0][FLOW[3]] and not at_tangent[0][FLOW[4]]
+    _set(dense, blocks, 1e3, contact)
+    _set(dense, blocks, 1e3 / 1.06, contact)
+    dense._step_size_update()
+    D, K, DK, largest = dense._tangent_change()
+    assert len(K) == 0 and largest == 0.0 and not D.any()
+    moved = _tangent(np.arange(10, 20), 50.0)
+    moved = moved[0], moved[1], moved[2] * np.where(moved[0] < 14, 1.2, 1.0)
+    moved = tuple(np.append(a, v) for a, v in zip(moved, (FLOW[3], FLOW[3], 0.5)))
+    _set(dense, blocks, 1e3 / 1.06, moved)
+    D, K, DK, largest = dense._tangent_change()
+    expected = _block(blocks, 1e3, moved) - _block(blocks, 1e3, contact)
+    assert np.array_equal(K, np.flatnonzero(np.abs(expected).sum(axis=0) + np.abs(expected).sum(axis=1)))
+    assert np.array_equal(K, np.append(np.arange(10, 15), FLOW[3]))
+    assert np.allclose(DK, expected[np.ix_(K, K)], rtol=0, atol=1e-12) and largest == 10.0
+
+
+def test_a_new_condensation_or_pattern_is_factorised(blocks):
+    rng = np.random.default_rng(3)
+    dense = _CondensedSolver(blocks[1])
+    contact = _tangent(np.arange(10, 20), 50.0)
+    _set(dense, blocks, 1e3, contact)
+    M = _set(dense, blocks, 1e3, contact, base=2)
+    _check(dense, M, rng)
+    assert dense.factorizations == 2
+    dense.set(blocks[3], _linear(blocks, 1e3), contact, 1e-3, base=2)  # (triplets listed anew)
+    _check(dense, _block(blocks, 1e3, contact), rng)
+    assert dense.factorizations == 3
 
 
 def test_without_a_storage_block_a_new_step_size_is_factorised(blocks):
     rng = np.random.default_rng(2)
     dense = _CondensedSolver()
     for k, inv_dt in enumerate((1e3, 1e3 / 1.06)):
-        M = _block(blocks, inv_dt, _tangent(np.arange(10, 20), 50.0))
-        dense.set(M, inv_dt)
+        M = _set(dense, blocks, inv_dt, _tangent(np.arange(10, 20), 50.0))
         _check(dense, M, rng)
         assert dense.factorizations == k + 1
