@@ -210,7 +210,8 @@ class NewtonSolver:
     def _new_condensed_solver(self):
         """The run's dense solver; it is told the storage block when that is all a step-size
         change alters (``_factors_any_dt``), so that it can keep its factors across step sizes."""
-        return _CondensedSolver(self._condensed_blocks()[1] if self._factors_any_dt else None)
+        return _CondensedSolver(self._condensed_blocks()[1] if self._factors_any_dt else None,
+                                position=self.n_index, scale=self.scale)
 
     def _condensed_blocks(self):
         """The condensed block of A, C, Hf (scaled: needs the scaling), sliced once."""
@@ -624,7 +625,7 @@ class NewtonSolver:
                 if self._factors_any_dt or dt0 == self._dt:
                     self._dense.set(self.P, self._linear_entries(dt0), tangent, dt0,
                                     base=self.factorizations)
-        tangent = _condensed_tangent(self.n_index, self.scale, rows, cols, vals)
+        tangent = (rows, cols, vals)
         # the Schur complements of one condensation (factorisation of the bulk) differ only in
         # the storage term, which the dense solver is told of when it serves every step size
         self._dense.set(self.P, self._LNN_entries, tangent, self._dt, base=self.factorizations)
@@ -720,38 +721,20 @@ def _lu_solve(factors, b):
 
 
 @kernel
-def _condensed_tangent(position, scale, rows, cols, vals):
-    """The nonlinear tangent's triplets whose row and column are both condensed, at their
-    positions in the condensed block and scaled like it: (i, j, scale_r vals scale_c)."""
-    n = 0
-    for k in range(rows.shape[0]):
-        if position[rows[k]] >= 0 and position[cols[k]] >= 0:
-            n += 1
-    i = np.empty(n, dtype=np.int64)
-    j = np.empty(n, dtype=np.int64)
-    v = np.empty(n)
-    m = 0
-    for k in range(rows.shape[0]):
-        r, c = rows[k], cols[k]
-        if position[r] >= 0 and position[c] >= 0:
-            i[m] = position[r]
-            j[m] = position[c]
-            v[m] = vals[k] * scale[r] * scale[c]
-            m += 1
-    return i, j, v
-
-
-@kernel
-def _slot_sums(n_slots, slots, vals):
-    """The sum of ``vals`` at each slot, in the triplets' order (duplicates of an entry summed)."""
+def _block_values(n_slots, linear_slots, linear_vals, tangent_slots, weight, vals):
+    """L_NN + T at each slot: L_NN's entries, then the tangent's triplets scaled by their weight
+    (those with slot -1 lie outside the block), each in order (duplicates summed)."""
     out = np.zeros(n_slots)
-    for k in range(slots.shape[0]):
-        out[slots[k]] += vals[k]
+    for k in range(linear_slots.shape[0]):
+        out[linear_slots[k]] += linear_vals[k]
+    for k in range(tangent_slots.shape[0]):
+        if tangent_slots[k] >= 0:
+            out[tangent_slots[k]] += vals[k] * weight[k]
     return out
 
 
 @kernel
-def _tangent_change(n, slot_rows, slot_cols, slots, vals, vals0):
+def _tangent_change(n, slot_rows, slot_cols, slots, weight, vals, vals0):
     """Per slot, the tangent's sum minus the first tangent's (each summed alone, in the same
     order: an entry whose triplets are equal differs by exactly 0); a mask of the rows and
     columns holding a difference and its largest magnitude."""
@@ -759,8 +742,9 @@ def _tangent_change(n, slot_rows, slot_cols, slots, vals, vals0):
     now = np.zeros(m)
     then = np.zeros(m)
     for k in range(slots.shape[0]):
-        now[slots[k]] += vals[k]
-        then[slots[k]] += vals0[k]
+        if slots[k] >= 0:
+            now[slots[k]] += vals[k] * weight[k]
+            then[slots[k]] += vals0[k] * weight[k]
     changed = np.zeros(n, dtype=np.bool_)
     largest = 0.0
     for s in range(m):
@@ -784,18 +768,24 @@ def _sparse_times(indptr, indices, values, v, out):
 
 class _BlockPattern:
     """Where the sparse part of the condensed block lies: the union of L_NN's entries and the
-    nonlinear tangent's triplets (a term's triplets keep their pattern from one iteration to the
-    next: its kernels list zero entries too), each position once in CSR order (a slot), and the
-    slot of every entry and triplet."""
+    nonlinear tangent's triplets on condensed unknowns (a term's triplets keep their pattern from
+    one iteration to the next: its kernels list zero entries too), each position once in CSR
+    order (a slot), and the slot of every entry and triplet (-1: a triplet outside the block)
+    with the triplet's scaling."""
 
-    def __init__(self, n, linear, tangent):
+    def __init__(self, n, linear, tangent, position, scale):
         self.n = n
         self._linear_at = (linear[0], linear[1])
         self._tangent_at = (tangent[0], tangent[1])
-        keys = np.concatenate([linear[0] * n + linear[1], tangent[0] * n + tangent[1]])
+        rows, cols = tangent[0], tangent[1]
+        i, j = position[rows], position[cols]
+        kept = (i >= 0) & (j >= 0)
+        keys = np.concatenate([linear[0] * n + linear[1], i[kept] * n + j[kept]])
         self.keys, slots = np.unique(keys, return_inverse=True)
         self.linear_slots = slots[:len(linear[0])]
-        self.tangent_slots = slots[len(linear[0]):]
+        self.tangent_slots = np.full(len(rows), -1, dtype=np.int64)
+        self.tangent_slots[kept] = slots[len(linear[0]):]
+        self.weight = np.where(kept, scale[rows] * scale[cols], 0.0)
         self.rows, self.cols = self.keys // n, self.keys % n
         self.indptr = np.concatenate([[0], np.cumsum(np.bincount(self.rows, minlength=n))])
 
@@ -806,9 +796,9 @@ class _BlockPattern:
             (tangent[0], self._tangent_at[0]), (tangent[1], self._tangent_at[1])))
 
     def values(self, linear, tangent):
-        """L_NN + T at the slots (L_NN's entries first, then the triplets, each in order)."""
-        return _slot_sums(len(self.keys), np.concatenate([self.linear_slots, self.tangent_slots]),
-                          np.concatenate([linear[2], tangent[2]]))
+        """L_NN + T at the slots."""
+        return _block_values(len(self.keys), self.linear_slots, linear[2], self.tangent_slots,
+                             self.weight, tangent[2])
 
 
 class _CondensedSolver:
@@ -836,15 +826,18 @@ class _CondensedSolver:
     (GMRES preconditioned across a step size change of 6 % took 9 iterations per solve on the
     30 deg T = 0.7 scene, more than an LU: hence the exact update on R.)"""
 
-    def __init__(self, storage=None):
+    def __init__(self, storage=None, position=None, scale=None):
         self.P = None
         self._pattern = None
+        # the tangent's triplets are on the whole system's unknowns: position in the block of
+        # each (-1: not condensed) and the scaling (default: the block's own, unscaled)
+        self._position, self._scale = position, scale
         self._base = self._base0 = None
         self.factors = None
         self.factored = False      # the current M is the factorised one
         self.factored_inv_dt = None    # 1/dt of M0
         self.factored_step = None      # and its dt
-        self.tangent0 = None           # T0 (triplets: condensed rows, columns, values)
+        self.tangent0 = None           # T0 (triplets, as given to ``set``)
         self.inv_dt = None
         self.factorizations = 0
         self.iterations = 0        # GMRES and refinement iterations, for diagnostics
@@ -859,7 +852,8 @@ class _CondensedSolver:
 
     def set(self, P, linear, tangent, dt, base=None):
         """The block to solve with next, M = -P + L_NN + T at step size ``dt``: ``linear``, L_NN's
-        entries and ``tangent``, T's triplets (rows, columns, values at condensed positions;
+        entries (rows, columns, values in the block) and ``tangent``, T's triplets (rows, columns,
+        values, on the unknowns that ``position`` places in the block, scaled by ``scale``;
         duplicates summed). ``base`` tells which condensation P is (a count, not the array);
         blocks of the same base and pattern differ by the tangent and the step size alone."""
         self.P = P
@@ -869,7 +863,9 @@ class _CondensedSolver:
         self._tangent = tangent
         n = len(P)
         if self._pattern is None or not self._pattern.holds(linear, tangent):
-            self._pattern = _BlockPattern(n, linear, tangent)
+            position = np.arange(n) if self._position is None else self._position
+            scale = np.ones(len(position)) if self._scale is None else self._scale
+            self._pattern = _BlockPattern(n, linear, tangent, position, scale)
             self.factors = None  # (the tangent of M0 is on another pattern)
         pattern = self._pattern
         self._sparse = pattern.values(linear, tangent)
@@ -969,7 +965,7 @@ class _CondensedSolver:
         """M - M1 = T - T0 (same condensation and pattern): its values at the slots, the rows
         and columns K holding a difference, its dense K x K block and its largest magnitude."""
         p = self._pattern
-        D, changed, largest = _tangent_change(p.n, p.rows, p.cols, p.tangent_slots,
+        D, changed, largest = _tangent_change(p.n, p.rows, p.cols, p.tangent_slots, p.weight,
                                               self._tangent[2], self.tangent0[2])
         K = np.flatnonzero(changed)
         DK = None
