@@ -100,6 +100,56 @@ def assemble_constant(disc: Discretisation) -> tuple:
     return out.A.tocsr(), out.C.tocsr(), out.Hf.tocsr(), out.source
 
 
+@kernel
+def _norm_at(v, at):
+    """(2-norm of v[at], all finite): one pass of squares, a second scaled by the largest
+    magnitude only when the squares overflow or underflow (as LAPACK's nrm2 guards them)."""
+    total = 0.0
+    largest = 0.0
+    finite = True
+    for k in at:
+        a = abs(v[k])
+        if not np.isfinite(a):
+            finite = False
+        total += a * a
+        largest = max(largest, a)
+    if not finite:
+        return np.inf, False
+    if largest > 0.0 and (total == np.inf or total < 1e-290):
+        total = 0.0
+        for k in at:
+            a = v[k] / largest
+            total += a * a
+        return largest * np.sqrt(total), True
+    return np.sqrt(total), True
+
+
+@kernel
+def _scaled_field_norms(R, scale, mech_at, flow_at):
+    """scale R and its 2-norms over the free mechanical and the free flow unknowns; ``finite``
+    False when an entry there is not finite."""
+    sR = np.empty_like(R)
+    for i in range(R.shape[0]):
+        sR[i] = scale[i] * R[i]
+    mech, finite_mech = _norm_at(sR, mech_at)
+    flow, finite_flow = _norm_at(sR, flow_at)
+    return sR, mech, flow, finite_mech and finite_flow
+
+
+@kernel
+def _reference_norms(scale, AHx, Cd, dt, flow_known, mech_at, flow_at):
+    """The convergence test's reference magnitudes: |scale A x| over the free mechanical
+    unknowns, |scale (|C (x - x_n)| / dt + |Hf x| + known flow terms)| over the free flow ones."""
+    n = scale.shape[0]
+    mech = np.empty(n)
+    flow = np.empty(n)
+    for k in mech_at:
+        mech[k] = scale[k] * AHx[k]
+    for k in flow_at:
+        flow[k] = scale[k] * (abs(Cd[k]) / dt + abs(AHx[n + k]) + flow_known[k])
+    return _norm_at(mech, mech_at)[0], _norm_at(flow, flow_at)[0]
+
+
 class NewtonSolver:
     """Newton on the coupled residual, with the linear bulk condensed onto the fault.
 
@@ -145,6 +195,8 @@ class NewtonSolver:
         mech[b.u] = True
         mech[b.a] = True
         self.mech_free = mech[self.free]
+        self._free_mech = self.free[self.mech_free]    # (the two fields' free unknowns)
+        self._free_flow = self.free[~self.mech_free]
         nonlinear = np.zeros(disc.n_dofs, dtype=bool)
         for term in disc.physics.terms:
             nonlinear[term.nonlinear_dofs(disc)] = True
@@ -425,11 +477,10 @@ class NewtonSolver:
         """Reference magnitudes of the convergence test at x: internal forces (mechanics);
         stored-volume rate plus conduction plus sources (flow); never below the step's first
         residual norms ``ref0``."""
-        n, scale, free, mf = self.disc.n_dofs, self.scale, self.free, self.mech_free
         AHx, Cd = self._linear_products(x, x_n)
-        s_mech = (scale * AHx[:n])[free]
-        s_flow = (scale * (np.abs(Cd) / dt + np.abs(AHx[n:]) + flow_known))[free]
-        return (max(ref0[0], np.linalg.norm(s_mech[mf])), max(ref0[1], np.linalg.norm(s_flow[~mf])))
+        mech, flow = _reference_norms(self.scale, AHx, Cd, dt, flow_known, self._free_mech,
+                                      self._free_flow)
+        return max(ref0[0], mech), max(ref0[1], flow)
 
     def _linear_products(self, x, x_n):
         """[A; Hf] x and C (x - x_n), for the reference magnitudes. While the bulk's answer is
@@ -502,7 +553,7 @@ class NewtonSolver:
         flow_known = np.abs(rhs - stored_n)  # sources and the known parts of the flow terms
         x = x_n.copy() if x0 is None else x0.copy()  # x0: a better first guess (continuation)
         Lx = self._linear_times_start(x_n, stored_n) if x0 is None else None
-        free, mf, tol = self.free, self.mech_free, self.tol
+        tol = self.tol
         # the bulk's answer to every Newton update would cost a backward sweep: it is summed
         # instead (pending) and swept for once, when the fault looks converged; possible when the
         # nonlinear terms read only condensed unknowns
@@ -520,11 +571,11 @@ class NewtonSolver:
         while True:
             R, rows, cols, vals, point = self._residual(x, rhs, history, dt, pending,
                                                         Lx if it == 0 else None)
-            sR = scale * R
-            if not np.all(np.isfinite(sR[free])):
+            sR, norm_mech, norm_flow, finite = _scaled_field_norms(R, scale, self._free_mech,
+                                                                   self._free_flow)
+            if not finite:
                 raise StepFailed("non-finite residual")
-            sRf = sR[free]
-            norms = (np.linalg.norm(sRf[mf]), np.linalg.norm(sRf[~mf]))
+            norms = (norm_mech, norm_flow)
             if ref0 is None:
                 ref0 = norms
             check = it > 0 or max(norms) == 0.0
@@ -589,7 +640,6 @@ class NewtonSolver:
         the merit (sum of the squared field residuals relative to their references) by the Armijo
         fraction 1e-4; the last one tried if none does (the next iteration then re-linearises).
         ``dxN``, ``pending``: the deferred bulk response (see ``_solve``), or None."""
-        free, mf = self.free, self.mech_free
         r0, r1 = max(ref[0], 1e-300), max(ref[1], 1e-300)
         merit0 = (norms[0] / r0) ** 2 + (norms[1] / r1) ** 2
         alpha = 1.0
@@ -601,9 +651,10 @@ class NewtonSolver:
                 trial = _PendingBulk(len(self.N)) if pending is None else pending.copy()
                 trial.add(alpha, dxN, None)
             R = self._residual(xt, rhs, history, dt, trial)[0]
-            sRf = (self.scale * R)[free]
+            # (a non-finite residual has infinite norms: the step is halved)
+            _, mech, flow, _ = _scaled_field_norms(R, self.scale, self._free_mech, self._free_flow)
             with np.errstate(over="ignore", invalid="ignore"):
-                merit = (np.linalg.norm(sRf[mf]) / r0) ** 2 + (np.linalg.norm(sRf[~mf]) / r1) ** 2
+                merit = (mech / r0) ** 2 + (flow / r1) ** 2
             if merit <= (1.0 - 1e-4 * alpha) * merit0:
                 break
             alpha *= 0.5
