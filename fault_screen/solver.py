@@ -933,9 +933,11 @@ class _CondensedSolver:
         return out
 
     def _form(self):
-        """M as a dense array (the one n x n array of its own this solver makes)."""
-        M = np.negative(self.P)
-        M.reshape(-1)[self._pattern.keys] += self._sparse  # (each position once)
+        """M as a dense array (the one n x n array of its own this solver makes), in Fortran
+        order: LAPACK factorises it in place (a C-ordered one would be copied first)."""
+        M = np.negative(self.P, order="F")
+        p = self._pattern
+        M[p.rows, p.cols] += self._sparse  # (each position once)
         return M
 
     def _factorise(self):
