@@ -669,8 +669,9 @@ class NewtonSolver:
         if self._dense is None:
             self._dense = self._new_condensed_solver()
             if self._restored_condensed is not None:
-                # the block of the restored checkpoint: formed from the condensation it was
-                # formed from (the restored one, or the one made again at its step size)
+                # the block of the restored checkpoint, formed from the condensation it was
+                # formed from: the restored one, or the one made again at its step size (at
+                # another step size the next block is factorised anyway)
                 tangent, dt0 = self._restored_condensed
                 self._restored_condensed = None
                 if self._factors_any_dt or dt0 == self._dt:

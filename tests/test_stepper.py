@@ -47,9 +47,24 @@ def pressure_controlled():
                      time=dataclasses.replace(s.time, end=0.05))
 
 
-@pytest.fixture(scope="module", params=["rate, rate-and-state, evolving aperture", "pressure control"])
+def poroelastic_growing():
+    """The calibrated (poroelastic) Rustrel scene on a coarse mesh with growing steps: its bulk
+    factors depend on the step size, so each new size condenses the bulk anew, and a restored
+    run forms its condensed block again from the condensation of the checkpoint's step size
+    (steps grow to dt_max by about step 40: checkpoints before and after)."""
+    s = Scene.from_toml(CONFIGS / "rustrel-2015-calibrated.toml")
+    return s.replace(mesh=dataclasses.replace(s.mesh, nx=20, ny=21),
+                     time=dataclasses.replace(s.time, end=600.0, dt=2.0, growth=1.05, dt_max=12.0))
+
+
+CASES = {"rate, rate-and-state, evolving aperture": hard_rustrel,
+         "pressure control": pressure_controlled,
+         "poroelastic, growing steps": poroelastic_growing}
+
+
+@pytest.fixture(scope="module", params=list(CASES))
 def case(request):
-    scene = hard_rustrel() if request.param.startswith("rate") else pressure_controlled()
+    scene = CASES[request.param]()
     reference = simulate(scene)
     assert np.max(np.abs(reference.fault["slip"])) > 0  # the case does slip
     return scene, reference
