@@ -34,7 +34,7 @@ import numpy as np
 import scipy.linalg
 import scipy.sparse.linalg as spla
 
-from ._jit import helper, kernel
+from ._jit import helper, kernel, sweep_kernel
 
 
 @functools.cache
@@ -191,12 +191,15 @@ def _u(i):
     return np.uint64(i)
 
 
-@kernel
+@sweep_kernel
 def _forward_sweep(first, width, row_at, value_at, rows, values, r):
     """Forward substitution with a unit lower triangular matrix packed by ``_pack``: r[:n]
     becomes the solution (n its columns) and the rows below receive L21 y. A row below a
     supernode is one dot product with the supernode's solution, read and written once; four
-    rows at a time, so that four sums run side by side (one sum is a chain of dependent adds)."""
+    rows at a time, so that four sums run side by side (one sum is a chain of dependent adds),
+    each split over vector lanes too (``sweep_kernel``: reassociation; 12-19 % faster on Rustrel's
+    factors. Not the backward sweep: its sums over a block's columns vectorise without it, and
+    with it it ran 2-25 % slower)."""
     for t in range(len(first)):
         j0, w = first[t], width[t]
         r0, v0 = row_at[t], value_at[t]
