@@ -21,7 +21,7 @@ of U^T), each stored in the order its sweep reads it, so both read memory forwar
 triangle a supernode is a dense block: a row index is read once per block row, not per entry,
 and the sums run four at a time (one sum alone is a chain of dependent adds); the sweeps index
 with unsigned integers, which LLVM vectorises along a block row (``_u``). On Rustrel the packed
-factors take a quarter less memory than in CSC (14 against 19 MB) and the two sweeps 0.68 ms
+factors take a quarter less memory than in CSC (14 against 19 MB) and the two sweeps 0.6 ms
 (1.81 ms reading the CSC factors, 1.13 ms packed with signed indices). No factor is
 ever held twice over. A large linear block is factorised as two halves, one after the other
 (``SplitBorderedLU``), which halves the factorisation's peak memory.
