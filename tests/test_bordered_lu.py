@@ -139,3 +139,17 @@ def test_split_factorisation_equals_the_whole(system, prepared):
     xN = np.linalg.solve(split.schur, condensed)
     assert _rel(np.concatenate([split.backward(swept, xN), xN]), np.linalg.solve(M, r)) < TOL
     assert _rel(split.backward(None, xN), -np.linalg.solve(M[:nB, :nB], M[:nB, nB:] @ xN)) < TOL
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_sweeps_propagate_non_finite_values(system, bad):
+    """The forward sweep is compiled with reassociation (``_jit.sweep_kernel``), never with the
+    flags that assume finite values: a NaN or an infinity in the right-hand side still reaches
+    the condensed right-hand side and the bulk's answer, where the solver's finiteness tests see
+    it."""
+    lu, M, nB = system
+    r = np.random.default_rng(10).standard_normal(M.shape[0])
+    r[nB // 2] = bad
+    swept, condensed = lu.forward(r[:nB], r[nB:])
+    assert not np.all(np.isfinite(condensed))
+    assert not np.all(np.isfinite(lu.backward(swept, np.zeros(M.shape[0] - nB))))
