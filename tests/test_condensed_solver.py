@@ -115,6 +115,15 @@ def test_each_path_solves_the_block_of_its_step_size_and_tangent(blocks):
     iterations = dense.iterations
     _check(dense, M, rng)
     assert dense.factorizations == 1 and dense.iterations > iterations
+    # a spread change that refinement contracts slowly (to 2e-2 a step, short of
+    # REFINEMENT_GAIN): GMRES takes over from where refinement stopped
+    gmres_calls = []
+    gmres = dense._gmres
+    dense._gmres = lambda *args: gmres_calls.append(1) or gmres(*args)
+    stiffer = tuple(np.concatenate([a, b]) for a, b in zip(contact, spread[:2] + (30 * spread[2],)))
+    M = _set(dense, blocks, inv2, stiffer)
+    _check(dense, M, rng)
+    assert dense.factorizations == 1 and gmres_calls
     # a large spread change: M is factorised anew and becomes the base
     M = _set(dense, blocks, inv2, (spread[0], spread[1], 100 * spread[2]))
     _check(dense, M, rng)
