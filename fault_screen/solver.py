@@ -23,7 +23,7 @@ import scipy.linalg
 import scipy.sparse as sp
 from scipy.linalg.lapack import dgetrs as _getrs
 
-from ._jit import kernel
+from ._jit import helper, kernel
 from .assembly import TripletBuilder
 from .bordered_lu import bordered_lu, release_freed_memory
 from .discretisation import Discretisation
@@ -100,7 +100,7 @@ def assemble_constant(disc: Discretisation) -> tuple:
     return out.A.tocsr(), out.C.tocsr(), out.Hf.tocsr(), out.source
 
 
-@kernel
+@helper
 def _norm_at(v, at):
     """(2-norm of v[at], all finite): one pass of squares, a second scaled by the largest
     magnitude only when the squares overflow or underflow (as LAPACK's nrm2 guards them)."""
@@ -843,7 +843,7 @@ class _BlockPattern:
 
     def holds(self, linear, tangent):
         """Are these L_NN entries and tangent triplets at this pattern's positions, in its order?"""
-        return all(len(a) == len(b) and np.array_equal(a, b) for a, b in (
+        return all(a is b or (len(a) == len(b) and np.array_equal(a, b)) for a, b in (
             (linear[0], self._linear_at[0]), (linear[1], self._linear_at[1]),
             (tangent[0], self._tangent_at[0]), (tangent[1], self._tangent_at[1])))
 
@@ -906,8 +906,9 @@ class _CondensedSolver:
         """The block to solve with next, M = -P + L_NN + T at step size ``dt``: ``linear``, L_NN's
         entries (rows, columns, values in the block) and ``tangent``, T's triplets (rows, columns,
         values, on the unknowns that ``position`` places in the block, scaled by ``scale``;
-        duplicates summed). ``base`` tells which condensation P is (a count, not the array);
-        blocks of the same base and pattern differ by the tangent and the step size alone."""
+        duplicates summed). ``base`` tells which condensation P is (a count, not the array;
+        None: unknown, the block is factorised); blocks of the same base and pattern differ by
+        the tangent and the step size alone."""
         self.P = P
         self.inv_dt = 1.0 / dt
         self._step = dt
@@ -1081,8 +1082,9 @@ class _CondensedSolver:
         else:  # only the step size changed
             apply = self._precondition
 
-        # a slip front's tangents change the stiff shear penalty: the identity loses digits
-        # there, which up to two steps of refinement with it recover
+        # a slip front's tangents change the stiff shear penalty, and M1 differs from M by the
+        # round-off of the storage change: the identity loses digits there, which up to two
+        # steps of refinement with it recover
         goal = CONDENSED_RTOL * np.linalg.norm(b)
         x = apply(b)
         for refinements in range(3):
@@ -1098,8 +1100,9 @@ class _CondensedSolver:
         """x with |M x - b| <= CONDENSED_RTOL |b|, or None: iterative refinement with M1's
         factors while each step gains REFINEMENT_GAIN (a change of 1e-5 of the block: two
         steps), then GMRES from where it stopped. With M = M1 + D (D = T - T0 at the pattern's
-        slots, sparse), each step is x' = M1^-1 (b - D x), whose residual b - M x' is
-        D (x - x'): the steps need no product with the dense M, which checks the last one."""
+        slots, sparse; up to the round-off of the storage change), each step is
+        x' = M1^-1 (b - D x), whose residual b - M x' is D (x - x'): the steps need no product
+        with the dense M, which checks the last one."""
         goal = CONDENSED_RTOL * np.linalg.norm(b)
         p = self._pattern
         y = self._precondition(b)
