@@ -26,44 +26,68 @@ def nested_dissection(pattern: sp.spmatrix, xy: np.ndarray, leaf: int = LEAF_SIZ
 
     ``return_split``: also the sizes (n_left, n_right, n_separator) of the first cut, in the
     order the permutation places them (None when the set was not cut): the two halves do not
-    couple, so they can be factorised apart (``bordered_lu.SplitBorderedLU``)."""
+    couple, so they can be factorised apart (``bordered_lu.SplitBorderedLU``).
+
+    Each set is cut at the median of its coordinate along its longer extent (np.median's value:
+    the middle one, or the mean of the two middle ones), the unknowns of the lower side that
+    couple to the upper side being the separator, and is placed as [its lower side without the
+    separator, its upper side, the separator], each part keeping the order it had; the parts
+    larger than ``leaf`` are cut in turn. All the sets of one level of cuts are cut together,
+    in place in the permutation (a few array operations per level instead of per set: 30 -> 12
+    ms on Rustrel, 460 -> 235 ms on 200 x 201, the same permutation)."""
     n = pattern.shape[0]
     sym = (abs(pattern) + abs(pattern.T)).tocsr()
     sym.sum_duplicates()
     indptr, indices = sym.indptr, sym.indices
     degree = np.diff(indptr)
-    in_right = np.zeros(n, dtype=bool)
-    order: list[np.ndarray] = []
-    stack = [(np.arange(n), False)]  # (unknowns, is a separator to place)
+    perm = np.arange(n)
+    # the sets still to cut: ranges [start, end) of the permutation
+    starts = np.zeros(1 if n > leaf else 0, dtype=np.int64)
+    ends = np.full(len(starts), n, dtype=np.int64)
+    upper_of = np.full(n, -1, dtype=np.int64)   # the set whose upper side holds an unknown
     split = None
-    # iterative post-order: left part, right part, then the separator
-    while stack:
-        ids, emit = stack.pop()
-        if emit or len(ids) <= leaf:
-            order.append(ids)
-            continue
+    level = 0
+    while len(starts):
+        sizes = ends - starts
+        n_sets = len(starts)
+        offsets = np.cumsum(sizes) - sizes                     # of each set in this level's arrays
+        in_set = np.repeat(np.arange(n_sets), sizes)
+        at = np.arange(sizes.sum()) - np.repeat(offsets, sizes) + np.repeat(starts, sizes)
+        ids = perm[at]
         p = xy[ids]
-        axis = int(np.argmax(p.max(axis=0) - p.min(axis=0)))
-        key = p[:, axis]
-        left = key <= np.median(key)
-        if left.all() or not left.any():
-            order.append(ids)
-            continue
-        L, R = ids[left], ids[~left]
-        in_right[R] = True
-        # unknowns of L with a neighbour in R: the separator
-        starts, counts = indptr[L], degree[L]
-        owner = np.repeat(np.arange(len(L)), counts)
-        offsets = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-        neighbours = indices[np.repeat(starts, counts) + offsets]
-        touches = np.zeros(len(L), dtype=bool)
-        touches[owner[in_right[neighbours]]] = True
-        in_right[R] = False
-        if split is None:
-            split = (int(np.count_nonzero(~touches)), len(R), int(np.count_nonzero(touches)))
-        stack.append((L[touches], True))
-        stack.append((R, False))
-        stack.append((L[~touches], False))
-    perm = np.concatenate(order) if order else np.zeros(0, dtype=np.int64)
-    assert len(perm) == n
+        extent = np.maximum.reduceat(p, offsets, axis=0) - np.minimum.reduceat(p, offsets, axis=0)
+        key = p[np.arange(len(ids)), np.argmax(extent, axis=1)[in_set]]
+        ranked = key[np.lexsort((key, in_set))]
+        mid = offsets + sizes // 2
+        median = np.where(sizes % 2 == 1, ranked[mid],
+                          (ranked[np.maximum(mid - 1, offsets)] + ranked[mid]) / 2.0)
+        lower = key <= median[in_set]
+        n_lower = np.bincount(in_set, weights=lower, minlength=n_sets)
+        cut = ((n_lower > 0) & (n_lower < sizes))[in_set]      # (a set all on one side stays)
+        # the separator: unknowns of a lower side with a neighbour on the upper side of their set
+        upper = cut & ~lower
+        upper_of[ids[upper]] = in_set[upper]
+        low_at = np.flatnonzero(cut & lower)
+        low = ids[low_at]
+        counts = degree[low]
+        owner = np.repeat(np.arange(len(low)), counts)
+        neighbours = indices[np.repeat(indptr[low], counts) + np.arange(counts.sum())
+                             - np.repeat(np.cumsum(counts) - counts, counts)]
+        touches = np.zeros(len(low), dtype=bool)
+        touches[owner[upper_of[neighbours] == in_set[low_at][owner]]] = True
+        upper_of[ids[upper]] = -1
+        part = np.where(lower, 0, 1)                           # 0 lower, 1 upper, 2 separator
+        part[low_at[touches]] = 2
+        if level == 0 and cut.any():
+            split = tuple(int(np.count_nonzero(part == k)) for k in range(3))
+        perm[at] = ids[np.argsort(in_set * 3 + part, kind="stable")]
+        # the lower side (without the separator) and the upper side of each cut set go on
+        n_part = [np.bincount(in_set, weights=(part == k), minlength=n_sets).astype(np.int64)
+                  for k in (0, 1)]
+        was_cut = (n_lower > 0) & (n_lower < sizes)
+        first = np.concatenate([starts[was_cut], (starts + n_part[0])[was_cut]])
+        size = np.concatenate([n_part[0][was_cut], n_part[1][was_cut]])
+        go_on = size > leaf
+        starts, ends = first[go_on], first[go_on] + size[go_on]
+        level += 1
     return (perm, split) if return_split else perm
