@@ -33,6 +33,7 @@ import functools
 import numpy as np
 import scipy.linalg
 import scipy.sparse.linalg as spla
+from scipy.linalg.lapack import dgetrs as _getrs
 
 from ._jit import helper, kernel, sweep_kernel
 
@@ -57,6 +58,15 @@ def release_freed_memory():
     trim = _libc_malloc_trim()
     if trim is not None:
         trim(0)
+
+
+def lu_solve(factors, b):
+    """``scipy.linalg.lu_solve(factors, b)`` without its batching wrapper (the same LAPACK getrs,
+    the same result bits; 20 us less per call, a thousand calls a Rustrel run)."""
+    x, info = _getrs(factors[0], factors[1], b)
+    if info != 0:
+        raise ValueError(f"getrs: illegal argument {-info}")
+    return x
 
 
 @helper
@@ -362,7 +372,7 @@ class SplitBorderedLU:
         del M_WW
         self._R_SS = scipy.linalg.lu_factor(R[:ns, :ns], check_finite=False)
         # R_SS^-1 R_SN: the separator's answer to the condensed unknowns
-        self._S_from_N = scipy.linalg.lu_solve(self._R_SS, R[:ns, ns:], check_finite=False)
+        self._S_from_N = lu_solve(self._R_SS, R[:ns, ns:])
         self.schur = R[ns:, ns:] - R[ns:, :ns] @ self._S_from_N
         self._R_NS = np.ascontiguousarray(R[ns:, :ns])
         self.nnz += R.size
@@ -375,7 +385,7 @@ class SplitBorderedLU:
         c1, g1 = self._halves[0].forward(r_linear[:n1], zero_W)
         c2, g2 = self._halves[1].forward(r_linear[n1:n1 + n2], zero_W)
         g = np.concatenate([r_linear[n1 + n2:], r_condensed]) + g1 + g2
-        y_S = scipy.linalg.lu_solve(self._R_SS, g[:ns], check_finite=False)
+        y_S = lu_solve(self._R_SS, g[:ns])
         return np.concatenate([c1, c2, y_S]), g[ns:] - self._R_NS @ y_S
 
     def backward(self, c, x_condensed):
