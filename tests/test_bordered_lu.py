@@ -131,6 +131,13 @@ def test_split_factorisation_equals_the_whole(system, prepared):
     assert min(n1, n2) > 10 * ns > 0   # two real halves and a separator between them
     split = SplitBorderedLU(sp.csc_matrix(M), nB, prepared._split)
     assert np.allclose(M[:n1, n1:n1 + n2], 0.0) and np.allclose(M[n1:n1 + n2, :n1], 0.0)
+    # each half borders on the separator and on the condensed unknowns it couples to: the fault
+    # crosses the cut, so each touches a part of it (this scene: 58 and 74 of 128), and the
+    # two parts cover it
+    touched = [border[ns:] - ns for border in split._borders]
+    nN = M.shape[0] - nB
+    assert max(map(len, touched)) < 0.75 * nN
+    assert np.array_equal(np.union1d(*touched), np.arange(nN))
     assert _rel(split.schur, lu.schur) < TOL
     rng = np.random.default_rng(7)
     r = rng.standard_normal(M.shape[0])
