@@ -186,6 +186,7 @@ class NewtonSolver:
         self.A, self.C, self.Hf, self.source = assemble_constant(disc)
         self.nonlinear_terms = [t for t in disc.physics.terms
                                 if type(t).residual is not Term.residual]
+        self._tangent_pattern = None   # the nonlinear terms' rows and columns, joined (``nonlinear``)
         self._dt = None
         self.free = disc.free
         self._fixed = np.flatnonzero(disc.fixed) if disc.fixed.dtype == bool else disc.fixed
@@ -290,11 +291,20 @@ class NewtonSolver:
         """Nonlinear terms at x added into ``residual``; their Jacobian triplets and the fault
         state at the Gauss points."""
         point = fault_at_rest(self.disc, x)
-        rows, cols, vals = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)], [np.zeros(0)]
-        for term in self.nonlinear_terms:
-            r, c, v = term.residual(self.disc, x, history, dt, self.time_weight, residual, point)
-            rows.append(r), cols.append(c), vals.append(v)
-        return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals), point
+        parts = [term.residual(self.disc, x, history, dt, self.time_weight, residual, point)
+                 for term in self.nonlinear_terms]
+        vals = np.concatenate([np.zeros(0)] + [v for _, _, v in parts])
+        # the terms' rows and columns, joined once while each term returns the same arrays (its
+        # pattern): the condensed solver then recognises the joined ones by identity
+        known = self._tangent_pattern
+        if known is None or len(known[0]) != len(parts) or any(
+                r is not r0 or c is not c0 for (r, c, _), r0, c0 in zip(parts, *known[:2])):
+            empty = [np.zeros(0, dtype=np.int64)]
+            known = self._tangent_pattern = (
+                [r for r, _, _ in parts], [c for _, c, _ in parts],
+                np.concatenate(empty + [r for r, _, _ in parts]),
+                np.concatenate(empty + [c for _, c, _ in parts]))
+        return known[2], known[3], vals, point
 
     def _prepare(self, dt, x_n, history):
         """The Jacobian's linear part for step size ``dt``, its factors and Schur complement.
@@ -832,10 +842,18 @@ class _BlockPattern:
         self.indptr = np.concatenate([[0], np.cumsum(np.bincount(self.rows, minlength=n))])
 
     def holds(self, linear, tangent):
-        """Are these L_NN entries and tangent triplets at this pattern's positions, in its order?"""
-        return all(a is b or (len(a) == len(b) and np.array_equal(a, b)) for a, b in (
-            (linear[0], self._linear_at[0]), (linear[1], self._linear_at[1]),
-            (tangent[0], self._tangent_at[0]), (tangent[1], self._tangent_at[1])))
+        """Are these L_NN entries and tangent triplets at this pattern's positions, in its order?
+        Arrays that match by their contents are remembered (the pattern's from then on), so
+        that the same arrays next time match by identity, without a comparison."""
+        pairs = ((linear[0], self._linear_at[0]), (linear[1], self._linear_at[1]),
+                 (tangent[0], self._tangent_at[0]), (tangent[1], self._tangent_at[1]))
+        if all(a is b for a, b in pairs):
+            return True
+        if not all(a is b or (len(a) == len(b) and np.array_equal(a, b)) for a, b in pairs):
+            return False
+        self._linear_at = (linear[0], linear[1])
+        self._tangent_at = (tangent[0], tangent[1])
+        return True
 
     def values(self, linear, tangent):
         """L_NN + T at the slots."""

@@ -59,7 +59,9 @@ class Term:
 
     def residual(self, disc, x, history, dt, time_weight, residual, point) -> tuple | None:
         """Nonlinear contribution at ``x``: added into ``residual``; returns Jacobian triplets
-        (rows, cols, vals) or None, and writes its point-wise fault state into ``point``."""
+        (rows, cols, vals) or None, and writes its point-wise fault state into ``point``. A term
+        whose triplets keep one pattern returns the same rows and cols arrays at every call
+        (never changed in place): the solver then knows the pattern without comparing it."""
         return None
 
     def previous_step(self, disc, x_n, time_weight, residual) -> None:

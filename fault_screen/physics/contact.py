@@ -100,6 +100,7 @@ class Contact(Term):
 
     def __init__(self, law: FrictionLaw):
         self.law = law
+        self._pattern = None   # the tangent's rows and columns (kc.contact_pattern), made once
 
     def initial_history(self, disc) -> np.ndarray:
         """Fault at rest: no slip, the in-situ shear traction, no plastic slip, state theta0."""
@@ -147,8 +148,11 @@ class Contact(Term):
         fp = disc.fault_points
         slip, opening = disc.fault_jump(x)
         traction, contact_state, tangent, new_history = self.law(slip, opening, history, fp.sigma_n0, dt)
-        rows, cols, vals = kc.assemble_contact(fp.N, fp.jump_dofs, disc.fault.tangent, disc.fault.normal,
-                                               fp.weight, traction, fp.tau0, fp.sigma_n0, tangent, residual)
+        vals = kc.assemble_contact(fp.N, fp.jump_dofs, disc.fault.tangent, disc.fault.normal,
+                                   fp.weight, traction, fp.tau0, fp.sigma_n0, tangent, residual)
+        if self._pattern is None:
+            self._pattern = kc.contact_pattern(fp.jump_dofs)
+        rows, cols = self._pattern
         point.update(slip=slip, opening=opening, shear_traction=traction[:, 0],
                      effective_normal_stress=traction[:, 1], friction=traction[:, 2],
                      contact_state=contact_state, history=new_history)

@@ -109,6 +109,7 @@ class EvolvingApertureConduction(Term):
         self.asperity_height_std = f.asperity_height_std
         self.viscosity = scene.fluid.viscosity
         self.kappa = f.kappa
+        self._pattern = None   # the Jacobian's rows and columns, made once
 
     def nonlinear_dofs(self, disc):
         pd = disc.fault_points.p_dofs
@@ -122,9 +123,12 @@ class EvolvingApertureConduction(Term):
             self.aperture0, self.asperity_height_std, self.viscosity, self.kappa, time_weight, residual)
 
     def residual(self, disc, x, history, dt, time_weight, residual, point):
-        rows, cols, vals, aperture = self._assemble(disc, x, time_weight, residual)
+        vals, aperture = self._assemble(disc, x, time_weight, residual)
         point["hydraulic_aperture"] = aperture
-        return rows, cols, vals
+        if self._pattern is None:
+            fp = disc.fault_points
+            self._pattern = fault_flow.evolving_conduction_pattern(fp.p_dofs, fp.jump_dofs)
+        return (*self._pattern, vals)
 
     def previous_step(self, disc, x_n, time_weight, residual):
         if time_weight < 1.0:
