@@ -63,17 +63,30 @@ class StepFailed(RuntimeError):
     """Newton did not converge (or produced non-finite values) within the iteration limit."""
 
 
-def fault_at_rest(disc: Discretisation, x: np.ndarray) -> dict:
+def fault_at_rest(disc: Discretisation, x: np.ndarray, point: dict | None = None) -> dict:
     """The fault state where no term says otherwise: no jump, the in-situ shear traction,
     effective normal stress lowered by the fault's overpressure, sticking at mu0, aperture 2h0.
-    The contact and evolving-aperture terms overwrite what they compute."""
+    ``point``: what the terms computed (the contact and evolving-aperture terms), completed with
+    the rest (only the missing entries are made)."""
     fp = disc.fault_points
     ng = len(fp.s)
     f = disc.scene.fault
-    return {"slip": np.zeros(ng), "opening": np.zeros(ng), "shear_traction": fp.tau0.copy(),
-            "effective_normal_stress": fp.sigma_n0 - disc.fault_overpressure(x),
-            "friction": np.full(ng, f.friction), "contact_state": np.zeros(ng, dtype=np.int64),
-            "hydraulic_aperture": np.full(ng, f.hydraulic_aperture), "history": None}
+    point = {} if point is None else point
+    for key in ("slip", "opening"):
+        if key not in point:
+            point[key] = np.zeros(ng)
+    if "shear_traction" not in point:
+        point["shear_traction"] = fp.tau0.copy()
+    if "effective_normal_stress" not in point:
+        point["effective_normal_stress"] = fp.sigma_n0 - disc.fault_overpressure(x)
+    if "friction" not in point:
+        point["friction"] = np.full(ng, f.friction)
+    if "contact_state" not in point:
+        point["contact_state"] = np.zeros(ng, dtype=np.int64)
+    if "hydraulic_aperture" not in point:
+        point["hydraulic_aperture"] = np.full(ng, f.hydraulic_aperture)
+    point.setdefault("history", None)
+    return point
 
 
 @dataclass
@@ -290,9 +303,10 @@ class NewtonSolver:
     def nonlinear(self, x, history, dt, residual):
         """Nonlinear terms at x added into ``residual``; their Jacobian triplets and the fault
         state at the Gauss points."""
-        point = fault_at_rest(self.disc, x)
+        point = {}
         parts = [term.residual(self.disc, x, history, dt, self.time_weight, residual, point)
                  for term in self.nonlinear_terms]
+        fault_at_rest(self.disc, x, point)   # (what no term computed)
         vals = np.concatenate([np.zeros(0)] + [v for _, _, v in parts])
         # the terms' rows and columns, joined once while each term returns the same arrays (its
         # pattern): the condensed solver then recognises the joined ones by identity
