@@ -222,35 +222,11 @@ def rate_state_law(params, slip, opening, history, sigma_n0, dt):
 
 
 @kernel
-def contact_pattern(jump_dofs):
-    """Rows and columns of the contact tangent's triplets (``assemble_contact``'s values, in
-    its order): every pair of Heaviside DOFs of a fault point, zeros included, so the pattern is
-    that of every Newton iteration (an open or sticking point lists its entries too), and the
-    condensed solver reads changes off position by position."""
-    ng = jump_dofs.shape[0]
-    rows = np.empty(ng * 64, dtype=np.int64)
-    cols = np.empty(ng * 64, dtype=np.int64)
-    k = 0
-    for g in range(ng):
-        for a in range(8):
-            ra = jump_dofs[g, a]
-            if ra < 0:
-                continue
-            for b in range(8):
-                cb = jump_dofs[g, b]
-                if cb < 0:
-                    continue
-                rows[k] = ra
-                cols[k] = cb
-                k += 1
-    return rows[:k], cols[:k]
-
-
-@kernel
 def assemble_contact(N, jump_dofs, tangent_vec, normal_vec, weight, traction, tau0, sigma_n0,
                      point_tangent, residual):
     """Contact forces of every fault Gauss point added into ``residual``; returns the values of
-    their tangent on the Heaviside DOFs at ``contact_pattern``'s rows and columns."""
+    their tangent on the Heaviside DOFs, each pair of a point's DOFs (rows a, columns b, a then
+    b in order), zeros included (physics.contact.Contact.pattern gives their rows and columns)."""
     ng = N.shape[0]
     vals = np.empty(ng * 64)
     k = 0

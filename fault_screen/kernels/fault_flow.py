@@ -71,43 +71,13 @@ def renshaw_aperture(opening_change, aperture0, sigma_h):
 
 
 @kernel
-def evolving_conduction_pattern(p_dofs, jump_dofs):
-    """Rows and columns of ``assemble_evolving_conduction``'s Jacobian triplets, in its order
-    (the same at every Newton iteration)."""
-    ng, nbp = p_dofs.shape
-    per = nbp * nbp + nbp * 8
-    rows = np.empty(ng * per, dtype=np.int64)
-    cols = np.empty(ng * per, dtype=np.int64)
-    k = 0
-    for g in range(ng):
-        for a in range(nbp):
-            ra = p_dofs[g, a]
-            if ra < 0:
-                continue
-            for b in range(nbp):
-                cb = p_dofs[g, b]
-                if cb < 0:
-                    continue
-                rows[k] = ra
-                cols[k] = cb
-                k += 1
-            for j in range(8):
-                cb = jump_dofs[g, j]
-                if cb < 0:
-                    continue
-                rows[k] = ra
-                cols[k] = cb
-                k += 1
-    return rows[:k], cols[:k]
-
-
-@kernel
 def assemble_evolving_conduction(x, opening, N, jump_dofs, Np, dNp_ds, p_dofs, normal, weight,
                                  aperture0, sigma_h, viscosity, kappa, time_weight, residual):
     """Fault conduction with the aperture of the current ``opening`` (Eq. 28) at every fault
     point: adds time_weight * int dNp/ds T(2h) dp/ds into ``residual`` and returns the values
-    of the Jacobian at ``evolving_conduction_pattern``'s rows and columns (fault-pressure and
-    Heaviside DOFs), and the aperture at every point."""
+    of the Jacobian (per point and fault-pressure row: its fault-pressure columns, then its
+    Heaviside ones; physics.fault_flow.EvolvingApertureConduction.pattern gives them) and the
+    aperture at every point."""
     ng, nbp = Np.shape
     per = nbp * nbp + nbp * 8
     vals = np.empty(ng * per)

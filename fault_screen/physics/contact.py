@@ -100,7 +100,7 @@ class Contact(Term):
 
     def __init__(self, law: FrictionLaw):
         self.law = law
-        self._pattern = None   # the tangent's rows and columns (kc.contact_pattern), made once
+        self._pattern = None   # the tangent's rows and columns (``pattern``)
 
     def initial_history(self, disc) -> np.ndarray:
         """Fault at rest: no slip, the in-situ shear traction, no plastic slip, state theta0."""
@@ -144,15 +144,24 @@ class Contact(Term):
             f"stress the numbers are (total stresses minus the pore pressure give the fault's "
             f"effective stress) and the values")
 
+    def pattern(self, disc):
+        """Rows and columns of the tangent's triplets (``kc.assemble_contact``'s order: per point,
+        every pair of its Heaviside DOFs), made once: the same arrays at every call."""
+        if self._pattern is None:
+            jump = disc.fault_points.jump_dofs
+            rows = np.repeat(jump, jump.shape[1], axis=1)   # (point, a b): DOF a
+            cols = np.tile(jump, (1, jump.shape[1]))        # DOF b
+            kept = (rows >= 0) & (cols >= 0)
+            self._pattern = (rows[kept].astype(np.int64), cols[kept].astype(np.int64))
+        return self._pattern
+
     def residual(self, disc, x, history, dt, time_weight, residual, point):
         fp = disc.fault_points
         slip, opening = disc.fault_jump(x)
         traction, contact_state, tangent, new_history = self.law(slip, opening, history, fp.sigma_n0, dt)
         vals = kc.assemble_contact(fp.N, fp.jump_dofs, disc.fault.tangent, disc.fault.normal,
                                    fp.weight, traction, fp.tau0, fp.sigma_n0, tangent, residual)
-        if self._pattern is None:
-            self._pattern = kc.contact_pattern(fp.jump_dofs)
-        rows, cols = self._pattern
+        rows, cols = self.pattern(disc)
         point.update(slip=slip, opening=opening, shear_traction=traction[:, 0],
                      effective_normal_stress=traction[:, 1], friction=traction[:, 2],
                      contact_state=contact_state, history=new_history)

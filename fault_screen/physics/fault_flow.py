@@ -109,7 +109,7 @@ class EvolvingApertureConduction(Term):
         self.asperity_height_std = f.asperity_height_std
         self.viscosity = scene.fluid.viscosity
         self.kappa = f.kappa
-        self._pattern = None   # the Jacobian's rows and columns, made once
+        self._pattern = None   # the Jacobian's rows and columns (``pattern``)
 
     def nonlinear_dofs(self, disc):
         pd = disc.fault_points.p_dofs
@@ -125,10 +125,20 @@ class EvolvingApertureConduction(Term):
     def residual(self, disc, x, history, dt, time_weight, residual, point):
         vals, aperture = self._assemble(disc, x, time_weight, residual)
         point["hydraulic_aperture"] = aperture
+        return (*self.pattern(disc), vals)
+
+    def pattern(self, disc):
+        """Rows and columns of the Jacobian's triplets (``assemble_evolving_conduction``'s order:
+        per point and fault-pressure row, its fault-pressure columns, then its Heaviside ones),
+        made once: the same arrays at every call."""
         if self._pattern is None:
             fp = disc.fault_points
-            self._pattern = fault_flow.evolving_conduction_pattern(fp.p_dofs, fp.jump_dofs)
-        return (*self._pattern, vals)
+            columns = np.concatenate([fp.p_dofs, fp.jump_dofs], axis=1)
+            rows = np.broadcast_to(fp.p_dofs[:, :, None], fp.p_dofs.shape + columns.shape[1:])
+            cols = np.broadcast_to(columns[:, None, :], rows.shape)
+            kept = (rows >= 0) & (cols >= 0)
+            self._pattern = (rows[kept].astype(np.int64), cols[kept].astype(np.int64))
+        return self._pattern
 
     def previous_step(self, disc, x_n, time_weight, residual):
         if time_weight < 1.0:

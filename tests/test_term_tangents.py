@@ -1,0 +1,60 @@
+"""The nonlinear terms' assembled Jacobians (their triplets: rows and columns from the term's
+pattern, values from its kernel) against central finite differences of the same terms'
+residuals, on the calibrated Rustrel scene part-way through its injection (slipping and sticking
+points under rate-and-state friction, an opening fault with an evolving aperture)."""
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from fault_screen import Scene, Simulation
+from fault_screen.physics.contact import Contact
+from fault_screen.physics.fault_flow import EvolvingApertureConduction
+
+from conftest import CONFIGS
+
+#: relative to the largest entry of the column; central differences of a smooth residual at a
+#: step of 1e-6 of the unknown's magnitude are good to ~1e-8 (the return map converges to 1e-13)
+TOL = 1e-5
+
+
+@pytest.fixture(scope="module")
+def state():
+    scene = Scene.from_toml(CONFIGS / "rustrel-2015-calibrated.toml")
+    sim = Simulation(scene)
+    sim.advance(600.0)   # the pressure front along the fault, points slipping near the source
+    return sim
+
+
+@pytest.mark.parametrize("kind", [Contact, EvolvingApertureConduction])
+def test_assembled_tangent_matches_finite_differences(state, kind):
+    sim = state
+    disc = sim.disc
+    term = disc.physics.find(kind)
+    dt, theta = 5.0, sim.solver.time_weight
+    x = sim.x.copy()
+
+    def residual(x):
+        R = np.zeros(disc.n_dofs)
+        rows, cols, vals = term.residual(disc, x, sim.history, dt, theta, R, {})
+        return R, rows, cols, vals
+
+    R0, rows, cols, vals = residual(x)
+    assert rows is term.pattern(disc)[0] and cols is term.pattern(disc)[1]   # made once
+    J = sp.coo_matrix((vals, (rows, cols)), shape=(disc.n_dofs,) * 2).tocsc()
+    if kind is Contact:
+        slipping = np.abs(disc.fault_jump(x)[0]) > 0
+        assert slipping.any()
+    columns = np.unique(cols)
+    checked = 0
+    for j in columns[:: max(1, len(columns) // 60)]:
+        h = 1e-6 * max(np.max(np.abs(x[columns])), 1e-12)
+        e = np.zeros(disc.n_dofs)
+        e[j] = h
+        fd = (residual(x + e)[0] - residual(x - e)[0]) / (2 * h)
+        exact = J[:, j].toarray().ravel()
+        scale = max(np.max(np.abs(exact)), np.max(np.abs(fd)))
+        if scale == 0.0:
+            continue
+        assert np.max(np.abs(fd - exact)) <= TOL * scale, f"column {j}"
+        checked += 1
+    assert checked >= 20
