@@ -132,3 +132,28 @@ def test_return_map_reaches_steady_sliding():
         slip = new
     assert ds / dt == pytest.approx(V, rel=1e-8)
     assert tau == pytest.approx(sn0 * (mu0 + a * np.log(V / V0)), rel=1e-10)
+
+
+@pytest.mark.parametrize("b", [0.0, 0.015])
+@pytest.mark.parametrize("stress_ratio", [0.3, 0.6, 0.7, 1.0, 1.05, 1.2, 2.0])
+def test_return_map_solves_its_equation(b, stress_ratio):
+    """The slip increment ds the return map returns solves |tau_trial| - kT ds = mu(ds/dt,
+    theta(ds)) sigma_n(ds), with mu written out here (a asinh(V e^(psi/a) / 2V0), the aging
+    law by backward Euler): from creep far below the strength (where the map starts from its
+    creep guess) to sliding that relaxes most of the trial stress (where the guess is out of
+    range and it starts from 0), with dilation."""
+    kN, kT, tp, mu0, a, V0, Dc, dt, sn0 = KN, KT, 0.1, 0.6, 0.01, 1e-6, 1e-4, 2.0, 1e7
+    theta_old = 0.5
+    tau_trial = stress_ratio * mu0 * sn0
+    r = rate_state_point(0.0, 0.0, 0.0, tau_trial, 0.0, theta_old, sn0, kN, kT, tp, mu0, a, b, V0,
+                         Dc, dt, 1e-9)
+    tau, sigma_n, ds, theta = r[0], r[1], r[3], r[4]
+    V = ds / dt
+    if b:
+        assert theta == pytest.approx((theta_old + dt) / (1 + V * dt / Dc), rel=1e-14)
+    psi = mu0 + b * np.log(V0 * theta / Dc)
+    mu = a * np.arcsinh(V / (2 * V0) * np.exp(psi / a))
+    assert 0.0 < ds < tau_trial / kT
+    assert sigma_n == pytest.approx(sn0 + kN * tp * ds, rel=1e-14)
+    assert tau == pytest.approx(tau_trial - kT * ds, rel=1e-14)
+    assert abs(tau_trial - kT * ds - mu * sigma_n) <= 1e-12 * tau_trial

@@ -15,7 +15,7 @@ call (kernels/friction.py): after changing those, touch this file (or clear __py
 import numpy as np
 
 from .._jit import helper, kernel
-from .friction import aging_state, rate_state_friction
+from .friction import LARGE_PSI_OVER_A, aging_state, rate_state_friction
 
 STICK, SLIP, OPEN = 0, 1, 2
 
@@ -84,6 +84,16 @@ def rate_state_point(slip, opening, slip_old, tau_old, dilatant_slip_old, theta_
     sgn = 1.0 if tau_trial >= 0 else -1.0
     lo, hi = 0.0, Tt / kT
     ds = 0.0
+    # first guess: the creep over dt at which the law alone carries the trial shear stress
+    # (a sigma asinh(V e) = |tau_trial|, the spring's relaxation kT ds neglected, the state at
+    # theta_old). The root carries less shear, so this slightly overestimates it and Newton
+    # comes back in ~2 iterations (Rustrel: 2.0 on average against 11 from ds = 0); a guess
+    # outside (0, hi) (fast slip, an overflow) starts from 0
+    psi0 = mu0 + (b * np.log(V0 * theta_old / Dc) if b != 0.0 else 0.0)
+    if sigma_base > 0.0 and psi0 / a < LARGE_PSI_OVER_A:
+        guess = dt * np.sinh(Tt / (a * sigma_base)) * (2.0 * V0) / np.exp(psi0 / a)
+        if 0.0 < guess < hi:
+            ds = guess
     theta = theta_old
     mu = 0.0
     Fp = kT
