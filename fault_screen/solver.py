@@ -800,17 +800,15 @@ def _block_values(n_slots, linear_slots, linear_vals, tangent_slots, weight, val
 
 
 @kernel
-def _tangent_change(n, slot_rows, slot_cols, slots, weight, vals, vals0):
-    """Per slot, the tangent's sum minus the first tangent's (each summed alone, in the same
-    order: an entry whose triplets are equal differs by exactly 0); a mask of the rows and
+def _tangent_change(n, slot_rows, slot_cols, slots, weight, vals, then):
+    """Per slot, the tangent's sum minus the first tangent's ``then`` (its sums at the slots,
+    made alike: an entry whose triplets are equal differs by exactly 0); a mask of the rows and
     columns holding a difference and its largest magnitude."""
     m = slot_rows.shape[0]
     now = np.zeros(m)
-    then = np.zeros(m)
     for k in range(slots.shape[0]):
         if slots[k] >= 0:
             now[slots[k]] += vals[k] * weight[k]
-            then[slots[k]] += vals0[k] * weight[k]
     changed = np.zeros(n, dtype=np.bool_)
     largest = 0.0
     for s in range(m):
@@ -974,6 +972,10 @@ class _CondensedSolver:
         self.factored_step = self._step
         self._base0 = self._base
         self.tangent0 = self._tangent
+        # T0 summed at the slots (as _tangent_change sums T), once while T0 is the base
+        p = self._pattern
+        self._tangent0_sums = _block_values(len(p.keys), p.linear_slots[:0], self._sparse[:0],
+                                            p.tangent_slots, p.weight, self.tangent0[2])
         self.factored = True
         self.factorizations += 1
         # columns of M0^-1 solved for so far (the changed rows only grow until M0 is replaced)
@@ -1043,7 +1045,7 @@ class _CondensedSolver:
         and columns K holding a difference, its dense K x K block and its largest magnitude."""
         p = self._pattern
         D, changed, largest = _tangent_change(p.n, p.rows, p.cols, p.tangent_slots, p.weight,
-                                              self._tangent[2], self.tangent0[2])
+                                              self._tangent[2], self._tangent0_sums)
         K = np.flatnonzero(changed)
         DK = None
         if len(K) * LOW_RANK_FRACTION <= p.n:
