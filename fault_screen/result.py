@@ -99,7 +99,6 @@ class Result:
     def load(cls, path) -> "Result":
         """A result file, also one still being streamed (opened as a single-writer/multiple-
         reader reader then: what the last flush wrote)."""
-        import h5py
         import tomllib
 
         with _open_for_reading(path) as h5:

@@ -10,7 +10,7 @@ return map a well-posed, smooth scalar equation at every point and every load.
 """
 import numpy as np
 
-from .._jit import helper, kernel
+from .._jit import helper
 
 
 #: Small ``a`` (psi/a above 600, e.g. mu0/a = 6800 at a = 1e-4): exp(psi/a) overflows, so the law
