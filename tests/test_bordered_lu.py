@@ -4,6 +4,8 @@ The matrix is a real one (the scaled free block of a small inclined-fault scene 
 rock, condensed unknowns last), so the factorisation meets the pivoting and the fill it meets in a
 run; the references are numpy's dense solves of the same blocks.
 """
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -14,7 +16,7 @@ from fault_screen.bordered_lu import BorderedLU, SplitBorderedLU
 from fault_screen.discretisation import discretise
 from fault_screen.solver import NewtonSolver
 
-from conftest import CONFIGS
+from conftest import CONFIGS, VERIFICATION
 
 TOL = 1e-11  # relative to the largest entry of the reference; round-off of a well scaled system
 
@@ -90,8 +92,9 @@ def test_matrix_given_by_a_function_factorises_the_same(system):
     assert _rel(x, spla.spsolve(sp.csc_matrix(M), r)) < TOL
 
 
+@pytest.mark.parametrize("symmetric", [False, True])
 @pytest.mark.parametrize("shape", ["dense", "diagonal", "arrow"])
-def test_sweeps_on_extreme_supernodes(shape):
+def test_sweeps_on_extreme_supernodes(shape, symmetric):
     """The sweeps read the factors packed by supernodes: one supernode holding every linear
     column (a dense block, 37 columns: none of the four-row groups is whole), none wider than a
     column (a diagonal block: each column's supernode has no rows below it) and single columns
@@ -110,8 +113,11 @@ def test_sweeps_on_extreme_supernodes(shape):
         M[-1, :] = rng.standard_normal(n)
         M[:, -1] = rng.standard_normal(n)
         M[nB:, nB:] = rng.standard_normal((nN, nN))
+    if symmetric:  # (the backward sweep then reads L and U's diagonal: U = D L^T)
+        M = M + M.T
     M[np.arange(n), np.arange(n)] += 4.0 * n  # the diagonal pivots SuperLU keeps here
     lu = BorderedLU(sp.csc_matrix(M), nB)
+    assert (lu._U is None) == symmetric
     widths = lu._L.arrays[1]
     assert widths.sum() == nB
     assert widths.max() == {"dense": nB, "diagonal": 1, "arrow": 1}[shape]
@@ -160,3 +166,58 @@ def test_sweeps_propagate_non_finite_values(system, bad):
     swept, condensed = lu.forward(r[:nB], r[nB:])
     assert not np.all(np.isfinite(condensed))
     assert not np.all(np.isfinite(lu.backward(swept, np.zeros(M.shape[0] - nB))))
+
+
+@pytest.fixture(scope="module")
+def elastic():
+    """The scaled free block of a coarse inclined-fault scene in elastic (impermeable) rock,
+    condensed unknowns last (1575 unknowns): its linear rows are its linear columns transposed,
+    so the factorisation keeps L and U's diagonal only."""
+    scene = Scene.from_toml(VERIFICATION / "fluid-driven-slip-T0.4-dip30.toml")
+    m = scene.mesh
+    scene = scene.replace(mesh=replace(m, refinement=replace(m.refinement, size=4.0, growth=1.5)))
+    solver = NewtonSolver(discretise(scene))
+    x = np.zeros(solver.disc.n_dofs)
+    solver._prepare(scene.time.dt, x, solver.disc.physics.contact.initial_history(solver.disc))
+    D = sp.diags(solver.scale)
+    M = (D @ solver.L @ D).tocsr()[solver._order][:, solver._order].toarray()
+    return solver, M, len(solver.B)
+
+
+def _check_against_dense(lu, M, nB, seed):
+    B, BN, NB, NN = M[:nB, :nB], M[:nB, nB:], M[nB:, :nB], M[nB:, nB:]
+    assert _rel(lu.schur, NN - NB @ np.linalg.solve(B, BN)) < TOL
+    r = np.random.default_rng(seed).standard_normal(M.shape[0])
+    swept, condensed = lu.forward(r[:nB], r[nB:])
+    assert _rel(condensed, r[nB:] - NB @ np.linalg.solve(B, r[:nB])) < TOL
+    xN = np.linalg.solve(lu.schur, condensed)
+    assert _rel(np.concatenate([lu.backward(swept, xN), xN]), np.linalg.solve(M, r)) < TOL
+    assert _rel(lu.backward(None, xN), -np.linalg.solve(B, BN @ xN)) < TOL
+
+
+def test_symmetric_linear_block_keeps_l_and_the_diagonal(elastic):
+    """U = D L^T on the linear rows of a symmetric block (SuperLU keeping its diagonal pivots
+    there, the condensed rows pivoting among themselves): the Schur complement and both sweeps
+    against numpy's dense solves; the same matrix made unsymmetric in one linear entry beyond
+    round-off factorises with U held, as accurately."""
+    solver, M, nB = elastic
+    assert np.abs(M[:nB] - M[:, :nB].T).max() <= 1e-15 * np.abs(M[:nB]).max()
+    lu = BorderedLU(sp.csc_matrix(M), nB)
+    assert lu._U is None and len(lu._D) == nB
+    assert not np.array_equal(lu._row_N, np.arange(M.shape[0] - nB))   # (pivoted condensed rows)
+    _check_against_dense(lu, M, nB, 11)
+    i, j = next((i, j) for i, j in np.argwhere(M[:nB, :nB] != 0) if i != j)
+    unsymmetric = M.copy()
+    unsymmetric[i, j] += 1e-9 * np.abs(M[:nB]).max()
+    other = BorderedLU(sp.csc_matrix(unsymmetric), nB)
+    assert other._U is not None
+    _check_against_dense(other, unsymmetric, nB, 12)
+
+
+def test_symmetric_split_factorisation(elastic):
+    """Both halves of a split symmetric block keep L and the diagonal only, and the split
+    factorisation solves as the whole does."""
+    solver, M, nB = elastic
+    split = SplitBorderedLU(sp.csc_matrix(M), nB, solver._split)
+    assert all(half._U is None for half in split._halves)
+    _check_against_dense(split, M, nB, 13)
