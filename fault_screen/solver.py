@@ -200,6 +200,7 @@ class NewtonSolver:
         self.nonlinear_terms = [t for t in disc.physics.terms
                                 if type(t).residual is not Term.residual]
         self._tangent_pattern = None   # the nonlinear terms' rows and columns, joined (``nonlinear``)
+        self._L = None                 # the linear Jacobian (``L``), when made
         self._dt = None
         self.free = disc.free
         self._fixed = np.flatnonzero(disc.fixed) if disc.fixed.dtype == bool else disc.fixed
@@ -330,7 +331,9 @@ class NewtonSolver:
         a restored run repeats the same round-off)."""
         if dt == self._dt:
             return
-        L = self._linear_jacobian(dt)
+        self._L = None   # (the last step size's L goes first)
+        factorise = self.lu is None or not self._factors_any_dt
+        L = self._linear_jacobian(dt) if factorise or self.scale is None else None
         if self.scale is None:
             diag = np.abs(L.diagonal())
             rows, cols, vals, _ = self.nonlinear(x_n, history, dt, np.zeros(self.disc.n_dofs))
@@ -344,7 +347,7 @@ class NewtonSolver:
             self.scale = 1.0 / np.sqrt(diag)
         B, N = self.B, self.N
         self._condensed_blocks()
-        if self.lu is None or not self._factors_any_dt:
+        if factorise:
             D = sp.diags(self.scale)
             Ls = (D @ L @ D).tocsr()
             if self._order is None:  # the pattern of B is that of every step size
@@ -358,7 +361,6 @@ class NewtonSolver:
             self.lu = None  # the old factors go before the new ones are made (peak memory)
             release_freed_memory()
             self.lu = bordered_lu(held.pop, len(B), self._split)
-            L = self._linear_jacobian(dt)
             self.factorizations += 1
             LNN = self._combine(self._blocks_NN, dt).toarray()  # (after the factors' peak)
             # P = L_NN - S in the Schur complement's own memory, which the factors then give up
@@ -371,7 +373,6 @@ class NewtonSolver:
         # the Schur complement L_NN - P is not held: the condensed solver is handed P and L_NN's
         # entries, and forms the block only to factorise it (one n_N x n_N array less)
         self._LNN_entries = self._linear_entries(dt)
-        self.L = L
         if self._blocks_fixed is None:  # rows of the fixed unknowns on the linear ones, in order
             self._blocks_fixed = [M[self._fixed].tocsc()[:, self._linear_order()].tocsr()
                                   for M in (self.A, self.C, self.Hf)]
@@ -381,6 +382,15 @@ class NewtonSolver:
             self._blocks_rows_N_fixed = [M[self._rows_N_fixed] for M in (self.A, self.C, self.Hf)]
         self._L_rows_N_fixed = self._combine(self._blocks_rows_N_fixed, dt)
         self._dt = dt
+
+    @property
+    def L(self):
+        """The linear Jacobian at the current step size, made at its first use and kept while
+        the step size is: a residual with the bulk's answer deferred never reads it (every step
+        of the bundled scenes), so it is not held beside A (17 MB on the fine 30 deg scene)."""
+        if self._L is None:
+            self._L = self._linear_jacobian(self._dt)
+        return self._L
 
     def _linear_jacobian(self, dt):
         """A + C / dt + theta Hf (CSR, unscaled)."""
