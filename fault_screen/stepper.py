@@ -85,6 +85,7 @@ class Simulation:
         self.recorder = Recorder(self.disc, scene)
         self.recorder.record(0.0, self.x, fault_at_rest(self.disc, self.x), slip_rate=0.0,
                              flow_rate=0.0, volume=0.0, leaked=0.0, iterations=0, cuts=0, dt=0.0)
+        self.disc.release_element_groups()   # (assembled: the steps do not read them)
         self.build_time = _time.perf_counter() - wall0
         self.wall_time = self.build_time
 
