@@ -33,6 +33,7 @@ import functools
 import numpy as np
 import scipy.linalg
 import scipy.sparse.linalg as spla
+from scipy.linalg.blas import dgemm as _gemm
 from scipy.linalg.lapack import dgetrs as _getrs
 
 from ._jit import helper, kernel, sweep_kernel
@@ -380,84 +381,100 @@ SPLIT_ABOVE = 50_000
 
 def bordered_lu(M, n_linear: int, split=None):
     """``BorderedLU`` of ``M`` (or a function returning it), or ``SplitBorderedLU`` when the
-    linear block is larger than SPLIT_ABOVE and ``split`` (n_left, n_right, n_separator: the first
-    cut of its nested-dissection order, see ``ordering.nested_dissection``) is given."""
-    if split is not None and n_linear > SPLIT_ABOVE and min(split[:2]) > 0:
+    linear block is larger than SPLIT_ABOVE and ``split`` (the sizes of its parts, then of its
+    separators: see ``split_layout``) is given."""
+    if split is not None and n_linear > SPLIT_ABOVE and min(split[:-1]) > 0:
         return SplitBorderedLU(M, n_linear, split)
     return BorderedLU(M, n_linear)
 
 
 class SplitBorderedLU:
-    """``BorderedLU``'s sweeps and Schur complement with the linear block factorised as two
-    halves that do not couple, each bordered by the separator S and the condensed unknowns N_i
-    it couples to.
+    """``BorderedLU``'s sweeps and Schur complement with the linear block factorised in parts
+    that do not couple (the halves of the first nested-dissection cut, or the quarters of the
+    first two), each bordered by the separators S and the condensed unknowns N that it couples
+    to.
 
     The peak memory of a sparse LU is SuperLU's storage with scipy's copy of its factors beside
-    it; one half at a time halves it (Rustrel 200 x 201: the run's peak 1076 -> 915 MB). With
-    M = [B1 . E1; . B2 E2; W1 W2 M_WW] (W = S + N), each half's factorisation of
-    [B_i E_i; W_i M_WW] gives R_i = M_WW - W_i B_i^-1 E_i (the border's block keeps its trailing
-    factors regular), so R = R_1 + R_2 - M_WW is M with both halves eliminated, dense on W, and
-    the Schur complement on N eliminates S from it with a dense LU of R_SS.
+    it; one part at a time divides it (Rustrel 200 x 201: the run's peak 1076 -> 915 MB in
+    halves). With M = [B1 . E1; . B2 E2; W1 W2 M_WW] (W = S + N), each part's factorisation of
+    [B_i E_i; W_i M_WW] gives M_WW - W_i B_i^-1 E_i (the border's block keeps its trailing
+    factors regular), so R = M_WW - sum_i W_i B_i^-1 E_i is M with every part eliminated, dense on
+    W, and the Schur complement on N eliminates S from it with a dense LU of R_SS.
 
-    A half borders only on the part of W it couples to (S and the condensed unknowns N_i with an
-    entry in its rows or columns: a fault crossing the cut has about half of its unknowns on
-    each side): W_i B_i^-1 E_i is zero in the other rows and columns, and SuperLU's dense
-    trailing block, the larger part of a half's factors when the fault has thousands of
-    unknowns, is |W_i|^2 instead of |W|^2 (fine 30 deg scene: ~ 1400^2 against 2400^2).
+    A part borders only on the unknowns of W it couples to (a fault crossing the cuts has some
+    of its unknowns on each side; a quarter touches one or two of the three separators):
+    W_i B_i^-1 E_i is zero in the other rows and columns, and SuperLU's dense trailing block,
+    the larger part of a half's factors when the fault has thousands of unknowns, is |W_i|^2
+    instead of |W|^2 (fine 30 deg scene in halves: 1168^2 against 2401^2).
 
-    Vectors in and out are in ``M``'s order [B1, B2, S, N], as ``BorderedLU``'s; the swept right
-    hand side handed from ``forward`` to ``backward`` is [c_1, c_2, R_SS^-1 g_S]."""
+    ``split``: the sizes of the parts, then of the separators (n_1, ..., n_k, n_S), in ``M``'s
+    order. Vectors in and out are in ``M``'s order [B1, ..., Bk, S, N], as ``BorderedLU``'s;
+    the swept right hand side handed from ``forward`` to ``backward`` is
+    [c_1, ..., c_k, R_SS^-1 g_S]."""
 
     def __init__(self, M, n_linear: int, split):
         if callable(M):
             M = M()
         M = M.tocsc()
         n = M.shape[0]
-        n1, n2, ns = split
-        if n1 + n2 + ns != n_linear:
+        sizes, ns = split[:-1], split[-1]
+        if sum(sizes) + ns != n_linear:
             raise ValueError(f"split {split} does not add up to {n_linear} linear unknowns")
         self.n, self.n_linear = n, n_linear
-        self._n1, self._n2 = n1, n2
-        parts = [np.arange(n1), np.arange(n1, n1 + n2)]
-        # the positions in W of each half's border: S, then the condensed unknowns it touches
-        self._borders = [np.concatenate([np.arange(ns), ns + _touched(M, h, n1 + n2 + ns)])
-                         for h in parts]
+        starts = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+        self._n_parts = nP = int(starts[-1])   # the parts' unknowns, before S
+        self._ranges = [slice(a, b) for a, b in zip(starts[:-1], starts[1:])]
+        parts = [np.arange(a, b) for a, b in zip(starts[:-1], starts[1:])]
+        # the positions in W of each part's border: the separators' unknowns, then the
+        # condensed ones, that it touches
+        self._borders = [_touched(M, part, nP) for part in parts]
         blocks = [M[h][:, h].tocsc() for h in
-                  (np.concatenate([part, n1 + n2 + border]) for part, border in zip(parts, self._borders))]
-        M_WW = M[n1 + n2:, n1 + n2:].tocsr()   # (sparse: dense, it would be one more |W|^2 array)
+                  (np.concatenate([part, nP + border]) for part, border in zip(parts, self._borders))]
+        M_WW = M[nP:, nP:].tocsr()   # (sparse: dense, it would be one more |W|^2 array)
         del M
-        self._halves = []
+        self._parts = []
         self.nnz = 0
-        eliminated = []   # each half's - W_i B_i^-1 E_i, on its border
+        eliminated = []   # each part's - W_i B_i^-1 E_i, on its border
         for part, border in zip(parts, self._borders):
-            release_freed_memory()  # (what the last half's factorisation freed, before the next)
+            release_freed_memory()  # (what the last part's factorisation freed, before the next)
             lu = BorderedLU(blocks.pop(0), len(part))   # (the block goes with its factorisation)
             own = M_WW[border][:, border].tocoo()
             np.subtract.at(lu.schur, (own.row, own.col), own.data)
             eliminated.append(lu.schur)
             lu.schur = None
             self.nnz += lu.nnz
-            self._halves.append(lu)
-        R = M_WW.toarray()
+            self._parts.append(lu)
+        # R in its four blocks on S and N (R_NN becomes the Schur complement in place: no
+        # |W|^2 array beside it, and no |N|^2 product: 114 -> 52 MB on the fine 30 deg scene)
+        R_SS, R_SN = M_WW[:ns, :ns].toarray(), M_WW[:ns, ns:].toarray()
+        R_NS, R_NN = M_WW[ns:, :ns].toarray(), M_WW[ns:, ns:].toarray()
         del M_WW
         for border, E in zip(self._borders, eliminated):
-            for a, w in enumerate(border):   # (a row at a time: no |W_i|^2 temporary)
-                R[w, border] += E[a]
+            k = int(np.searchsorted(border, ns))   # (a border lists its S first, then its N)
+            on_S, on_N = border[:k], border[k:] - ns
+            R_SS[np.ix_(on_S, on_S)] += E[:k, :k]
+            R_SN[np.ix_(on_S, on_N)] += E[:k, k:]
+            R_NS[np.ix_(on_N, on_S)] += E[k:, :k]
+            for a, w in enumerate(on_N):   # (a row at a time: no |N_i|^2 temporary)
+                R_NN[w, on_N] += E[k + a, k:]
         del eliminated
-        self._R_SS = scipy.linalg.lu_factor(R[:ns, :ns], check_finite=False)
+        self._R_SS = scipy.linalg.lu_factor(R_SS, overwrite_a=True, check_finite=False)
         # R_SS^-1 R_SN: the separator's answer to the condensed unknowns
-        self._S_from_N = lu_solve(self._R_SS, R[:ns, ns:])
-        self.schur = R[ns:, ns:] - R[ns:, :ns] @ self._S_from_N
-        self._R_NS = np.ascontiguousarray(R[ns:, :ns])
-        self.nnz += R.size
+        self._S_from_N = lu_solve(self._R_SS, R_SN)
+        del R_SN
+        # R_NN - R_NS S_from_N, by BLAS on the transposes (Fortran views of these C arrays)
+        self.schur = _gemm(-1.0, self._S_from_N.T, R_NS.T, beta=1.0, c=R_NN.T, overwrite_c=True).T
+        self._R_NS = R_NS
+        self.nnz += (ns + len(R_NN)) ** 2
+        release_freed_memory()   # (the last part's factorisation and R's making)
 
     def forward(self, r_linear, r_condensed):
-        """As ``BorderedLU.forward``: each half's sweep, then S eliminated from the border."""
-        n1, n2 = self._n1, self._n2
-        ns = self.n_linear - n1 - n2
-        g = np.concatenate([r_linear[n1 + n2:], r_condensed])
+        """As ``BorderedLU.forward``: each part's sweep, then S eliminated from the border."""
+        nP = self._n_parts
+        ns = self.n_linear - nP
+        g = np.concatenate([r_linear[nP:], r_condensed])
         swept = []
-        for lu, border, part in zip(self._halves, self._borders, (slice(0, n1), slice(n1, n1 + n2))):
+        for lu, border, part in zip(self._parts, self._borders, self._ranges):
             c, g_i = lu.forward(r_linear[part], np.zeros(len(border)))
             g[border] += g_i
             swept.append(c)
@@ -465,16 +482,41 @@ class SplitBorderedLU:
         return np.concatenate([*swept, y_S]), g[ns:] - self._R_NS @ y_S
 
     def backward(self, c, x_condensed):
-        """As ``BorderedLU.backward``: the separator from the border, then each half's sweep."""
-        n1, n2 = self._n1, self._n2
+        """As ``BorderedLU.backward``: the separator from the border, then each part's sweep."""
+        nP = self._n_parts
         x_S = -(self._S_from_N @ x_condensed)
         if c is not None:
-            x_S += c[n1 + n2:]
+            x_S += c[nP:]
         x_W = np.concatenate([x_S, x_condensed])
-        c1, c2 = (None, None) if c is None else (c[:n1], c[n1:n1 + n2])
-        x1 = self._halves[0].backward(c1, x_W[self._borders[0]])
-        x2 = self._halves[1].backward(c2, x_W[self._borders[1]])
-        return np.concatenate([x1, x2, x_S])
+        x = [lu.backward(None if c is None else c[part], x_W[border])
+             for lu, border, part in zip(self._parts, self._borders, self._ranges)]
+        return np.concatenate([*x, x_S])
+
+
+#: a part of a split linear block holds at most about this many unknowns: halves larger than
+#: that are factorised as quarters (the factorisation of a part, SuperLU's storage with scipy's
+#: copy of its factors, is the peak of a large run)
+PART_SIZE = 30_000
+
+
+def split_layout(n_linear: int, split, quarters):
+    """How ``bordered_lu`` factorises a linear block in its nested-dissection order, from the
+    first cut ``split`` and the second level's ``quarters`` (``ordering.nested_dissection``):
+    (order, split), ``order`` a permutation of the block to apply first (None: as it is).
+    Halves when a half holds at most PART_SIZE unknowns, else quarters, the block then ordered
+    [P1, P2, P3, P4, S_a, S_b, S] (each quarter keeping its order, the separators last)."""
+    if (split is None or quarters is None or n_linear <= SPLIT_ABOVE
+            or max(split[:2]) <= PART_SIZE):
+        return None, split
+    (a1, a2, a_s), (b1, b2, b_s) = quarters
+    n1 = split[0]
+    if min(a1, a2, b1, b2) == 0 or a1 + a2 + a_s != n1 or n1 + b1 + b2 + b_s != split[0] + split[1]:
+        return None, split
+    r = np.arange
+    order = np.concatenate([r(0, a1 + a2), r(n1, n1 + b1 + b2),                    # quarters
+                            r(a1 + a2, n1), r(n1 + b1 + b2, split[0] + split[1]),  # S_a, S_b
+                            r(split[0] + split[1], n_linear)])                      # S
+    return order, (a1, a2, b1, b2, a_s + b_s + split[2])
 
 
 def _touched(M, part, first):

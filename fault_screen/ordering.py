@@ -20,13 +20,16 @@ LEAF_SIZE = 8
 
 
 def nested_dissection(pattern: sp.spmatrix, xy: np.ndarray, leaf: int = LEAF_SIZE,
-                      return_split: bool = False):
+                      return_split: bool = False, return_quarters: bool = False):
     """Permutation (new position -> old index) of the unknowns of a square sparse matrix whose
     unknown i sits at ``xy[i]`` (m). Only the pattern of ``pattern + pattern^T`` is used.
 
     ``return_split``: also the sizes (n_left, n_right, n_separator) of the first cut, in the
     order the permutation places them (None when the set was not cut): the two halves do not
     couple, so they can be factorised apart (``bordered_lu.SplitBorderedLU``).
+    ``return_quarters``: also the sizes of the second level's cuts, one (n_left, n_right,
+    n_separator) per half of the first, in the permutation's order (None unless both halves
+    were cut): the four parts do not couple either.
 
     Each set is cut at the median of its coordinate along its longer extent (np.median's value:
     the middle one, or the mean of the two middle ones), the unknowns of the lower side that
@@ -45,7 +48,7 @@ def nested_dissection(pattern: sp.spmatrix, xy: np.ndarray, leaf: int = LEAF_SIZ
     starts = np.zeros(1 if n > leaf else 0, dtype=np.int64)
     ends = np.full(len(starts), n, dtype=np.int64)
     upper_of = np.full(n, -1, dtype=np.int64)   # the set whose upper side holds an unknown
-    split = None
+    split = quarters = None
     level = 0
     while len(starts):
         sizes = ends - starts
@@ -85,9 +88,13 @@ def nested_dissection(pattern: sp.spmatrix, xy: np.ndarray, leaf: int = LEAF_SIZ
         n_part = [np.bincount(in_set, weights=(part == k), minlength=n_sets).astype(np.int64)
                   for k in (0, 1)]
         was_cut = (n_lower > 0) & (n_lower < sizes)
+        if level == 1 and split is not None and n_sets == 2 and was_cut.all():
+            quarters = tuple((int(a), int(b), int(c - a - b))
+                             for a, b, c in zip(n_part[0], n_part[1], sizes))
         first = np.concatenate([starts[was_cut], (starts + n_part[0])[was_cut]])
         size = np.concatenate([n_part[0][was_cut], n_part[1][was_cut]])
         go_on = size > leaf
         starts, ends = first[go_on], first[go_on] + size[go_on]
         level += 1
-    return (perm, split) if return_split else perm
+    out = (perm,) + ((split,) if return_split else ()) + ((quarters,) if return_quarters else ())
+    return out if len(out) > 1 else perm

@@ -24,7 +24,7 @@ import scipy.sparse as sp
 
 from ._jit import helper, kernel
 from .assembly import TripletBuilder
-from .bordered_lu import bordered_lu, lu_solve, release_freed_memory
+from .bordered_lu import bordered_lu, lu_solve, release_freed_memory, split_layout
 from .discretisation import Discretisation
 from .ordering import nested_dissection
 from .physics import ConstantMatrices, Term
@@ -181,7 +181,7 @@ class NewtonSolver:
     _Cx_n = None       # (x_n, C x_n) of the current step
     _dense = None
     _order = None
-    _split = None      # the first cut of the bulk's nested dissection (see bordered_lu)
+    _split = None      # the parts of the bulk's factorisation (see bordered_lu.split_layout)
     _blocks_NN = None
     _blocks_fixed = None
     _blocks_rows_N_fixed = None
@@ -351,8 +351,12 @@ class NewtonSolver:
             D = sp.diags(self.scale)
             Ls = (D @ L @ D).tocsr()
             if self._order is None:  # the pattern of B is that of every step size
-                inner, self._split = nested_dissection(Ls[B][:, B], self.disc.dof_coordinates()[B],
-                                                       return_split=True)
+                inner, split, quarters = nested_dissection(
+                    Ls[B][:, B], self.disc.dof_coordinates()[B], return_split=True,
+                    return_quarters=True)
+                layout, self._split = split_layout(len(B), split, quarters)
+                if layout is not None:
+                    inner = inner[layout]
                 self._order = np.concatenate([B[inner], N])
             # the factorisation's peak (SuperLU's storage and the factors copied out of it) is
             # reached holding neither L (made again after it) nor the matrix factorised
@@ -362,12 +366,12 @@ class NewtonSolver:
             release_freed_memory()
             self.lu = bordered_lu(held.pop, len(B), self._split)
             self.factorizations += 1
-            LNN = self._combine(self._blocks_NN, dt).toarray()  # (after the factors' peak)
             # P = L_NN - S in the Schur complement's own memory, which the factors then give up
-            # (n_N x n_N dense each: 34 MB on the fine 30 deg scene)
-            self.P = np.subtract(LNN, self.lu.schur, out=self.lu.schur)
+            # (n_N x n_N dense: 34 MB on the fine 30 deg scene), L_NN added entry by entry
+            rows, cols, vals = self._linear_entries(dt)
+            self.P = np.negative(self.lu.schur, out=self.lu.schur)
+            self.P[rows, cols] += vals   # (each position once)
             self.lu.schur = None
-            del LNN
             if self._restored_P is not None:
                 self.P, self._restored_P = self._restored_P, None
         # the Schur complement L_NN - P is not held: the condensed solver is handed P and L_NN's
@@ -973,9 +977,12 @@ class _CondensedSolver:
         return M
 
     def _factorise(self):
+        # the old factors and what was solved with them go before the new block is formed (the
+        # run's peak memory on the fine 30 deg scene: three n x n arrays at once, not four)
+        self.factors = None
+        self._Z = self._Z1 = self._Z_R = self._K_R = None
         M = self._form()
         self._M0_largest = max(float(M.max()), -float(M.min())) if M.size else 0.0
-        self.factors = None  # (the old factors go before the new ones are made)
         self.factors = scipy.linalg.lu_factor(M, overwrite_a=True, check_finite=False)
         del M
         self.factored_inv_dt = self.inv_dt
@@ -988,12 +995,11 @@ class _CondensedSolver:
                                             p.tangent_slots, p.weight, self.tangent0[2])
         self.factored = True
         self.factorizations += 1
-        # columns of M0^-1 solved for so far (the changed rows only grow until M0 is replaced)
-        self._Z = None
+        # columns of M0^-1 solved for so far (the changed rows only grow until M0 is replaced;
+        # _Z, None above)
         self._have = np.zeros(len(self.P), dtype=bool)
-        # M0^-1 E_R and C_R M0^-1 E_R: made at the first step-size change, from M0 alone (in one
-        # block: a restored run makes them bit for bit)
-        self._Z_R = self._K_R = None
+        # M0^-1 E_R and C_R M0^-1 E_R (_Z_R, _K_R): made at the first step-size change, from M0
+        # alone (in one block: a restored run makes them bit for bit)
         self._new_step_size(0.0)
 
     def _new_step_size(self, delta):

@@ -12,8 +12,10 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from fault_screen import Scene
-from fault_screen.bordered_lu import BorderedLU, SplitBorderedLU
+from fault_screen import bordered_lu
+from fault_screen.bordered_lu import BorderedLU, SplitBorderedLU, split_layout
 from fault_screen.discretisation import discretise
+from fault_screen.ordering import nested_dissection
 from fault_screen.solver import NewtonSolver
 
 from conftest import CONFIGS, VERIFICATION
@@ -140,7 +142,7 @@ def test_split_factorisation_equals_the_whole(system, prepared):
     # each half borders on the separator and on the condensed unknowns it couples to: the fault
     # crosses the cut, so each touches a part of it (this scene: 58 and 74 of 128), and the
     # two parts cover it
-    touched = [border[ns:] - ns for border in split._borders]
+    touched = [border[border >= ns] - ns for border in split._borders]
     nN = M.shape[0] - nB
     assert max(map(len, touched)) < 0.75 * nN
     assert np.array_equal(np.union1d(*touched), np.arange(nN))
@@ -219,5 +221,29 @@ def test_symmetric_split_factorisation(elastic):
     factorisation solves as the whole does."""
     solver, M, nB = elastic
     split = SplitBorderedLU(sp.csc_matrix(M), nB, solver._split)
-    assert all(half._U is None for half in split._halves)
+    assert all(half._U is None for half in split._parts)
     _check_against_dense(split, M, nB, 13)
+
+
+def test_quarters_factorisation(elastic, monkeypatch):
+    """The linear block in the four parts of its first two nested-dissection cuts, each bordered
+    by the separators and the fault unknowns it touches (``split_layout`` with the sizes lowered
+    to this scene's): the Schur complement and both sweeps against numpy's dense solves."""
+    solver, M, nB = elastic
+    monkeypatch.setattr(bordered_lu, "SPLIT_ABOVE", 100)
+    monkeypatch.setattr(bordered_lu, "PART_SIZE", 100)
+    B = sp.csr_matrix(M[:nB, :nB])
+    xy = solver.disc.dof_coordinates()[solver._order[:nB]]
+    inner, split, quarters = nested_dissection(B, xy, return_split=True, return_quarters=True)
+    layout, parts = split_layout(nB, split, quarters)
+    assert len(parts) == 5 and min(parts[:4]) > 100 and parts[4] == sum(s for *_, s in quarters) + split[2]
+    order = np.concatenate([inner[layout], np.arange(nB, M.shape[0])])
+    Mq = M[order][:, order]
+    starts = np.cumsum((0,) + parts[:4])
+    for i in range(4):    # the parts do not couple
+        for j in range(i + 1, 4):
+            assert not Mq[starts[i]:starts[i + 1], starts[j]:starts[j + 1]].any()
+    lu = SplitBorderedLU(sp.csc_matrix(Mq), nB, parts)
+    assert len(lu._parts) == 4
+    assert all(len(b) < M.shape[0] - nB for b in lu._borders)   # (each a part of W)
+    _check_against_dense(lu, Mq, nB, 14)

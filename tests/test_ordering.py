@@ -36,6 +36,25 @@ def test_the_halves_of_the_first_cut_do_not_couple():
     assert np.all(xy[perm[n_lower + n_upper:], 0] == 14.0)
 
 
+def test_the_quarters_of_the_first_two_cuts_do_not_couple():
+    """The second level's cuts of a 30 x 30 grid (each half cut across its longer side): the four
+    parts that ``split_layout`` factorises apart do not couple, and the quarters' and halves'
+    sizes agree (each half: its two parts and its separator)."""
+    L, xy = _grid_laplacian(30)
+    perm, split, quarters = nested_dissection(L, xy, return_split=True, return_quarters=True)
+    (a1, a2, a_s), (b1, b2, b_s) = quarters
+    assert a1 + a2 + a_s == split[0] and b1 + b2 + b_s == split[1]
+    n1 = split[0]
+    parts = [perm[:a1], perm[a1:a1 + a2], perm[n1:n1 + b1], perm[n1 + b1:n1 + b1 + b2]]
+    assert min(map(len, parts)) > 150
+    for i, p in enumerate(parts):
+        for q in parts[i + 1:]:
+            assert L[p][:, q].nnz == 0
+    # a half's separator cuts it across its longer side: the lower half is 14 x 30 (x <= 13),
+    # cut at y = 14.5 along the row y = 14
+    assert np.all(xy[perm[a1 + a2:n1], 1] == 14.0)
+
+
 def test_it_fills_less_than_half_of_what_the_natural_order_fills():
     """A k x k grid: the band of the row-by-row order fills ~2 k^3 entries, nested dissection
     O(k^2 log k): 58,302 against 128,078 at k = 40 (bound: half)."""
