@@ -23,8 +23,9 @@ and the sums run four at a time (one sum alone is a chain of dependent adds); th
 with unsigned integers, which LLVM vectorises along a block row (``_u``). On Rustrel the packed
 factors take a quarter less memory than in CSC (14 against 19 MB) and the two sweeps 0.6 ms
 (1.81 ms reading the CSC factors, 1.13 ms packed with signed indices). No factor is
-ever held twice over. A large linear block is factorised as two halves, one after the other
-(``SplitBorderedLU``), which halves the factorisation's peak memory.
+ever held twice over. A large linear block is factorised in parts, one after the other
+(``SplitBorderedLU``: halves or quarters), which divides the factorisation's peak memory; an
+elastic (symmetric) one holds L and U's diagonal only.
 """
 from __future__ import annotations
 
@@ -375,7 +376,7 @@ def _linear_rows_symmetric(M, nB):
     return difference.nnz == 0 or abs(difference).max() <= SYMMETRY_ROUNDOFF * abs(rows).max()
 
 
-#: a linear block of more unknowns than this is factorised as two halves (``SplitBorderedLU``)
+#: a linear block of more unknowns than this is factorised in parts (``SplitBorderedLU``)
 SPLIT_ABOVE = 50_000
 
 

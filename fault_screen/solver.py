@@ -169,7 +169,7 @@ class NewtonSolver:
     DOFs, evolving-aperture conduction on the fault pressures). The free unknowns are split into
     those (N, a few hundred) and everything else (B), whose Jacobian block is constant for a given
     time step. One sparse LU of the free block with N ordered last (``BorderedLU``) gives the
-    Schur complement on N and the two sweeps that eliminate the bulk (a large bulk as two halves
+    Schur complement on N and the two sweeps that eliminate the bulk (a large bulk in parts
     factorised one after the other, ``SplitBorderedLU``). The bulk is linear, so after
     a step's first Newton update its rows stay in balance: a step sweeps forward once for the
     step's right-hand side, iterates on the fault with the small dense condensed system, and
