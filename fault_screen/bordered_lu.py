@@ -265,7 +265,7 @@ class BorderedLU:
     elastic bulk; not a poroelastic one, whose flow rows carry the storage over dt) and SuperLU
     kept its diagonal pivots there, U's linear rows are D L^T (D their diagonal): the backward
     sweep then reads L and D, and U is not held (half the factors' memory; fine 30 deg scene
-    634 -> 562 MB). U's trailing block still gives the Schur complement."""
+    634 -> 557 MB). U's trailing block still gives the Schur complement."""
 
     def __init__(self, M, n_linear: int):
         if callable(M):
@@ -369,7 +369,8 @@ def _linear_rows_symmetric(M, nB):
     # first a product with a fixed random vector, which tells an unsymmetric block (a
     # poroelastic bulk: storage over dt against the coupling) at the cost of two products
     v = np.random.default_rng(0).standard_normal(M.shape[0])
-    if np.max(np.abs((M @ v - M.T @ v)[:nB])) > 1e-8 * np.max(np.abs(M @ v)):
+    Mv = M @ v
+    if np.max(np.abs((Mv - M.T @ v)[:nB])) > 1e-8 * np.max(np.abs(Mv)):
         return False
     rows = M[:nB]
     difference = rows - M[:, :nB].T
