@@ -347,6 +347,9 @@ class NewtonSolver:
             self.scale = 1.0 / np.sqrt(diag)
         B, N = self.B, self.N
         self._condensed_blocks()
+        # L_NN's entries: the condensed solver forms its block from them and P (the Schur
+        # complement L_NN - P is not held: one n_N x n_N array less), and P is made with them
+        self._LNN_entries = self._linear_entries(dt)
         if factorise:
             D = sp.diags(self.scale)
             Ls = (D @ L @ D).tocsr()
@@ -359,7 +362,7 @@ class NewtonSolver:
                     inner = inner[layout]
                 self._order = np.concatenate([B[inner], N])
             # the factorisation's peak (SuperLU's storage and the factors copied out of it) is
-            # reached holding neither L (made again after it) nor the matrix factorised
+            # reached holding neither L nor the matrix factorised
             held = [Ls[self._order][:, self._order].tocsc()]
             del Ls, L
             self.lu = None  # the old factors go before the new ones are made (peak memory)
@@ -368,15 +371,12 @@ class NewtonSolver:
             self.factorizations += 1
             # P = L_NN - S in the Schur complement's own memory, which the factors then give up
             # (n_N x n_N dense: 34 MB on the fine 30 deg scene), L_NN added entry by entry
-            rows, cols, vals = self._linear_entries(dt)
+            rows, cols, vals = self._LNN_entries
             self.P = np.negative(self.lu.schur, out=self.lu.schur)
             self.P[rows, cols] += vals   # (each position once)
             self.lu.schur = None
             if self._restored_P is not None:
                 self.P, self._restored_P = self._restored_P, None
-        # the Schur complement L_NN - P is not held: the condensed solver is handed P and L_NN's
-        # entries, and forms the block only to factorise it (one n_N x n_N array less)
-        self._LNN_entries = self._linear_entries(dt)
         if self._blocks_fixed is None:  # rows of the fixed unknowns on the linear ones, in order
             self._blocks_fixed = [M[self._fixed].tocsc()[:, self._linear_order()].tocsr()
                                   for M in (self.A, self.C, self.Hf)]
@@ -800,16 +800,23 @@ def _condensed_max_iterations(n):
 COLUMN_PAGE = 16
 
 
+@helper
+def _add_at_slots(out, slots, weight, vals):
+    """The tangent's triplets scaled by their weight added at their slots, in order (those with
+    slot -1 lie outside the block)."""
+    for k in range(slots.shape[0]):
+        if slots[k] >= 0:
+            out[slots[k]] += vals[k] * weight[k]
+
+
 @kernel
 def _block_values(n_slots, linear_slots, linear_vals, tangent_slots, weight, vals):
-    """L_NN + T at each slot: L_NN's entries, then the tangent's triplets scaled by their weight
-    (those with slot -1 lie outside the block), each in order (duplicates summed)."""
+    """L_NN + T at each slot: L_NN's entries, then the tangent's triplets scaled by their weight,
+    each in order (duplicates summed)."""
     out = np.zeros(n_slots)
     for k in range(linear_slots.shape[0]):
         out[linear_slots[k]] += linear_vals[k]
-    for k in range(tangent_slots.shape[0]):
-        if tangent_slots[k] >= 0:
-            out[tangent_slots[k]] += vals[k] * weight[k]
+    _add_at_slots(out, tangent_slots, weight, vals)
     return out
 
 
@@ -820,9 +827,7 @@ def _tangent_change(n, slot_rows, slot_cols, slots, weight, vals, then):
     columns holding a difference and its largest magnitude."""
     m = slot_rows.shape[0]
     now = np.zeros(m)
-    for k in range(slots.shape[0]):
-        if slots[k] >= 0:
-            now[slots[k]] += vals[k] * weight[k]
+    _add_at_slots(now, slots, weight, vals)
     changed = np.zeros(n, dtype=np.bool_)
     largest = 0.0
     for s in range(m):
@@ -847,7 +852,7 @@ def _sparse_times(indptr, indices, values, v, out):
 class _BlockPattern:
     """Where the sparse part of the condensed block lies: the union of L_NN's entries and the
     nonlinear tangent's triplets on condensed unknowns (a term's triplets keep their pattern from
-    one iteration to the next: its kernels list zero entries too), each position once in CSR
+    one iteration to the next: it lists zero entries too), each position once in CSR
     order (a slot), and the slot of every entry and triplet (-1: a triplet outside the block)
     with the triplet's scaling."""
 
