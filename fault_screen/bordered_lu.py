@@ -429,7 +429,9 @@ class SplitBorderedLU:
         parts = [np.arange(a, b) for a, b in zip(starts[:-1], starts[1:])]
         # the positions in W of each part's border: the separators' unknowns, then the
         # condensed ones, that it touches
-        self._borders = [_touched(M, part, nP) for part in parts]
+        on_W, W_rows = M[:, nP:], M[nP:].tocsc()   # (the columns and the rows of W)
+        self._borders = [_touched(on_W, W_rows, part) for part in parts]
+        del on_W, W_rows
         blocks = [M[h][:, h].tocsc() for h in
                   (np.concatenate([part, nP + border]) for part, border in zip(parts, self._borders))]
         M_WW = M[nP:, nP:].tocsr()   # (sparse: dense, it would be one more |W|^2 array)
@@ -521,12 +523,11 @@ def split_layout(n_linear: int, split, quarters):
     return order, (a1, a2, b1, b2, a_s + b_s + split[2])
 
 
-def _touched(M, part, first):
-    """The unknowns from ``first`` on (the condensed ones, counted from there) with an entry in
-    the rows or the columns ``part`` of the CSC matrix ``M``."""
-    cols = M[:, first:]
-    by_column = np.diff(cols[part].tocsc().indptr) > 0      # E_i's columns
-    by_row = np.diff(M[first:][:, part].tocsr().indptr) > 0  # W_i's rows
+def _touched(on_W, W_rows, part):
+    """The unknowns of W (counted from its first) with an entry in the rows or the columns
+    ``part`` of M, given M's columns on W and M's rows of W (CSC)."""
+    by_column = np.diff(on_W[part].tocsc().indptr) > 0       # E_i's columns
+    by_row = np.diff(W_rows[:, part].tocsr().indptr) > 0     # W_i's rows
     return np.flatnonzero(by_column | by_row)
 
 
