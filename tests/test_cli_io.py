@@ -15,7 +15,8 @@ from click.testing import CliRunner
 
 from fault_screen import Scene
 from fault_screen.cli import main
-from fault_screen.plotting import _title, flow_unit, magnitude_groups
+from fault_screen.plotting import flow_unit, magnitude_groups
+from fault_screen.plotting._canvas import _title
 from fault_screen.result import Result
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -145,7 +146,7 @@ def test_magnitude_groups_keep_types_apart():
 
 
 def test_marker_sizes_for_negative_magnitudes():
-    from fault_screen.plotting import _marker_sizes
+    from fault_screen.plotting.events import _marker_sizes
     s = _marker_sizes(np.array([-4.0, -2.5, -1.0, np.nan]))
     np.testing.assert_allclose(s, [25.0, 70.0, 115.0, 25.0])
 
@@ -330,7 +331,7 @@ def test_plot_counts_fdsn_text_events_in_the_run(replayed):
 
 
 def test_figure_shows_measured_pressure_clock_time_log_unit_and_distances(replayed, monkeypatch):
-    import fault_screen.plotting as plotting
+    import fault_screen.plotting.injection_point as plotting
     from fault_screen.cli.plot import stored_events
 
     _, d, t, _ = replayed
@@ -385,7 +386,7 @@ def test_run_reads_the_scene_log_as_input(tmp_path):
 
 
 def test_summary_says_distances_need_a_site(replayed, capsys):
-    from fault_screen.cli.run import _summary
+    from fault_screen.cli._running import _summary
     from fault_screen.io.events import EventCatalog
 
     _, d, _, _ = replayed

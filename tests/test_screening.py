@@ -16,7 +16,7 @@ from click.testing import CliRunner
 import fault_screen
 from fault_screen import Result, Scene, SceneError
 from fault_screen.cli import main
-from fault_screen.plotting_screening import rule_thresholds, screening_figures
+from fault_screen.plotting import rule_thresholds, screening_figures
 from fault_screen.rules import METRICS, RuleError, parse_condition
 from fault_screen.scene import MonitorRule, MonitorSpec
 from fault_screen.screening import (MetricsTracker, Screener, read_transitions, screen_result,

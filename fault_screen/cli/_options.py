@@ -9,7 +9,7 @@ Exit codes (the only place they are decided):
   bad injection log (:class:`~fault_screen.io.injection_log.InjectionLogError`), unknown unit,
   missing or unreadable input file, bad event catalogue;
 * 3 -- the fault became unstable (the run stopped early; results kept), before any other code;
-* 4 -- ``--fail-on LEVEL`` and the screening reached LEVEL (see :mod:`fault_screen.cli.screen`).
+* 4 -- ``--fail-on LEVEL`` and the screening reached LEVEL (see :mod:`fault_screen.cli._verdict`).
 
 Every error is printed as one line ``Error: ...`` on stderr, without a traceback (set the
 environment variable ``FAULT_SCREEN_TRACEBACK=1`` to get one for unexpected errors).
@@ -28,6 +28,8 @@ from .. import __version__
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_BAD_INPUT = 2
+EXIT_UNSTABLE = 3
+EXIT_LEVEL_REACHED = 4
 
 
 class BadInput(click.ClickException):

@@ -8,7 +8,7 @@ import numpy as np
 
 from ._options import FILE, BadInput, version_option
 from ._runner import apply_sets, TaskBar, open_runner, runner_options
-from .run import load_scene
+from ._common import load_scene
 
 
 def _target_callback(ctx, param, value):

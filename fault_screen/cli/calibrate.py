@@ -7,7 +7,7 @@ import click
 
 from ._options import FILE, BadInput, reading, version_option
 from ._runner import apply_sets, open_runner, runner_options
-from .run import load_scene
+from ._common import load_scene
 
 
 def load_parameters_option(path, scene, keys=None):

@@ -11,7 +11,7 @@ import numpy as np
 from ._options import FILE, RunFailed, version_option
 from ._runner import apply_sets, TaskBar, open_runner, runner_options
 from .calibrate import load_parameters_option
-from .run import load_scene
+from ._common import load_scene
 
 #: quantity -> (scale, unit) for the table and the figure
 SHOWN = {"peak_overpressure": (1e-6, "MPa"), "injection_slip": (1e3, "mm"),

@@ -9,7 +9,7 @@ import click
 
 from ._options import (DIR, FILE, BadInput, _positive_callback, _t0_callback, _unit_callback,
                        check_size, reading, version_option)
-from .run import load_scene
+from ._common import load_scene
 
 
 def _sta_lta_callback(ctx, param, value):

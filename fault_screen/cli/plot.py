@@ -8,50 +8,7 @@ import numpy as np
 
 from ._options import (DIR, FILE, BadInput, events_option, parse_iso, reading, t0_option,
                        version_option)
-from .run import events_report, load_events
-
-HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
-
-
-def load_result(path: Path):
-    """A saved result, or one line saying why the file is not one (exit 2)."""
-    from ..result import Result
-
-    if not path.exists():
-        raise BadInput(f"file not found: {path}")
-    if path.is_dir():
-        raise BadInput(f"{path}: is a directory, expected a result file (.h5)")
-    with open(path, "rb") as fh:
-        head = fh.read(8)
-    if head != HDF5_MAGIC:
-        raise BadInput(f"{path}: not a fault_screen result (not an HDF5 file); results are "
-                       f"written by 'fault-screen run' or 'replay'")
-    try:
-        return Result.load(path)
-    except OSError:
-        raise BadInput(f"{path}: truncated or damaged HDF5 file (was the run or the copy "
-                       f"interrupted?); run it again") from None
-    except Exception:  # noqa: BLE001 - any missing group or attribute: not one of ours
-        raise BadInput(f"{path}: an HDF5 file but not a fault_screen result (no readable "
-                       f"scene, /time, /fault or /injection)") from None
-
-
-def stored_events(result):
-    """The catalogue stored under /events by run/replay --events (None if there is none)."""
-    from ..io.events import EventCatalog
-
-    ev = result.extra.get("events")
-    if not ev or "time" not in ev:
-        return None
-    kw = {k: np.asarray(ev[k], dtype=float) for k in
-          ("latitude", "longitude", "depth", "x", "y", "z", "distance_to_injection",
-           "distance_to_fault") if k in ev}
-    types = tuple(t.decode() if isinstance(t, bytes) else str(t)
-                  for t in np.asarray(ev.get("magnitude_type", []), dtype=object))
-    return EventCatalog(np.asarray(ev["time"], dtype=float),
-                        np.asarray(ev["magnitude"], dtype=float), types,
-                        source=str(result.meta.get("events_file", "/events")), **kw)
-
+from ._common import events_report, load_events, load_result, stored_events
 
 @click.command("plot")
 @click.argument("result_path", type=FILE, metavar="RESULT.h5")

@@ -6,8 +6,9 @@ from pathlib import Path
 import click
 
 from ._options import FILE, BadInput, log_options, reading, run_options, version_option
-from .run import load_scene, run_scene
-from .screen import conclude, fail_on_option
+from ._common import load_scene
+from ._running import run_scene
+from ._verdict import conclude, fail_on_option
 
 
 @click.command("replay")

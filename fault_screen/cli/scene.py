@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from ._options import check_size, reading
-from .run import load_scene, read_scene_log
+from ._common import load_scene, read_scene_log
 
 FILE = click.Path(dir_okay=False, path_type=Path)
 

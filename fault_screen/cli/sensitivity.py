@@ -9,7 +9,7 @@ import click
 from ._options import FILE, BadInput, version_option
 from ._runner import apply_sets, TaskBar, open_runner, runner_options
 from .calibrate import load_parameters_option
-from .run import load_scene
+from ._common import load_scene
 
 
 @click.command("sensitivity")

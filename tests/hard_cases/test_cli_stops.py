@@ -6,7 +6,7 @@ from click.testing import CliRunner
 
 from stability_cases import HARD, load
 from fault_screen.cli import main
-from fault_screen.cli.run import slip_split
+from fault_screen.cli._running import slip_split
 
 
 def test_run_of_an_unstable_fault_exits_3_and_keeps_the_result(tmp_path):

@@ -1,0 +1,115 @@
+"""Helpers shared by the commands: reading scenes, logs, event catalogues and saved results as
+bad input (exit 2) when they are bad, and the lines about a catalogue."""
+from __future__ import annotations
+
+from datetime import datetime
+from pathlib import Path
+
+import click
+import numpy as np
+
+from ._options import BadInput, reading
+
+#: the scene ``fault-screen run`` runs without SCENE
+BUNDLED_SCENE = "rustrel-2015-calibrated.toml"
+
+
+def default_scene_path() -> Path:
+    from ..bundled import bundled_path
+
+    path = bundled_path(BUNDLED_SCENE)
+    if path is None:
+        raise BadInput(f"the bundled scene {BUNDLED_SCENE} is not installed (the package was "
+                       f"installed without its configs); pass a SCENE file")
+    return path
+
+def load_scene(path: Path):
+    """The scene of ``path``; values outside their plausible range are printed as warnings."""
+    import warnings
+
+    from ..scene import Scene, SceneWarning
+
+    with reading(path), warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", SceneWarning)
+        scene = Scene.from_toml(path)
+    for w in caught:
+        if issubclass(w.category, SceneWarning):
+            click.echo(f"Warning: {path}: {w.message}", err=True)
+    return scene
+
+def load_events(path: Path, start: datetime | None, site=None):
+    from ..io.events import read_events
+
+    with reading(path):
+        return read_events(path, start, site=site)
+
+#: how the scene's log keys are named in messages about a scene's injection.log
+SCENE_LOG_NAMES = {"flow_unit": "injection.log_flow_unit", "max_gap": "injection.log_max_gap"}
+
+
+def read_scene_log(scene):
+    """The scene's own ``injection.log``, read as bad input (exit 2) when it is bad."""
+    from ..io.injection_log import read_injection_log
+
+    inj = scene.injection
+    with reading(inj.log):
+        return read_injection_log(inj.log, flow_unit=inj.log_flow_unit, max_gap=inj.log_max_gap,
+                                  policy=inj.log_policy, option_names=SCENE_LOG_NAMES,
+                                  flowback=inj.allow_flowback)
+
+def events_report(catalog, t0: float, t1: float, start) -> list[str]:
+    """Lines for the terminal about a catalogue and the run's window [t0, t1] (s)."""
+    inside = int(np.count_nonzero((catalog.time >= t0) & (catalog.time <= t1)))
+    lines = []
+    if len(catalog) and inside == 0:
+        when = (f" after {start.isoformat()}" if start is not None
+                else " (event times relative to the first event: give --t0 to place them)")
+        lines.append(f"Warning: none of the {len(catalog)} events of {catalog.source} is inside "
+                     f"the run ({t0:g} to {t1:g} s{when}); first event at "
+                     f"{float(catalog.time.min()):.6g} s, last at {float(catalog.time.max()):.6g} s")
+    elif not len(catalog):
+        lines.append(f"Warning: {catalog.source} holds no event with an origin time")
+    lines += [f"Note: {catalog.source}: {n}" for n in catalog.notes]
+    return lines
+
+HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
+
+
+def load_result(path: Path):
+    """A saved result, or one line saying why the file is not one (exit 2)."""
+    from ..result import Result
+
+    if not path.exists():
+        raise BadInput(f"file not found: {path}")
+    if path.is_dir():
+        raise BadInput(f"{path}: is a directory, expected a result file (.h5)")
+    with open(path, "rb") as fh:
+        head = fh.read(8)
+    if head != HDF5_MAGIC:
+        raise BadInput(f"{path}: not a fault_screen result (not an HDF5 file); results are "
+                       f"written by 'fault-screen run' or 'replay'")
+    try:
+        return Result.load(path)
+    except OSError:
+        raise BadInput(f"{path}: truncated or damaged HDF5 file (was the run or the copy "
+                       f"interrupted?); run it again") from None
+    except Exception:  # noqa: BLE001 - any missing group or attribute: not one of ours
+        raise BadInput(f"{path}: an HDF5 file but not a fault_screen result (no readable "
+                       f"scene, /time, /fault or /injection)") from None
+
+
+def stored_events(result):
+    """The catalogue stored under /events by run/replay --events (None if there is none)."""
+    from ..io.events import EventCatalog
+
+    ev = result.extra.get("events")
+    if not ev or "time" not in ev:
+        return None
+    kw = {k: np.asarray(ev[k], dtype=float) for k in
+          ("latitude", "longitude", "depth", "x", "y", "z", "distance_to_injection",
+           "distance_to_fault") if k in ev}
+    types = tuple(t.decode() if isinstance(t, bytes) else str(t)
+                  for t in np.asarray(ev.get("magnitude_type", []), dtype=object))
+    return EventCatalog(np.asarray(ev["time"], dtype=float),
+                        np.asarray(ev["magnitude"], dtype=float), types,
+                        source=str(result.meta.get("events_file", "/events")), **kw)
