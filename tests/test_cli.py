@@ -109,15 +109,27 @@ def test_run_small_scene_writes_result_figures_and_summary(tmp_path, scene_file)
 
 
 def test_run_default_bundled_scene(tmp_path, monkeypatch):
+    """Without SCENE, run runs the paper-units calibrated Rustrel scene, which reproduces the
+    paper's behaviour: the fault comes near failure and the screening turns yellow at 705 s (the
+    step that raises the rate to 48 L/min at 700 s, within one 5 s step); the SI reading stays
+    green. The summary names the reading of the paper's units, and the volume is in litres."""
+    import re
+
     monkeypatch.chdir(tmp_path)
     r = invoke("run", "--quiet")
     assert r.exit_code == 0, r.output
-    out = tmp_path / "rustrel-2015-calibrated.h5"
+    out = tmp_path / "rustrel-2015-calibrated-paper-units.h5"
     assert out.is_file()
     assert "%  step" not in r.output    # --quiet: no progress (the summary has a % budget)
     res = fault_screen.Result.load(out)
     assert res.time[-1] == pytest.approx(1400.0)
     assert res.injection["volume"][-1] * 1e3 == pytest.approx(938.0, rel=1e-3)
+    assert "verdict: YELLOW" in r.output
+    reached = float(re.search(r"reached at\s+t = ([0-9.]+) s", r.output).group(1))
+    assert reached == pytest.approx(705.0, abs=5.0)
+    assert "rule                         near failure" in r.output
+    assert re.search(r"paper's units\s+k_f read as a mobility k/mu in m2/\(Pa s\)", r.output)
+    assert re.search(r"injected volume\s+938\.3 L\n", r.output)
 
 
 def test_run_failure_exit_1_without_result_or_figures(tmp_path, scene_file, monkeypatch):

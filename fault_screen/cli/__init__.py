@@ -31,7 +31,7 @@ def main():
     into a fault.
 
     \b
-    fault-screen run                      the bundled Rustrel 2015 scene
+    fault-screen run                      the bundled Rustrel 2015 scene (paper units)
     fault-screen run SCENE.toml --plot figs
     fault-screen replay SCENE.toml --log injection.csv --events catalog.xml --plot figs
     fault-screen plot result.h5 --out figs

@@ -11,7 +11,7 @@ import numpy as np
 from ._options import BadInput, reading
 
 #: the scene ``fault-screen run`` runs without SCENE
-BUNDLED_SCENE = "rustrel-2015-calibrated.toml"
+BUNDLED_SCENE = "rustrel-2015-calibrated-paper-units.toml"
 
 
 def default_scene_path() -> Path:

@@ -96,25 +96,51 @@ def slip_split(result) -> tuple[float, float]:
             float(slip[:, ~slid].max()) if (~slid).any() else 0.0)
 
 
+def unit_reading(scene) -> str | None:
+    """One line saying how a Rustrel 2015 scene reads the paper's permeabilities (Table 3 gives
+    k_f in m3 s/kg, a mobility), decided from the scene's own rock, so an edited copy says what
+    it holds; None for other scenes."""
+    if not str(scene.title).startswith("Rustrel 2015"):
+        return None
+    if scene.rock.mobility is not None:
+        return ("k_f read as a mobility k/mu in m2/(Pa s) (its m3 s/kg), the "
+                "reading that reproduces the paper's pressures and slip")
+    return ("k_f read as a permeability in m2 divided by water's viscosity "
+            "(SI); under this reading the fault barely pressurises, unlike the paper "
+            "(rustrel-2015-calibrated-paper-units.toml reproduces it)")
+
+
+def format_volume(volume: float) -> str:
+    """A volume (m3) as an operator reads it: litres below 1 m3, cubic metres from 1 m3."""
+    if abs(volume) < 1.0:
+        return f"{volume * 1e3:.4g} L"
+    return f"{volume:,.4g} m3" if abs(volume) < 1e4 else f"{volume:,.0f} m3"
+
+
+def fluid_destinations(result) -> str:
+    """Where the injected fluid is at the end, in plain words."""
+    budget = fluid_budget(result)
+    if not budget.percent:
+        return "nothing injected"
+    p = budget.percent
+    line = f"{p['fault']:.3g} % in the fault, {p['rock']:.3g} % soaked into the rock"
+    if p["leaked"] > 0.05:
+        line += f", {p['leaked']:.2g} % flowed out of the modelled block"
+    return line
+
+
 def _summary(result, out: Path, figures, catalog) -> None:
     inj = result.injection
     peak_p = float(np.max(inj["overpressure"])) * 1e-6
-    slid, at_rest = slip_split(result)
-    volume = float(inj["volume"][-1]) * 1e3
-    rows = [
-        ("peak injection overpressure", f"{peak_p:.4g} MPa"),
-        ("peak slip on the fault", f"{slid * 1e3:.4g} mm" if slid > 0 else "0 mm (no point slid)"),
-    ]
-    if at_rest > 0:
-        # the elastic give of locked penalty contact and the creep of a rate-and-state fault at
-        # rest are not slip: shown apart so that they are not read as induced slip
-        rows.append(("jump where it never slid", f"{at_rest * 1e3:.3g} mm (elastic give, creep at rest)"))
+    slid, _ = slip_split(result)
+    rows = [("peak injection overpressure", f"{peak_p:.4g} MPa"),
+            ("peak slip on the fault", f"{slid * 1e3:.4g} mm" if slid > 0 else "0 mm (no point slid)")]
     stopped = (result.meta.get("stopped") or {}).get("message")
     if stopped:
         rows.append(("stopped", stopped))
     rows += [
-        ("injected volume", f"{volume:.5g} L"),
-        ("injected fluid went to", fluid_budget(result).summary()),
+        ("injected volume", format_volume(float(inj["volume"][-1]))),
+        ("injected fluid", fluid_destinations(result)),
         ("steps", f"{len(result.time) - 1}"),
         ("wall time", format_duration(float(result.meta.get("wall_time", float("nan"))))),
         ("result", str(out)),
@@ -130,6 +156,9 @@ def _summary(result, out: Path, figures, catalog) -> None:
             rows.append(("event distances", "need a [site] table in the scene"))
     for f in figures:
         rows.append(("figure", str(f)))
+    reading = unit_reading(result.scene)
+    if reading is not None:
+        rows.append(("paper's units", reading))
     click.echo("summary:")
     for k, v in rows:
         click.echo(f"  {k:<28} {v}")

@@ -29,6 +29,16 @@ def _format_value(name: str, value: float) -> str:
     return f"{value:.4g}" + ("" if unit in ("", "1") else f" {unit}")
 
 
+def watched_lines(spec) -> list[str]:
+    """One line per threshold the rules of ``spec`` compare a metric with: the level it raises,
+    the rule, and the threshold in the metric's unit."""
+    from ..plotting.screening import rule_thresholds
+    from ..screening import LEVEL_NAMES
+
+    return [f"{LEVEL_NAMES[level]}: {label} ({_format_value(metric, value)})"
+            for metric, value, level, label in rule_thresholds(spec)]
+
+
 def verdict_lines(screening) -> list[str]:
     """The verdict block: highest level, when, by which rule, what to do, the metrics then."""
     from ..screening import LEVEL_NAMES
@@ -37,7 +47,12 @@ def verdict_lines(screening) -> list[str]:
     when = {r.name or f"rules[{i}]": r.when for i, r in enumerate(screening.spec.rules)}
     lines = [f"verdict: {v.level_name.upper()}"]
     if v.rule is None:
-        lines.append("  no rule fired: the fault stayed below every threshold of [monitor]")
+        lines.append(f"  {'action':<28} keep injecting as planned and keep the screening running: "
+                     f"no threshold was reached")
+        watched = watched_lines(screening.spec)
+        if watched:
+            lines.append("  watching (level: when):")
+            lines += [f"    {line}" for line in watched]
         return lines
     rule = v.rule + (f": {when[v.rule]}" if v.rule in when else "")
     rows = [("reached at", f"t = {v.time:.6g} s"), ("rule", rule), ("action", v.action or "-"),

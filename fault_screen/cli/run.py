@@ -19,8 +19,10 @@ from ._verdict import conclude, fail_on_option
 def run(scene_path, out, plot_dir, events, t0, quiet, fail_on):
     """Run SCENE (TOML) with its own injection schedule and save the result (HDF5).
 
-    Without SCENE, runs the bundled Rustrel 2015 calibrated scene
-    (configs/rustrel-2015-calibrated.toml, stand-in step-rate schedule).
+    Without SCENE, runs the bundled Rustrel 2015 calibrated scene in the paper's units
+    (configs/rustrel-2015-calibrated-paper-units.toml: the paper's k_f read as a mobility, the
+    reading that reproduces its pressures and slip; stand-in step-rate schedule). The SI reading
+    is bundled as configs/rustrel-2015-calibrated.toml.
     """
     path = Path(scene_path) if scene_path is not None else default_scene_path()
     scene = load_scene(path)
