@@ -152,7 +152,7 @@ def cli_run(tmp_path_factory):
     d = tmp_path_factory.mktemp("acc")
     path = d / "diffusion.toml"
     path.write_text(diffusion(nx=100).to_toml())
-    r = CliRunner().invoke(main, ["accuracy", str(path), "--workers", "0", "--out", str(d), "--target", "1%", "-q"])
+    r = CliRunner().invoke(main, ["accuracy", str(path), "--workers", "0", "--out-dir", str(d), "--target", "1%", "-q"])
     return r, d, path
 
 
@@ -173,7 +173,7 @@ def test_zero_reference_gives_an_empty_cell(tmp_path):
     s = s.replace(injection=dataclasses.replace(s.injection, control="rate", schedule=((0.0, 1e-4),)))
     path = tmp_path / "s.toml"
     path.write_text(s.to_toml())
-    r = CliRunner().invoke(main, ["accuracy", str(path), "--workers", "0", "--out", str(tmp_path), "-q",
+    r = CliRunner().invoke(main, ["accuracy", str(path), "--workers", "0", "--out-dir", str(tmp_path), "-q",
                                   "--quantities", "peak_overpressure,injection_slip"])
     assert r.exit_code == 0, r.output
     rows = list(csv.DictReader(open(tmp_path / "accuracy.csv")))

@@ -169,7 +169,7 @@ def cli_files(tiny, tmp_path_factory):
 def test_calibrate_command_outputs(cli_files, tmp_path):
     scene, obs = cli_files
     r = invoke("calibrate", scene, "--observations", obs, "--parameters", PARAMS, "--free",
-               "injection.number_of_fractures", "--workers", 0, "--out", tmp_path, "--quiet")
+               "injection.number_of_fractures", "--workers", 0, "--out-dir", tmp_path, "--quiet")
     assert r.exit_code == 0, r.output
     rows = list(csv.DictReader(open(tmp_path / "parameters.csv")))
     assert list(rows[0]) == ["parameter", "label", "transform", "lower", "upper", "initial", "calibrated",
@@ -192,7 +192,7 @@ def test_calibrate_command_outputs(cli_files, tmp_path):
 ])
 def test_calibrate_bad_options(cli_files, tmp_path, extra, message):
     scene, obs = cli_files
-    r = invoke("calibrate", scene, "--observations", obs, "--parameters", PARAMS, "--out", tmp_path, *extra)
+    r = invoke("calibrate", scene, "--observations", obs, "--parameters", PARAMS, "--out-dir", tmp_path, *extra)
     assert r.exit_code == 2 and message in r.output, r.output
 
 

@@ -6,6 +6,7 @@ import json
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
+import click
 import h5py
 import numpy as np
 import pytest
@@ -220,7 +221,7 @@ def test_replay_iso_log_with_events_and_plot(tmp_path, scene_file):
     np.testing.assert_allclose(res.extra["events"]["magnitude"], [-1.2, -0.4, 0.3])
     assert len(list(figs.glob("*.png"))) == 3
     # the stored start is the reference of `plot --events`
-    r = invoke("plot", out, "--out", tmp_path / "again", "--events", quakeml)
+    r = invoke("plot", out, "--out-dir", tmp_path / "again", "--events", quakeml)
     assert r.exit_code == 0, r.output
     assert len(list((tmp_path / "again").glob("iso-*.png"))) == 3
 
@@ -351,7 +352,7 @@ def test_plot_command_writes_pngs(tmp_path, scene_file):
     t0 = "2015-03-12T10:00:00+01:00"
     quakeml = write_quakeml(tmp_path / "ev.xml", ["2015-03-12T09:00:20Z", "2015-03-12T09:00:33Z"],
                             [0.1, None])
-    r = invoke("plot", out, "--out", tmp_path / "figs", "--events", quakeml, "--t0", t0)
+    r = invoke("plot", out, "--out-dir", tmp_path / "figs", "--events", quakeml, "--t0", t0)
     assert r.exit_code == 0, r.output
     names = sorted(p.name for p in (tmp_path / "figs").glob("*.png"))
     assert names == ["r-injection-point.png", "r-screening.png", "r-space-time.png"]
@@ -365,7 +366,7 @@ def test_plot_bad_inputs_exit_2(tmp_path):
     assert r.exit_code == 2 and "Error: file not found:" in r.output and "none.h5" in r.output
     junk = tmp_path / "junk.h5"
     junk.write_text("not hdf5")
-    r = invoke("plot", junk, "--out", tmp_path / "figs")
+    r = invoke("plot", junk, "--out-dir", tmp_path / "figs")
     assert r.exit_code == 2 and "Error:" in r.output and "junk.h5" in r.output
     assert "Traceback" not in r.output
     assert not (tmp_path / "figs").exists()
@@ -475,3 +476,89 @@ def test_scene_check_reports_unknowns_and_refuses_bad_scenes(tmp_path):
     bad.write_text("[injection]\nposition = 500.0\n")
     res = runner.invoke(main, ["scene", "check", str(bad)])
     assert res.exit_code == 2 and "injection.position = 500.0" in res.output
+
+
+# ---- one vocabulary ---------------------------------------------------------------------------
+FOLDER_COMMANDS = ("plot", "accuracy", "calibrate", "sensitivity", "ensemble")
+FILE_COMMANDS = ("run", "replay", "screen", "monitor")
+
+
+@pytest.mark.parametrize("command", FOLDER_COMMANDS + FILE_COMMANDS)
+def test_out_is_a_file_and_out_dir_a_folder_on_every_command(command):
+    """--out names a file (metavar RESULT.h5 / NEW.h5) wherever it is shown; the commands that
+    write a folder show --out-dir DIR and hide the old --out."""
+    from fault_screen.cli import main as group
+
+    cmd = group.commands[command]
+    shown = {opt: p for p in cmd.params if isinstance(p, click.Option) and not p.hidden
+             for opt in p.opts}
+    if command in FOLDER_COMMANDS:
+        assert shown["--out-dir"].metavar == "DIR" and "--out" not in shown
+        hidden = [p for p in cmd.params if "--out" in getattr(p, "opts", ()) and p.hidden]
+        assert len(hidden) == 1
+    else:
+        assert "--out-dir" not in shown
+        assert shown["--out"].metavar.endswith(".h5") and isinstance(shown["--out"].type, click.Path)
+        assert shown["--out"].type.dir_okay is False
+
+
+def test_plot_out_dir_and_the_old_spelling_with_a_warning(tmp_path, scene_file):
+    out = tmp_path / "r.h5"
+    assert invoke("run", scene_file, "--out", out, "--quiet").exit_code == 0
+    r = invoke("plot", out, "--out-dir", tmp_path / "new")
+    assert r.exit_code == 0, r.output
+    assert len(list((tmp_path / "new").glob("*.png"))) == 3
+    r = invoke("plot", out, "--out", tmp_path / "old")
+    assert r.exit_code == 0, r.output
+    assert len(list((tmp_path / "old").glob("*.png"))) == 3
+    assert "Warning: --out" in r.stderr and "now --out-dir" in r.stderr
+    r = invoke("plot", out, "--out", tmp_path / "a", "--out-dir", tmp_path / "b")
+    assert r.exit_code == 2 and "give --out-dir only" in r.stderr
+
+
+@pytest.mark.parametrize("command", ["run", "replay", "accuracy", "calibrate", "sensitivity",
+                                     "ensemble"])
+def test_every_command_that_takes_a_scene_has_set(command):
+    from fault_screen.cli import main as group
+
+    (opt,) = [p for p in group.commands[command].params if "--set" in getattr(p, "opts", ())]
+    assert opt.multiple and opt.metavar == "KEY=VALUE"
+
+
+def test_run_set_changes_the_scene(tmp_path, scene_file):
+    """--set time.end=21 on a scene of 60 s in 7 s steps: the run ends at 21 s after 3 steps,
+    and the result's scene holds the value; a key that does not exist is bad input (exit 2)."""
+    out = tmp_path / "r.h5"
+    r = invoke("run", scene_file, "--out", out, "--quiet", "--set", "time.end=21")
+    assert r.exit_code == 0, r.output
+    res = fault_screen.Result.load(out)
+    assert res.time[-1] == pytest.approx(21.0, abs=1e-12)
+    assert len(res.time) - 1 == 3
+    assert res.scene.time.end == 21.0
+    r = invoke("run", scene_file, "--out", tmp_path / "x.h5", "--set", "time.no_such_key=1")
+    assert r.exit_code == 2 and "no_such_key" in r.stderr
+
+
+def test_documented_exit_codes_and_synopsis_match_the_code():
+    """The exit codes --help documents are exactly those the code raises (0 to 4), with the
+    meanings the constants name; the synopsis of --help names every command."""
+    import re
+
+    from fault_screen.cli import _options, main as group
+
+    text = invoke("--help").output
+    block = " ".join(text[text.index("Exit codes:") + 11:text.index("Options:")].split())
+    documented = {int(c): m for c, m in re.findall(r"(\d) ([^,]+)", block.rstrip("."))}
+    assert set(documented) == {0, 1, 2, 3, 4}
+    codes = {_options.EXIT_OK: "success", _options.EXIT_FAILURE: "run failed",
+             _options.EXIT_BAD_INPUT: "bad usage", _options.EXIT_UNSTABLE: "unstable",
+             _options.EXIT_LEVEL_REACHED: "--fail-on"}
+    assert sorted(codes) == [0, 1, 2, 3, 4]
+    for code, word in codes.items():
+        assert word in documented[code], (code, documented[code])
+    assert _options.BadInput.exit_code == 2 and _options.RunFailed.exit_code == 1
+    # the module docstring that decides them lists the same five
+    assert re.findall(r"^\* (\d) --", _options.__doc__, flags=re.M) == ["0", "1", "2", "3", "4"]
+    synopsis = text[:text.index("Exit codes:")]
+    for name in group.commands:
+        assert f"fault-screen {name} " in synopsis, name

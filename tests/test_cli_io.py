@@ -125,11 +125,11 @@ def test_replay_summary_and_figures(replayed):
 
 def test_plot_of_stored_events_and_a_catalog_outside_the_run(replayed):
     _, d, _, _ = replayed
-    r = invoke("plot", d / "out.h5", "--out", d / "figs2")
+    r = invoke("plot", d / "out.h5", "--out-dir", d / "figs2")
     assert r.exit_code == 0 and "Warning" not in r.stderr
     late = d / "late.csv"
     late.write_text("time,mag\n2015-03-14T10:00:00Z,1.0\n")
-    r = invoke("plot", d / "out.h5", "--out", d / "figs3", "--events", late)
+    r = invoke("plot", d / "out.h5", "--out-dir", d / "figs3", "--events", late)
     assert r.exit_code == 0
     assert (f"Warning: none of the 1 events of {late} is inside the run (0 to 60 s after "
             f"2015-03-12T23:59:30+01:00)") in r.stderr
@@ -297,7 +297,7 @@ def test_scene_show_units_every_key_and_sources(tmp_path):
 def test_plot_non_result_one_line(tmp_path, content, needle):
     p = tmp_path / "x.h5"
     p.write_bytes(content)
-    r = invoke("plot", p, "--out", tmp_path)
+    r = invoke("plot", p, "--out-dir", tmp_path)
     assert r.exit_code == 2 and len(errors(r)) == 1 and needle in errors(r)[0]
     assert "h5py" not in r.stderr and "Traceback" not in r.stderr
 
@@ -306,7 +306,7 @@ def test_plot_hdf5_that_is_not_a_result(tmp_path):
     p = tmp_path / "other.h5"
     with h5py.File(p, "w") as h5:
         h5["data"] = np.zeros(3)
-    r = invoke("plot", p, "--out", tmp_path)
+    r = invoke("plot", p, "--out-dir", tmp_path)
     assert r.exit_code == 2
     assert errors(r) == [f"Error: {p}: an HDF5 file but not a fault_screen result (no readable "
                          f"scene, /time, /fault or /injection)"]
@@ -322,7 +322,7 @@ c|2015-03-12T23:00:31|43.90|5.50|0.3|X|X|X|3|ML|1.1|X|lab
 def test_plot_counts_fdsn_text_events_in_the_run(replayed):
     _, d, _, _ = replayed
     (d / "fdsn.txt").write_text(FDSN_NIGHT)
-    r = invoke("plot", d / "out.h5", "--out", d / "figs4", "--events", d / "fdsn.txt")
+    r = invoke("plot", d / "out.h5", "--out-dir", d / "figs4", "--events", d / "fdsn.txt")
     assert r.exit_code == 0, r.stderr
     # run: 22:59:30 UTC + 60 s; the third event is 1 s after its end
     assert "seismic events: 3 read, 2 within the run" in r.output

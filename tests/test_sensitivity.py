@@ -115,7 +115,7 @@ def test_monte_carlo_samples():
 def test_ensemble_and_sensitivity_commands(linear, tmp_path):
     _, _, d = linear
     r = CliRunner().invoke(main, ["ensemble", str(d / "linear.toml"), "--vary", str(d / "params.toml"),
-                                  "--samples", "5", "--workers", "0", "--out", str(tmp_path), "-q"])
+                                  "--samples", "5", "--workers", "0", "--out-dir", str(tmp_path), "-q"])
     assert r.exit_code == 0, r.output
     rows = list(csv.DictReader(open(tmp_path / "distribution.csv")))
     assert list(rows[0]) == ["quantity", "unit", "runs", "mean", "sd", "p5", "p50", "p95"]
@@ -127,7 +127,7 @@ def test_ensemble_and_sensitivity_commands(linear, tmp_path):
         reached = np.mean([x[f"time_first_{level}"] != "nan" for x in runs])
         assert f"probability that the traffic light reaches {level}: {reached:.3f}" in r.output
     r = CliRunner().invoke(main, ["sensitivity", str(d / "linear.toml"), "--parameters", str(d / "params.toml"),
-                                  "--workers", "0", "--out", str(tmp_path), "-q"])
+                                  "--workers", "0", "--out-dir", str(tmp_path), "-q"])
     assert r.exit_code == 0, r.output
     rows = list(csv.DictReader(open(tmp_path / "sensitivity.csv")))
     assert [x["parameter"] for x in rows] == ["injection.number_of_fractures", "rock.density"]

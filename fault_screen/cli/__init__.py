@@ -1,8 +1,8 @@
 """Command-line interface: ``fault-screen run | replay | monitor | plot | screen | scene |
 accuracy | calibrate | sensitivity | ensemble | plugins`` (one module per command).
 
-Exit codes: 0 success, 1 failure (simulation failed, output not written), 2 bad usage or bad
-input (bad scene, bad log, unknown unit, missing file).  See :mod:`fault_screen.cli._options`.
+Exit codes: see :mod:`fault_screen.cli._options` (the one place they are decided) and
+``fault-screen --help``.
 """
 from __future__ import annotations
 
@@ -32,13 +32,16 @@ def main():
 
     \b
     fault-screen run                      the bundled Rustrel 2015 scene (paper units)
-    fault-screen run SCENE.toml --plot figs
+    fault-screen run SCENE.toml --plot figs --set time.end=600
     fault-screen replay SCENE.toml --log injection.csv --events catalog.xml --plot figs
-    fault-screen plot result.h5 --out figs
+    fault-screen plot result.h5 --out-dir figs
     fault-screen scene check SCENE.toml   (scene show SCENE.toml: resolved, in SI)
     fault-screen screen result.h5 --scene new-thresholds.toml
     fault-screen monitor SCENE.toml --follow live.csv --state state.h5 --alert jsonl:alerts.jsonl
-    fault-screen accuracy SCENE.toml --target 5%     (calibrate, sensitivity, ensemble: see --help)
+    fault-screen accuracy SCENE.toml --target 5%
+    fault-screen calibrate SCENE.toml --observations obs.csv --parameters params.toml
+    fault-screen sensitivity SCENE.toml --parameters params.toml
+    fault-screen ensemble SCENE.toml --vary params.toml --samples 50
     fault-screen plugins                  installed alert hooks and sample sources
 
     Exit codes: 0 success, 1 run failed or output not written, 2 bad usage or bad input,

@@ -113,3 +113,28 @@ def stored_events(result):
     return EventCatalog(np.asarray(ev["time"], dtype=float),
                         np.asarray(ev["magnitude"], dtype=float), types,
                         source=str(result.meta.get("events_file", "/events")), **kw)
+
+
+def apply_sets(scene, sets):
+    """The scene with ``--set KEY=VALUE`` changes (numbers, true/false or text)."""
+    from ..ensemble import scene_with
+    changes = {}
+    for item in sets:
+        key, eq, text = item.partition("=")
+        if not eq or not key.strip():
+            raise BadInput(f"--set {item!r}: expected KEY=VALUE, e.g. mesh.nx=26")
+        text = text.strip()
+        value = {"true": True, "false": False}.get(text.lower(), text)
+        if isinstance(value, str):
+            try:
+                value = int(text)
+            except ValueError:
+                try:
+                    value = float(text)
+                except ValueError:
+                    pass
+        changes[key.strip()] = value
+    if not changes:
+        return scene
+    with reading("--set"):
+        return scene_with(scene, changes)

@@ -169,6 +169,39 @@ out_option = click.option(
     "--out", "-o", type=FILE, default=None, metavar="RESULT.h5",
     help="HDF5 result file to write [default: <scene-stem>.h5 in the current directory].")
 
+def out_dir_option(default: Path | None, help: str):
+    """``--out-dir DIR``: the folder a command writes into (``--out`` is always a file). The old
+    spelling ``--out``/``-o`` of these commands still works, hidden, with a warning."""
+    def old_spelling(ctx, param, value):
+        if value is None:
+            return None
+        if ctx.params.get("out_dir") is not None:
+            raise BadInput("--out is the old spelling of --out-dir: give --out-dir only")
+        click.echo(f"Warning: --out {value} names a folder here: the option is now --out-dir "
+                   f"(--out is always a file); --out will be removed", err=True)
+        ctx.meta["fault_screen.out_dir"] = value
+        return None
+
+    def new_spelling(ctx, param, value):
+        old = ctx.meta.get("fault_screen.out_dir")
+        if value is not None and old is not None:
+            raise BadInput("--out is the old spelling of --out-dir: give --out-dir only")
+        value = value if value is not None else old
+        return value if value is not None else default
+
+    return _compose(
+        click.option("--out-dir", "out_dir", type=DIR, default=None, metavar="DIR",
+                     callback=new_spelling, help=help),
+        click.option("--out", "-o", "deprecated_out", type=DIR, default=None, hidden=True,
+                     expose_value=False, callback=old_spelling),
+    )
+
+
+set_option = click.option(
+    "--set", "sets", multiple=True, metavar="KEY=VALUE",
+    help="Change a scene value first, by dotted key in SI (repeatable), e.g. --set mesh.nx=26 "
+         "--set time.dt=20.")
+
 events_option = click.option(
     "--events", type=FILE, default=None, metavar="CATALOG",
     help="Seismic event catalogue (QuakeML, CSV or FDSN text) drawn on the time axes and stored "

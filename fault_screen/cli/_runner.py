@@ -7,7 +7,7 @@ import time
 
 import click
 
-from ._options import DIR, BadInput, RunFailed, _compose
+from ._options import BadInput, RunFailed, _compose, out_dir_option, set_option
 from ._progress import format_duration
 
 
@@ -24,45 +24,15 @@ def _scheduler_callback(ctx, param, value):
 
 
 runner_options = _compose(
-    click.option("--out", "out_dir", type=DIR, default=None, metavar="DIR",
-                 help="Folder for the outputs [default: ./<command>-<scene-stem>]."),
+    out_dir_option(None, "Folder for the outputs [default: ./<command>-<scene-stem>]."),
     click.option("--workers", type=int, default=2, show_default=True, callback=_workers_callback,
                  help="Worker processes of the local Dask cluster, one BLAS thread each "
                       "(0: run in this process)."),
     click.option("--scheduler", default=None, metavar="tcp://HOST:PORT", callback=_scheduler_callback,
                  help="Use an existing Dask scheduler instead of a local cluster."),
     click.option("--quiet", "-q", is_flag=True, help="No progress display."),
-    click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
-                 help="Change a scene value first, by dotted key in SI (repeatable), e.g. "
-                      "--set mesh.nx=26 --set time.dt=20."),
+    set_option,
 )
-
-
-def apply_sets(scene, sets):
-    """The scene with ``--set KEY=VALUE`` changes (numbers, true/false or text)."""
-    from ..ensemble import scene_with
-    from ._options import reading
-
-    changes = {}
-    for item in sets:
-        key, eq, text = item.partition("=")
-        if not eq or not key.strip():
-            raise BadInput(f"--set {item!r}: expected KEY=VALUE, e.g. mesh.nx=26")
-        text = text.strip()
-        value = {"true": True, "false": False}.get(text.lower(), text)
-        if isinstance(value, str):
-            try:
-                value = int(text)
-            except ValueError:
-                try:
-                    value = float(text)
-                except ValueError:
-                    pass
-        changes[key.strip()] = value
-    if not changes:
-        return scene
-    with reading("--set"):
-        return scene_with(scene, changes)
 
 
 def open_runner(workers: int, scheduler: str | None):

@@ -7,8 +7,8 @@ import click
 import numpy as np
 
 from ._options import FILE, BadInput, version_option
-from ._runner import apply_sets, TaskBar, open_runner, runner_options
-from ._common import load_scene
+from ._common import apply_sets, load_scene
+from ._runner import TaskBar, open_runner, runner_options
 
 
 def _target_callback(ctx, param, value):
@@ -47,7 +47,7 @@ def accuracy(scene_path, levels, target, quantities, no_effects, out_dir, worker
     Richardson extrapolation from the three finest rungs of each ladder, with the observed
     order printed. The table marks each quantity [exact] or [richardson]. Effect rungs are
     compared with the full scene. Writes accuracy.csv and accuracy.png (error against wall time,
-    Pareto front) to --out. Wall times are warm (each task runs its scene once for one step
+    Pareto front) to --out-dir. Wall times are warm (each task runs its scene once for one step
     first); with more workers than free cores they include the contention.
     """
     from ..accuracy import known_quantities, plot_study, run_study, write_csv

@@ -6,8 +6,8 @@ from pathlib import Path
 import click
 
 from ._options import FILE, BadInput, reading, version_option
-from ._runner import apply_sets, open_runner, runner_options
-from ._common import load_scene
+from ._common import apply_sets, load_scene
+from ._runner import open_runner, runner_options
 
 
 def load_parameters_option(path, scene, keys=None):
@@ -39,7 +39,7 @@ def calibrate(scene_path, obs_path, params_path, free, max_evaluations, out_dir,
     """Estimate scene parameters from observations by weighted least squares within bounds.
 
     Starts from the parameters' means; each iteration's Jacobian columns (forward differences
-    in the log/linear transformed parameters) run in parallel. Writes to --out: the calibrated
+    in the log/linear transformed parameters) run in parallel. Writes to --out-dir: the calibrated
     scene (calibrated.toml), iterations.csv (objective and R2 per iteration), parameters.csv
     (estimates, standard errors, 2-SE intervals, identifiable), correlation.csv and
     observed-vs-modelled.png.

@@ -9,9 +9,9 @@ import click
 import numpy as np
 
 from ._options import FILE, RunFailed, version_option
-from ._runner import apply_sets, TaskBar, open_runner, runner_options
+from ._common import apply_sets, load_scene
+from ._runner import TaskBar, open_runner, runner_options
 from .calibrate import load_parameters_option
-from ._common import load_scene
 
 #: quantity -> (scale, unit) for the table and the figure
 SHOWN = {"peak_overpressure": (1e-6, "MPa"), "injection_slip": (1e3, "mm"),
@@ -36,7 +36,7 @@ def ensemble(scene_path, params_path, samples, distribution, seed, free, out_dir
     injection point and that the traffic light (the scene's [monitor] rules) reaches yellow and
     red, and the distributions of peak overpressure, slip and those times.
 
-    Writes to --out: runs.h5 (every run's parameters and summary, failures included),
+    Writes to --out-dir: runs.h5 (every run's parameters and summary, failures included),
     ensemble.csv (one row per run), distribution.csv (mean, SD, percentiles per quantity) and
     ensemble.png (histograms).
     """

@@ -6,14 +6,14 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ._options import (DIR, FILE, BadInput, events_option, parse_iso, reading, t0_option,
+from ._options import (FILE, BadInput, events_option, out_dir_option, parse_iso, reading, t0_option,
                        version_option)
 from ._common import events_report, load_events, load_result, stored_events
 
 @click.command("plot")
 @click.argument("result_path", type=FILE, metavar="RESULT.h5")
-@click.option("--out", "-o", "out_dir", type=DIR, default=Path("."), show_default=True,
-              metavar="DIR", help="Directory for the PNG figures (created if needed).")
+@out_dir_option(Path("."), "Folder for the PNG figures (created if needed) [default: the "
+                           "current folder].")
 @events_option
 @t0_option
 @version_option
@@ -47,7 +47,7 @@ def plot(result_path, out_dir, events, t0):
         for line in events_report(catalog, float(result.time[0]), float(result.time[-1]), start):
             click.echo(line, err=line.startswith("Warning"))
     if out_dir.exists() and not out_dir.is_dir():
-        raise BadInput(f"--out {out_dir}: exists and is not a directory")
+        raise BadInput(f"--out-dir {out_dir}: exists and is not a directory")
     with reading(out_dir):
         files = plot_result(result, out_dir, events=catalog, prefix=f"{result_path.stem}-")
     for f in files:

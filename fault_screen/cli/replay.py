@@ -5,8 +5,8 @@ from pathlib import Path
 
 import click
 
-from ._options import FILE, BadInput, log_options, reading, run_options, version_option
-from ._common import load_scene
+from ._options import FILE, BadInput, log_options, reading, run_options, set_option, version_option
+from ._common import apply_sets, load_scene
 from ._running import run_scene
 from ._verdict import conclude, fail_on_option
 
@@ -15,10 +15,11 @@ from ._verdict import conclude, fail_on_option
 @click.argument("scene_path", type=FILE, metavar="SCENE")
 @log_options
 @run_options
+@set_option
 @fail_on_option
 @version_option
 def replay(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, end, log_date, log_tz,
-           time_column, flow_column, pressure_column, out, plot_dir, events, t0, quiet, fail_on):
+           time_column, flow_column, pressure_column, out, plot_dir, events, t0, quiet, sets, fail_on):
     """Run SCENE (TOML) with the flow rate of the injection log LOG instead of its schedule.
 
     Model time 0 is the log's first stamp; the run ends at the log's last stamp unless --end
@@ -39,7 +40,7 @@ def replay(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, end,
     from ..io.replay import plan_replay
 
     scene_path = Path(scene_path)
-    scene = load_scene(scene_path)
+    scene = apply_sets(load_scene(scene_path), sets)
     if scene.injection.control != "rate":
         raise BadInput(f"{scene_path}: injection.control = {scene.injection.control!r}: a log "
                        f"replay drives the flow rate; use a scene with control = 'rate'")

@@ -5,8 +5,8 @@ from pathlib import Path
 
 import click
 
-from ._common import default_scene_path, load_scene, read_scene_log
-from ._options import FILE, run_options, version_option
+from ._common import apply_sets, default_scene_path, load_scene, read_scene_log
+from ._options import FILE, run_options, set_option, version_option
 from ._running import run_scene
 from ._verdict import conclude, fail_on_option
 
@@ -14,9 +14,10 @@ from ._verdict import conclude, fail_on_option
 @click.command("run")
 @click.argument("scene_path", type=FILE, required=False, metavar="[SCENE]")
 @run_options
+@set_option
 @fail_on_option
 @version_option
-def run(scene_path, out, plot_dir, events, t0, quiet, fail_on):
+def run(scene_path, out, plot_dir, events, t0, quiet, sets, fail_on):
     """Run SCENE (TOML) with its own injection schedule and save the result (HDF5).
 
     Without SCENE, runs the bundled Rustrel 2015 calibrated scene in the paper's units
@@ -25,7 +26,7 @@ def run(scene_path, out, plot_dir, events, t0, quiet, fail_on):
     is bundled as configs/rustrel-2015-calibrated.toml.
     """
     path = Path(scene_path) if scene_path is not None else default_scene_path()
-    scene = load_scene(path)
+    scene = apply_sets(load_scene(path), sets)
     volume, extra, meta, start = None, None, {"command": "run"}, t0
     if scene.injection.log is not None and scene.injection.control == "rate":
         # read here, so that a bad log is bad input (exit 2) and the samples go to /log

@@ -7,9 +7,9 @@ from pathlib import Path
 import click
 
 from ._options import FILE, BadInput, version_option
-from ._runner import apply_sets, TaskBar, open_runner, runner_options
+from ._common import apply_sets, load_scene
+from ._runner import TaskBar, open_runner, runner_options
 from .calibrate import load_parameters_option
-from ._common import load_scene
 
 
 @click.command("sensitivity")
@@ -32,7 +32,7 @@ def sensitivity(scene_path, params_path, method, free, samples, seed, out_dir, w
     local and oat run at the parameters' means (the paper's base case) and compare the ranking
     with the paper's Fig. 7 (Spearman rank correlation) when the parameters file gives
     paper_rank. Writes sensitivity.csv (local), sensitivity-oat.csv, morris.csv or sobol.csv
-    (and the runs, runs.h5) to --out.
+    (and the runs, runs.h5) to --out-dir.
     """
     from .. import sensitivity as sa
 
