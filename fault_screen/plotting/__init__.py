@@ -17,13 +17,13 @@ from pathlib import Path
 from ._canvas import flow_unit, start_time, time_scale
 from .events import magnitude_groups
 from .injection_point import plot_injection_point
-from .levels import LEVEL_COLOURS, draw_level_band, draw_result_level_band
+from .levels import LEVEL_COLOURS, draw_level_band, level_handles, result_levels
 from .screening import plot_screening, rule_thresholds, screening_arrays, screening_figures
 from .space_time import active_half_width, plot_space_time
 
 __all__ = ["plot_result", "plot_injection_point", "plot_space_time", "plot_screening",
            "screening_figures", "rule_thresholds", "screening_arrays", "draw_level_band",
-           "draw_result_level_band", "LEVEL_COLOURS", "time_scale", "flow_unit",
+           "level_handles", "result_levels", "LEVEL_COLOURS", "time_scale", "flow_unit",
            "magnitude_groups", "start_time", "active_half_width"]
 
 

@@ -24,7 +24,6 @@ def time_scale(t_end: float) -> tuple[float, str]:
     return 1 / 86400.0, "d"
 
 
-
 def _figure(**kw):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -32,7 +31,6 @@ def _figure(**kw):
     fig = Figure(**kw)
     FigureCanvasAgg(fig)
     return fig
-
 
 
 def _save(fig, path) -> Path:
@@ -46,7 +44,6 @@ def _save(fig, path) -> Path:
         if tmp.exists():
             tmp.unlink()
     return path
-
 
 
 def _title(result) -> str:
@@ -64,7 +61,6 @@ def _title(result) -> str:
     return title if len(title) <= 90 else title[:87] + "..."  # keep the suptitle on the canvas
 
 
-
 def flow_unit(result) -> tuple[float, str]:
     """(factor from m3/s, unit) for flow-rate axes: the replayed log's own unit, else L/min."""
     from ..units import factor
@@ -74,7 +70,6 @@ def flow_unit(result) -> tuple[float, str]:
         return 1.0 / factor(unit, "flow_rate"), unit
     except ValueError:
         return L_PER_MIN, "L/min"
-
 
 
 def start_time(result):
@@ -89,7 +84,6 @@ def start_time(result):
     except ValueError:
         return None
     return dt if dt.utcoffset() is not None else None
-
 
 
 def _clock_axis(ax, start, f):

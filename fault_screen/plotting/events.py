@@ -17,14 +17,12 @@ def _events_in(events, t0, t1):
     return t[keep], m[keep], int(np.count_nonzero(~keep)), keep
 
 
-
 def _distances(events):
     d = getattr(events, "distance_to_injection", None)
     if d is None:
         return None
     d = np.asarray(d, dtype=float)
     return d if np.any(np.isfinite(d)) else None
-
 
 
 def _marker_sizes(m):
@@ -38,13 +36,11 @@ def _marker_sizes(m):
     return np.clip(s, 25.0, 250.0)
 
 
-
 def _event_label(n_in, n_out):
     lab = f"seismic events ({n_in})"
     if n_out:
         lab += f"; {n_out} outside the run not shown"
     return lab
-
 
 
 def _rug_time_x(ax, times, mags, label=None):
@@ -57,7 +53,6 @@ def _rug_time_x(ax, times, mags, label=None):
                       clip_on=False, zorder=5, label=label)
 
 
-
 def _rug_time_y(ax, times, mags, label=None):
     """Events as triangles along the left edge of an axis whose y is time."""
     import matplotlib.transforms as mtransforms
@@ -66,7 +61,6 @@ def _rug_time_y(ax, times, mags, label=None):
     return ax.scatter(np.full(times.size, 0.0), times, s=_marker_sizes(mags), marker=">",
                       facecolor="crimson", edgecolor="k", linewidth=0.5, transform=tr,
                       clip_on=False, zorder=5, label=label)
-
 
 
 def magnitude_groups(events, keep=None) -> list[tuple[str, np.ndarray]]:
@@ -80,7 +74,6 @@ def magnitude_groups(events, keep=None) -> list[tuple[str, np.ndarray]]:
     for i in idx:
         groups.setdefault(types[i] or "?", []).append(int(i))
     return [(k, np.array(v, dtype=int)) for k, v in sorted(groups.items())]
-
 
 
 def _magnitude_panel(fig, ax, events, keep, f):

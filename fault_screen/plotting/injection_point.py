@@ -1,6 +1,7 @@
 """The injection point against time (the layout of Fig. 9 of Schwartzkopff et al.)."""
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -8,7 +9,7 @@ import numpy as np
 from ..outputs import display
 from ._canvas import MPA, _clock_axis, _figure, _save, _title, flow_unit, start_time, time_scale
 from .events import _event_label, _events_in, _magnitude_panel, _rug_time_x
-from .levels import draw_result_level_band
+from .levels import level_axis, level_handles, result_levels
 
 
 def plot_injection_point(result, path, events=None) -> Path:
@@ -30,8 +31,10 @@ def plot_injection_point(result, path, events=None) -> Path:
     has_log_p = log is not None and "pressure" in log and np.size(log["pressure"]) > 0 \
         and "pressure" in inj
 
-    panels = (["mag"] if has_mag else []) + ["p"] + (["meas"] if has_log_p else []) + ["d"]
-    ratios = {"mag": 1.2, "p": 3, "meas": 2.2, "d": 3}
+    levels = result_levels(result)
+    panels = ((["mag"] if has_mag else []) + ["p"] + (["meas"] if has_log_p else []) + ["d"]
+              + (["level"] if levels is not None else []))
+    ratios = {"mag": 1.2, "p": 3, "meas": 2.2, "d": 3, "level": 0.3}
     fig = _figure(figsize=(9, 4 + 1.1 * sum(ratios[k] for k in panels)), layout="constrained")
     axes = dict(zip(panels, np.atleast_1d(fig.subplots(len(panels), 1, sharex=True, gridspec_kw={
         "height_ratios": [ratios[k] for k in panels]}))))
@@ -83,7 +86,11 @@ def plot_injection_point(result, path, events=None) -> Path:
     _, hq2 = flow_twin(ax_d)
     ax_d.set_zorder(2)
     ax_d.patch.set_visible(False)
-    ax_d.set_xlabel(f"time ({tu} after model time 0)")
+    hl = []
+    if levels is not None:  # the traffic light on an axis of its own: it hides no data
+        level_axis(axes["level"], t * f, levels)
+        hl = level_handles(levels)
+    axes[panels[-1]].set_xlabel(f"time ({tu} after model time 0)")
 
     he = []
     top_ax = axes[panels[0]]
@@ -95,15 +102,15 @@ def plot_injection_point(result, path, events=None) -> Path:
         he = [h]
         if has_mag:
             _magnitude_panel(fig, axes["mag"], events, keep, f)
-    top_ax.set_title(f"{_title(result)}: injection point", loc="left")
+    top_ax.set_title(textwrap.fill(f"{_title(result)}: injection point", 80), loc="left")
 
-    handles = hp + hm + hs + ho + hq + he
+    handles = hp + hm + hs + ho + hq + he + hl
     fig.legend(handles, [h.get_label() for h in handles], loc="outside lower center", ncols=3,
                fontsize="small", frameon=False)
-    for ax in axes.values():
-        ax.grid(alpha=0.3)
+    for key, ax in axes.items():
+        if key != "level":
+            ax.grid(alpha=0.3)
     ax_p.set_xlim(t[0] * f, t[-1] * f)
     _clock_axis(top_ax, start_time(result), f)
-    draw_result_level_band(result, (ax_p, ax_d), f)  # the screening traffic light, if screened
     return _save(fig, path)
 

@@ -1,4 +1,6 @@
-"""The traffic-light band: screening level against time on any axis whose x is time.
+"""The traffic light: screening level against time, on an axis of its own whose x is time (so
+that it never hides data), with legend entries and labels of the level changes that never
+overprint each other.
 
 The level at an output time holds until the next one, so the band colours [t_i, t_i+1) with
 level_i.
@@ -21,10 +23,9 @@ def _segments(level):
     return [(int(a), int(b), int(level[a])) for a, b in zip(starts, ends)]
 
 
-
-def draw_level_band(ax, time, level, *, height: float = 0.04, alpha: float = 0.6):
+def draw_level_band(ax, time, level, *, height: float = 1.0, alpha: float = 1.0):
     """Colour the bottom ``height`` (axis fraction) of ``ax`` by screening level; ``time`` in the
-    axis' own time unit."""
+    axis' own time unit. Meant for an axis of its own (:func:`level_axis`)."""
     import matplotlib.transforms as mtransforms
     from matplotlib.patches import Rectangle
 
@@ -36,13 +37,58 @@ def draw_level_band(ax, time, level, *, height: float = 0.04, alpha: float = 0.6
                                edgecolor="none", alpha=alpha, zorder=6, clip_on=True))
 
 
+def level_handles(level) -> list:
+    """Legend entries (patches) for the levels that occur in ``level``."""
+    from matplotlib.patches import Patch
 
-def draw_result_level_band(result, axes, time_factor: float) -> None:
-    """The level band of a screened result on each of ``axes`` (x: time times ``time_factor``);
-    nothing for a result without ``/screening/``."""
+    from ..screening import LEVEL_NAMES
+
+    present = sorted({int(v) for v in np.asarray(level).ravel()})
+    return [Patch(facecolor=LEVEL_COLOURS[v], edgecolor="none", label=f"screening level {LEVEL_NAMES[v]}")
+            for v in present]
+
+
+def level_axis(ax, time, level) -> None:
+    """Make ``ax`` (a thin axis sharing x with the others) the level band."""
+    draw_level_band(ax, time, level)
+    ax.set_yticks([])
+    ax.set_ylabel("level", rotation=0, ha="right", va="center")
+
+
+def label_transitions(fig, ax, transitions, f: float) -> tuple[list, int]:
+    """Label each level change (time s, from, to, rule) on the band ``ax`` (x: time times
+    ``f``) on one of two rows, leaving out a label that would overprint another or run off the
+    axis; returns (the texts placed, the number left out). ``fig`` is drawn once first so that
+    the text extents are the final ones."""
+    from ..screening import LEVEL_NAMES
+
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    right = ax.get_window_extent(renderer).x1
+    rows: list[list] = [[], []]
+    placed, left_out = [], 0
+    for when, _, to, rule in transitions:
+        ax.axvline(when * f, color="k", lw=0.8)
+        for row, y in zip(rows, (0.72, 0.28)):
+            text = ax.text(when * f, y, f" {LEVEL_NAMES[to]}: {rule}", transform=ax.get_xaxis_transform(),
+                           fontsize="x-small", va="center", ha="left", clip_on=False, zorder=7)
+            text.set_in_layout(False)
+            box = text.get_window_extent(renderer)
+            if box.x1 <= right and not any(box.overlaps(other) for other in row):
+                row.append(box)
+                placed.append(text)
+                break
+            text.remove()
+        else:
+            left_out += 1
+    if left_out:
+        note = ax.text(1.0, 1.05, f"{left_out} level changes not labelled ('fault-screen screen' lists "
+                       f"them all)", transform=ax.transAxes, ha="right", va="bottom", fontsize="x-small")
+        note.set_in_layout(False)
+    return placed, left_out
+
+
+def result_levels(result):
+    """The screening level at each output time of a screened result, or None."""
     sc = (getattr(result, "extra", None) or {}).get("screening")
-    if not sc or "level" not in sc:
-        return
-    for ax in axes:
-        draw_level_band(ax, np.asarray(result.time, dtype=float) * time_factor, sc["level"])
-
+    return np.asarray(sc["level"]) if sc and "level" in sc else None

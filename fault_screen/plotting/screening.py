@@ -9,10 +9,13 @@ import numpy as np
 
 from ..outputs import display
 from ._canvas import _figure, _save, _title, time_scale
-from .levels import LEVEL_COLOURS, draw_level_band
+from .levels import LEVEL_COLOURS, label_transitions, level_axis, level_handles
 
 MPA, _ = display("screening", "min_coulomb_margin")   # stresses in MPa, slips in mm (the schema's)
 MM, _ = display("screening", "induced_slip")
+#: m/s: below, a fault at rest (the creep of the regularised friction law, ~1e-12 m/s in the
+#: bundled scenes): drawn as "below", not as a value
+RATE_FLOOR = 1e-12
 
 
 def screening_figures(result, out_dir, events=None, prefix: str = "") -> list[Path]:
@@ -23,7 +26,6 @@ def screening_figures(result, out_dir, events=None, prefix: str = "") -> list[Pa
     return [plot_screening(result, Path(out_dir) / f"{prefix}screening.png", events)]
 
 
-
 def screening_arrays(result) -> dict:
     """The ``/screening/`` arrays of ``result`` (evaluated now if the result has none)."""
     stored = (getattr(result, "extra", None) or {}).get("screening")
@@ -32,7 +34,6 @@ def screening_arrays(result) -> dict:
     from ..screening import screen_result
 
     return screen_result(result, store=False).arrays()
-
 
 
 def rule_thresholds(spec) -> list[tuple[str, float, int, str]]:
@@ -58,14 +59,12 @@ def rule_thresholds(spec) -> list[tuple[str, float, int, str]]:
     return out
 
 
-
 def _magnitude_sizes(m):
     """Marker areas growing with magnitude; magnitudes may be negative (micro-seismicity)."""
     m = np.asarray(m, dtype=float)
     if m.size == 0 or not np.any(np.isfinite(m)):
         return np.full(m.size, 30.0)
     return np.clip(20.0 + 40.0 * np.nan_to_num(m - np.nanmin(m), nan=0.0), 20.0, 300.0)
-
 
 
 def plot_screening(result, path, events=None, spec=None) -> Path:
@@ -101,9 +100,15 @@ def plot_screening(result, path, events=None, spec=None) -> Path:
 
     ax = ax_of["peak_slip_rate"]
     rate = np.asarray(sc["peak_slip_rate"], dtype=float)
-    floor = 1e-12  # below, numerical noise of a fault at rest: drawn at the floor
-    ax.semilogy(ts, np.clip(rate, floor, None), color="k", lw=1.5, label="peak slip rate")
-    ax.set_ylim(bottom=floor / 2)
+    above = rate >= RATE_FLOOR
+    ax.semilogy(ts, np.where(above, rate, np.nan), color="k", lw=1.5, label="peak slip rate")
+    if np.any(~above & np.isfinite(rate)):
+        # not a value: a fault at rest, whose model creep is not slip
+        ax.axhspan(RATE_FLOOR / 10, RATE_FLOOR, color="0.88", zorder=0,
+                   label=f"below {RATE_FLOOR:g} m/s: at rest")
+        ax.plot(ts[~above], np.full(int(np.count_nonzero(~above)), RATE_FLOOR / 3), ls="none",
+                marker="v", ms=3, color="0.45", markevery=max(1, int(np.count_nonzero(~above)) // 60),
+                label="peak slip rate below the floor")
     ax.set_ylabel("peak slip rate (m/s)")
     ax = ax_of["max_utilisation"]
     ax.plot(ts, sc["max_utilisation"], color="k", lw=1.5, label="max utilisation")
@@ -133,12 +138,28 @@ def plot_screening(result, path, events=None, spec=None) -> Path:
             ax.vlines(ev_t[ok] * f, np.nanmin(ev_m[ok]) - 0.5, ev_m[ok], color="crimson", lw=0.6)
         ax.set_ylabel("magnitude")
 
+    shown: dict[str, list] = {}
     for metric, value, lev, label in rule_thresholds(spec):
         target = ax_of.get(metric)
         if target is None:
             continue
         target.axhline(value * scale.get(metric, 1.0), color=LEVEL_COLOURS[lev], ls="--", lw=1.2,
                        label=label)
+        shown.setdefault(metric, []).append(value * scale.get(metric, 1.0))
+    span_values(ax_of["peak_slip_rate"], [rate[above], shown.get("peak_slip_rate", [])],
+                log=True, floor=RATE_FLOOR / 10)
+    span_values(ax_of["max_utilisation"], [sc["max_utilisation"], [1.0],
+                                           shown.get("max_utilisation", [])])
+    span_values(ax_of["stress"], [np.asarray(sc["min_coulomb_margin"]) * MPA,
+                                  np.asarray(sc["delta_cff"]) * MPA, [0.0],
+                                  shown.get("min_coulomb_margin", []), shown.get("delta_cff", [])])
+    span_values(ax_of["injection"], [np.asarray(sc["injection_overpressure"]) * MPA, [0.0],
+                                     shown.get("injection_overpressure", [])])
+    span_values(ax_of["induced_slip"], [np.asarray(sc["induced_slip"]) * MM, [0.0],
+                                        shown.get("induced_slip", [])])
+    if has_events:
+        span_values(ax_of["event_magnitude"], [ev_m[np.isfinite(ev_m)],
+                                               shown.get("event_magnitude", [])])
     for key in panels:
         ax = ax_of[key]
         ax.grid(alpha=0.3)
@@ -147,21 +168,38 @@ def plot_screening(result, path, events=None, spec=None) -> Path:
             h2, l2 = ax_of["induced_slip"].get_legend_handles_labels()
             handles, labels = handles + h2, labels + l2
         if handles:
-            ax.legend(handles, labels, fontsize="x-small", loc="upper left", framealpha=0.8)
+            ax.legend(handles, labels, fontsize="x-small", loc="best", framealpha=0.8)
 
     band = axes[-1]
-    draw_level_band(band, ts, sc["level"], height=1.0, alpha=1.0)
-    band.set_yticks([])
-    band.set_ylabel("level", rotation=0, ha="right", va="center")
-    for when, _, to, rule in read_transitions(sc):
-        band.axvline(when * f, color="k", lw=0.8)
-        band.text(when * f, 0.5, f" {LEVEL_NAMES[to]}: {rule}", transform=band.get_xaxis_transform(),
-                  fontsize="x-small", va="center", ha="left", clip_on=True, zorder=7)
+    level_axis(band, ts, sc["level"])
+    fig.legend(handles=level_handles(sc["level"]), loc="outside lower right", ncols=3,
+               fontsize="x-small", frameon=False)
     band.set_xlabel(f"time ({tu})")
     if t.size:
         band.set_xlim(ts[0], ts[-1] if ts[-1] > ts[0] else ts[0] + 1.0)
     worst = int(np.max(sc["level"])) if np.size(sc["level"]) else 0
     axes[0].set_title(f"{_title(result)}: screening, highest level {LEVEL_NAMES[worst]}", loc="left",
                       fontsize="medium")
+    label_transitions(fig, band, read_transitions(sc), f)
     return _save(fig, path)
+
+
+def span_values(ax, groups, *, log: bool = False, floor: float | None = None) -> None:
+    """Set the y limits of ``ax`` to hold every finite value of ``groups`` (data and the
+    thresholds drawn), with a margin; on a log axis, values at or below 0 are left out and
+    ``floor`` is the lowest limit."""
+    values = np.concatenate([np.ravel(np.asarray(g, dtype=float)) for g in groups] or [np.empty(0)])
+    values = values[np.isfinite(values)]
+    if log:
+        values = values[values > 0]
+        if floor is not None:
+            values = np.append(values, floor)
+        if values.size:
+            lo, hi = float(values.min()), float(values.max())
+            ax.set_ylim(lo / 2 if floor is None else floor, hi * 10)
+        return
+    if values.size:
+        lo, hi = float(values.min()), float(values.max())
+        pad = 0.06 * (hi - lo) if hi > lo else max(abs(hi), 1.0) * 0.1
+        ax.set_ylim(lo - pad, hi + pad)
 

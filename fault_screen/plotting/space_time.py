@@ -9,6 +9,12 @@ from ..outputs import display
 from ._canvas import _figure, _save, _title, start_time, time_scale
 from .events import _event_label, _events_in, _rug_time_y
 
+#: Smallest change coloured on the space-time maps (SI): 1 kPa of overpressure (a downhole
+#: gauge's resolution) and 1 um of slip or opening (a borehole displacement sensor's); below,
+#: the model's numbers are round-off and penalty give, not something a sensor could see
+COLOUR_FLOORS = {"overpressure": 1e3, "slip": 1e-6, "opening": 1e-6}
+BELOW_FLOOR_GREY = "0.9"
+
 
 def active_half_width(result, *, fraction: float = 0.01, slip_floor: float = 1e-9,
                       pad: float = 1.5) -> float | None:
@@ -38,7 +44,6 @@ def active_half_width(result, *, fraction: float = 0.01, slip_floor: float = 1e-
     return None if lim >= 0.8 * full or reach == 0.0 else lim
 
 
-
 def plot_space_time(result, path, events=None, *, xlim=None) -> Path:
     """Space-time maps of fault pressure, slip and opening (Fig. 10 layout) to the PNG ``path``.
 
@@ -55,28 +60,37 @@ def plot_space_time(result, path, events=None, *, xlim=None) -> Path:
         ("slip", *display("fault", "slip"), "slip", None),
         ("opening", *display("fault", "opening"), "opening", "magma"),
     ]
+    from matplotlib import colormaps
     ev = _events_in(events, float(t[0]), float(t[-1])) if t.size else None
     fig = _figure(figsize=(15, 5.5), layout="constrained")
-    axes = fig.subplots(1, 3, sharey=True)
+    axes = fig.subplots(1, 3, sharey=True, sharex=True)
     for ax, (key, scale, shown_unit, name, cmap) in zip(axes, fields):
         label = f"{name} ({shown_unit})"
         z = np.asarray(result.fault[key], dtype=float)[:, order] * scale
+        floor = COLOUR_FLOORS[key] * scale
+        # below the floor: numerical noise, not a measurable change; left uncoloured (grey)
+        z = np.ma.masked_where(~(np.abs(z) >= floor), z)
         kw = {}
+        lo = float(z.min()) if z.count() else 0.0
+        hi = float(z.max()) if z.count() else 0.0
         if cmap is None:  # slip: diverging if it changes sign
-            lo, hi = float(np.nanmin(z)), float(np.nanmax(z))
             if lo < 0 < hi:
                 lim = max(-lo, hi)
                 cmap, kw = "RdBu_r", {"vmin": -lim, "vmax": lim}
             else:
                 cmap = "viridis"
+        cmap = colormaps[cmap].with_extremes(bad=BELOW_FLOOR_GREY)
+        if not z.count():
+            kw = {"vmin": 0.0, "vmax": floor}
+        label = f"{label}; grey: |{key}| < {floor:g} {shown_unit}"
         # the profiles have their own times when [output] thins them
         tp = np.asarray(getattr(result, "profile_time", t), dtype=float)
         mesh = ax.pcolormesh(x, tp * f, z, shading="nearest", cmap=cmap, rasterized=True, **kw)
         cb = fig.colorbar(mesh, ax=ax, pad=0.01)
         cb.set_label(label)
         ax.set_title(label.split(" (")[0], loc="left")
-        if key in ("slip", "opening") and float(np.nanmax(np.abs(z), initial=0.0)) < 1e-6:
-            ax.text(0.5, 0.5, f"no {key} (all |{key}| < 1e-6 mm)", transform=ax.transAxes,
+        if not z.count():
+            ax.text(0.5, 0.5, f"no {key} (all |{key}| < {floor:g} {shown_unit})", transform=ax.transAxes,
                     ha="center", va="center", fontsize="small",
                     bbox={"facecolor": "w", "alpha": 0.8, "edgecolor": "0.5"})
         ax.set_xlabel("distance along fault from injection point (m)")
