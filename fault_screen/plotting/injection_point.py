@@ -56,6 +56,8 @@ def plot_injection_point(result, path, events=None) -> Path:
         if log is not None and "flow_rate" in log and np.size(log["flow_rate"]):
             top = max(top, float(np.nanmax(log["flow_rate"])) * qf)
         tw.set_ylim(0, 1.15 * top)
+        ax.set_zorder(2)  # the data above the flow rate's twin axis
+        ax.patch.set_visible(False)
         return tw, hs
 
     pf, pu = display("injection", "overpressure")
@@ -63,8 +65,6 @@ def plot_injection_point(result, path, events=None) -> Path:
                    lw=1.8, label=f"overpressure ({pu})")
     ax_p.set_ylabel(f"overpressure at injection point ({pu})")
     _, hq = flow_twin(ax_p)
-    ax_p.set_zorder(2)
-    ax_p.patch.set_visible(False)
 
     hm = []
     if has_log_p:
@@ -84,8 +84,6 @@ def plot_injection_point(result, path, events=None) -> Path:
                    lw=1.8, label=f"opening ({su})")
     ax_d.set_ylabel(f"slip, opening at injection point ({su})")
     _, hq2 = flow_twin(ax_d)
-    ax_d.set_zorder(2)
-    ax_d.patch.set_visible(False)
     hl = []
     if levels is not None:  # the traffic light on an axis of its own: it hides no data
         level_axis(axes["level"], t * f, levels)

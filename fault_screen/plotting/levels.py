@@ -67,10 +67,12 @@ def label_transitions(fig, ax, transitions, f: float) -> tuple[list, int]:
     right = ax.get_window_extent(renderer).x1
     rows: list[list] = [[], []]
     placed, left_out = [], 0
-    for when, _, to, rule in transitions:
+    for when, came_from, to, rule in transitions:
         ax.axvline(when * f, color="k", lw=0.8)
+        # a rise names the rule that fired; a fall only where the level went back to
+        words = f" {LEVEL_NAMES[to]}: {rule}" if to > came_from else f" back to {LEVEL_NAMES[to]}"
         for row, y in zip(rows, (0.72, 0.28)):
-            text = ax.text(when * f, y, f" {LEVEL_NAMES[to]}: {rule}", transform=ax.get_xaxis_transform(),
+            text = ax.text(when * f, y, words, transform=ax.get_xaxis_transform(),
                            fontsize="x-small", va="center", ha="left", clip_on=False, zorder=7)
             text.set_in_layout(False)
             box = text.get_window_extent(renderer)
