@@ -58,8 +58,8 @@ def level_axis(ax, time, level) -> None:
 def label_transitions(fig, ax, transitions, f: float) -> tuple[list, int]:
     """Label each level change (time s, from, to, rule) on the band ``ax`` (x: time times
     ``f``) on one of two rows, leaving out a label that would overprint another or run off the
-    axis; returns (the texts placed, the number left out). ``fig`` is drawn once first so that
-    the text extents are the final ones."""
+    axis (their number is added to the x label); returns (the texts placed, the number left out).
+    ``fig`` is drawn once first so that the text extents are the final ones."""
     from ..screening import LEVEL_NAMES
 
     fig.canvas.draw()
@@ -73,7 +73,8 @@ def label_transitions(fig, ax, transitions, f: float) -> tuple[list, int]:
         words = f" {LEVEL_NAMES[to]}: {rule}" if to > came_from else f" back to {LEVEL_NAMES[to]}"
         for row, y in zip(rows, (0.72, 0.28)):
             text = ax.text(when * f, y, words, transform=ax.get_xaxis_transform(),
-                           fontsize="x-small", va="center", ha="left", clip_on=False, zorder=7)
+                           fontsize="x-small", va="center", ha="left", clip_on=False, zorder=7,
+                           bbox={"facecolor": "w", "alpha": 0.7, "edgecolor": "none", "pad": 1.0})
             text.set_in_layout(False)
             box = text.get_window_extent(renderer)
             if box.x1 <= right and not any(box.overlaps(other) for other in row):
@@ -83,10 +84,9 @@ def label_transitions(fig, ax, transitions, f: float) -> tuple[list, int]:
             text.remove()
         else:
             left_out += 1
-    if left_out:
-        note = ax.text(1.0, 1.05, f"{left_out} level changes not labelled ('fault-screen screen' lists "
-                       f"them all)", transform=ax.transAxes, ha="right", va="bottom", fontsize="x-small")
-        note.set_in_layout(False)
+    if left_out:  # said under the axis, where it overprints nothing
+        ax.set_xlabel(f"{ax.get_xlabel()}; {left_out} level changes not labelled ('fault-screen "
+                      f"screen' lists them all)")
     return placed, left_out
 
 
