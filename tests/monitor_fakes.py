@@ -34,7 +34,8 @@ class FakeSimulation:
         return {"time": t, "volume": vol, "flow_rate": rate,
                 "slip_rate": np.where(u >= 1, 1e-5 * u, 0.0),
                 "contact_state": (u >= 1).astype(np.int64),
-                "shear_traction": tau, "effective_normal_stress": sn}
+                "shear_traction": tau, "effective_normal_stress": sn,
+                "inj_overpressure": 1e5 * vol, "inj_slip": 0.0}
 
     @property
     def last_row(self):
@@ -98,6 +99,15 @@ class ThresholdScreener:
 
     def __init__(self):
         self.level = 0
+
+    def state(self):
+        return {"level": self.level}
+
+    @classmethod
+    def from_state(cls, state):
+        out = cls()
+        out.level = int(state["level"])
+        return out
 
     def update(self, time, metrics, events=()):
         u = metrics.get("max_utilisation", 0.0)

@@ -103,7 +103,8 @@ def test_sigterm_checkpoints_and_writes_the_results_so_far(dist, scene_file, tmp
     assert res.time[-1] == 7.0 * math.floor(t80 / 7.0)      # aligned: no partial step
     from fault_screen.monitor import Stage
 
-    back, extra = Stage.restore(tmp_path / "s.h5", simulation_class=FakeSimulation)
+    back, extra = Stage.restore(tmp_path / "s.h5", simulation_class=FakeSimulation,
+                              screener=ThresholdScreener())
     assert back.samples.count == 75 and back.time == res.time[-1]
     assert extra["decoder"]["last"][0] == t80
 
