@@ -176,4 +176,6 @@ def monitor(scene_path, follow, events, waveforms, seedlink, seedlink_streams, s
                    f"t = {summary['time']:g} s from {summary['samples']} samples; level "
                    f"{summary['level']}, {summary['alerts']} alert(s)"
                    + (f", {summary['pending_alerts']} still pending"
-                      if summary["pending_alerts"] else ""))
+                      if summary["pending_alerts"] else "")
+                   + (f", {summary['dead_alerts']} refused for good (fault-screen plugins "
+                      f"--outbox {summary['outbox']})" if summary["dead_alerts"] else ""))

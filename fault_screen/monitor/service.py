@@ -87,7 +87,7 @@ class MonitorService:
         resuming = config.state is not None and Path(config.state).exists()
         extra = Stage.saved_extra(config.state) if resuming else {}
         # plugins first: a bad name or option fails before the model is built
-        all_sinks = {spec: plugins.instantiate("alert", spec) for spec in config.alerts}
+        all_sinks = plugins.alert_sinks(config.alerts)
         all_sinks.update(sinks or {})
         self.decoder = LogDecoder(config.follow, flow_unit=config.flow_unit,
                                   pressure_unit=config.pressure_unit, max_gap=config.max_gap,
@@ -238,6 +238,11 @@ class MonitorService:
             if left:
                 log.warning("%d alert deliveries pending in %s; they are retried at the next "
                             "start", left, self.outbox.path)
+            dead = self.outbox.dead()
+            if dead:
+                log.error("%d alert deliveries refused for good (dead letters in %s; "
+                          "'fault-screen plugins --outbox %s' lists them)", dead,
+                          self.outbox.path, self.outbox.path)
             self.outbox.close()
             self.source.close()
             if hasattr(self.detector, "close"):
@@ -247,7 +252,8 @@ class MonitorService:
         st = self.stage
         return {"ended": ended, "steps": st.steps, "time": st.time, "samples": st.samples.count,
                 "level": LEVELS[st.level] if 0 <= st.level < len(LEVELS) else st.level,
-                "alerts": st.alerts_raised, "pending_alerts": left}
+                "alerts": st.alerts_raised, "pending_alerts": left, "dead_alerts": dead,
+                "outbox": str(self.outbox.path)}
 
     def _loop(self, last_data: float) -> str:
         ended = "stopped"
