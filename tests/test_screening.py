@@ -46,11 +46,16 @@ def invoke(*args):
     ("not a > 1 and b > 1", {"a": 0, "b": 2}, True),
     ("not (a > 1 and b > 1)", {"a": 2, "b": 2}, False),
     ("not not a == 3", {"a": 3}, True),
-    # a missing value (absent or NaN) makes its comparison false, whatever the operator
+    # a missing value (absent or NaN) makes its comparison unknown, whatever the operator, and
+    # a rule holds only when its condition is true (three-valued logic)
     ("event_magnitude >= 1", {}, False),
     ("event_magnitude < 1", {"event_magnitude": math.nan}, False),
     ("event_magnitude != 1", {"event_magnitude": math.nan}, False),
-    ("not event_magnitude >= 1", {}, True),
+    ("not event_magnitude >= 1", {}, False),
+    ("not event_magnitude < 2", {"event_magnitude": math.nan}, False),
+    ("not event_magnitude < 2", {"event_magnitude": 2.0}, True),
+    ("a > 1 and not event_magnitude > 1", {"a": 2}, False),
+    ("not (a > 1 and event_magnitude > 1)", {"a": 0}, True),
     ("a > 1 or event_magnitude > 1", {"a": 2}, True),
 ])
 def test_conditions_evaluate_with_precedence_and_missing_values(text, values, expected):

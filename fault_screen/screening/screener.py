@@ -16,7 +16,9 @@ Semantics
   before the first update are background and ignored by the rules).  A rule that names
   ``event_magnitude`` or ``event_distance`` holds if it holds for one of the events counted at
   this update, each with its own magnitude and distance; with no such event, or an event without
-  a distance, those values are missing and their comparisons are false.  ``event_rate`` counts
+  a distance, those values are missing: their comparisons are unknown and a rule holds only when
+  its condition is true (``not event_magnitude < 2`` does not hold without an event; see
+  :mod:`fault_screen.rules`).  ``event_rate`` counts
   the events received so far whose origin times lie in the trailing ``event_rate_window``.
 """
 from __future__ import annotations
