@@ -66,6 +66,7 @@ class MonitorConfig:
     sta_lta: dict = field(default_factory=dict)   # SdsDetector options
     drain_timeout: float = 10.0                # s spent on pending alerts at exit
     label: str = ""
+    overwrite: bool = False                    # replace an existing --out of an earlier run
 
 
 class MonitorService:
@@ -108,9 +109,13 @@ class MonitorService:
                      config.state, self.stage.time, self.stage.steps, self.stage.samples.count)
         else:
             sim = simulation_class(scene) if simulation_class is not None else None
+            if config.out is not None and Path(config.out).exists() and not config.overwrite:
+                raise MonitorInputError(f"--out {config.out}: the file exists; give --overwrite to "
+                                        f"replace it, or another name")
+            # without checkpoints nothing continues the file: written as OUT.part, renamed
             self.stage = Stage(scene, start=config.t0, simulation=sim, screener=screener,
                                metrics=metrics, site=config.site, label=config.label,
-                               out=config.out)
+                               out=config.out, out_via_temporary=config.state is None)
         box = config.outbox
         if box is None and not all_sinks:
             box = ":memory:"           # no alert plugin: nothing to deliver, no file

@@ -242,7 +242,7 @@ class Stage:
     def __init__(self, scene, *, start: Optional[datetime] = None, simulation=None,
                  screener=None, metrics=None, site: Optional[Site] = None,
                  event_window: Optional[float] = None, label: str = "", history: int = 16,
-                 out=None):
+                 out=None, out_via_temporary: bool = False):
         if getattr(scene.injection, "control", "rate") != "rate":
             raise ValueError(f"injection.control = {scene.injection.control!r}: the monitor "
                              f"drives the flow rate; use a scene with control = 'rate'")
@@ -274,6 +274,9 @@ class Stage:
         self._geometry = None
         # results streamed to this HDF5 file as the stage goes (a stepper that can), else kept
         self.out = Path(out) if out is not None and hasattr(self.sim, "stream_to") else None
+        # streamed under OUT.part and renamed when complete (a run without checkpoints, as run
+        # and replay write): an earlier OUT stays intact until then
+        self.out_via_temporary = bool(out_via_temporary)
         self.screened = 0                 # rows screened, the in-situ row included
 
     # -- identity ---------------------------------------------------------------------------
@@ -335,7 +338,15 @@ class Stage:
         if with_pressure:
             log["/log/pressure"] = ("<f8", ())
         streams["log"] = log
-        self.sim.stream_to(self.out, streams=streams, meta=self._meta())
+        self.sim.stream_to(self.stream_path, streams=streams, meta=self._meta())
+
+    @property
+    def stream_path(self) -> Optional[Path]:
+        """The file the results stream to while the stage runs (``out``, or ``out.part`` when
+        renamed at the end)."""
+        if self.out is None or not self.out_via_temporary:
+            return self.out
+        return self.out.with_name(self.out.name + ".part")
 
     def flush(self) -> None:
         """Write the streamed results so far to the file (readers see them)."""
@@ -347,7 +358,11 @@ class Stage:
         (None when the stage keeps its results in memory: see :meth:`result`)."""
         if self.out is None or self.sim.writer is None:
             return None
-        return self.sim.close_stream(meta=self._meta(), groups=self._final_groups())
+        path = Path(self.sim.close_stream(meta=self._meta(), groups=self._final_groups()))
+        if path != self.out:
+            os.replace(path, self.out)
+            _fsync_dir(self.out.parent)
+        return self.out
 
     def _meta(self) -> dict:
         meta = {"monitor_samples": self.samples.count, "monitor_ignored_samples": self.ignored,
@@ -537,7 +552,7 @@ class Stage:
             "start": self.start.isoformat() if self.start else None,
             "event_window": self.event_window, "label": self.label,
             "rows": [_row_json(r) for r in self._rows],
-            "screened": self.screened, "out": str(self.out) if self.out is not None else None,
+            "screened": self.screened, "out": str(self.stream_path) if self.out is not None else None,
         }
 
     def checkpoint(self, path, extra: Optional[dict] = None) -> Path:
