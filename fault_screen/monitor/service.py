@@ -90,13 +90,21 @@ class MonitorService:
         # plugins first: a bad name or option fails before the model is built
         all_sinks = plugins.alert_sinks(config.alerts)
         all_sinks.update(sinks or {})
+        name = config.source or ("stdin" if config.follow == "-" else "csv")
+        # at once, before the model is built (which takes a while): what is being followed
+        log.info("following %s (source %s) with the scene %s; results: %s; state: %s; "
+                 "alerts: %s; events: %s", "standard input" if config.follow == "-" else
+                 config.follow, name, config.label or "given", config.out or "kept in memory",
+                 (f"{config.state} (resumed)" if resuming else config.state) or "none",
+                 ", ".join(all_sinks) or "none",
+                 ", ".join(str(x) for x in (config.events, config.waveforms, config.seedlink)
+                           if x is not None) or "none")
         self.decoder = LogDecoder(config.follow, flow_unit=config.flow_unit,
                                   pressure_unit=config.pressure_unit, max_gap=config.max_gap,
                                   policy=config.policy, **config.log_options,
                                   resume=extra.get("decoder"),
                                   on_warning=lambda m: log.warning("%s", m),
                                   flowback=scene.injection.allow_flowback)
-        name = config.source or ("stdin" if config.follow == "-" else "csv")
         self.source = plugins.instantiate("source", name, config.follow, decoder=self.decoder,
                                           poll_interval=config.poll_interval,
                                           log=logging.getLogger(f"fault_screen.sources.{name}"))
@@ -123,6 +131,8 @@ class MonitorService:
             base = config.state or config.out or Path("fault-screen-monitor")
             box = Path(str(base) + ".outbox.sqlite")
         self.outbox = Outbox(box, all_sinks, log=logging.getLogger("fault_screen.monitor.outbox"))
+        log.info("model ready at model time %.6g s; waiting for samples", self.stage.time)
+        self._first_sample_logged = False
         self.catalog: Optional[CatalogFollower] = None
         self.detector: Optional[SdsDetector] = None
         self._detector_state = extra.get("detector")
@@ -187,6 +197,13 @@ class MonitorService:
     def _feed(self, samples) -> None:
         if not samples:
             return
+        if not self._first_sample_logged:
+            first = samples[0]
+            log.info("first sample%s: model time %.6g s, flow rate %.6g m3/s%s (%d in this read)",
+                     " after the restart" if self.stage.samples.count else "", first.time,
+                     first.flow_rate, "" if first.pressure is None else
+                     f", pressure {first.pressure:.6g} Pa", len(samples))
+            self._first_sample_logged = True
         self._start_known()
         self._poll_seismicity()
         upd = self.stage.feed_samples([s.time for s in samples], [s.flow_rate for s in samples],
