@@ -5,14 +5,12 @@ and secrets are never shown, stored or passed on."""
 from __future__ import annotations
 
 import base64
-import http.server
 import json
 import logging
 import os
 import signal
 import socket
 import sys
-import threading
 import time
 
 import pytest
@@ -21,6 +19,7 @@ from click.testing import CliRunner
 import monitor_env
 from fault_screen.monitor import plugins
 from fault_screen.monitor.outbox import Outbox
+from monitor_fakes import Receiver
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -33,45 +32,6 @@ def alert(aid, level):
     return {"id": aid, "level": level, "level_code": code, "previous_level": "green",
             "previous_level_code": 0, "rule": "r", "action": "", "metrics": {},
             "model_time": 1.0, "wall_time": "2026-01-01T00:00:00+00:00", "scene": "x"}
-
-
-class Receiver:
-    """HTTP receiver on 127.0.0.1: answers ``codes`` in turn (then 200; a 3xx with a Location
-    header to ``location``) and records each request as (method, path, headers, body)."""
-
-    def __init__(self, codes=(), location=None):
-        self.codes = list(codes)
-        self.requests = []
-        outer = self
-
-        class Handler(http.server.BaseHTTPRequestHandler):
-            def _answer(self):
-                n = int(self.headers.get("content-length") or 0)
-                body = self.rfile.read(n) if n else b""
-                outer.requests.append((self.command, self.path, {k.lower(): v for k, v in
-                                                                 self.headers.items()}, body))
-                code = outer.codes.pop(0) if outer.codes else 200
-                self.send_response(code)
-                if 300 <= code < 400 and location:
-                    self.send_header("Location", location)
-                self.send_header("content-length", "0")
-                self.end_headers()
-
-            do_POST = do_GET = _answer
-
-            def log_message(self, *a):
-                pass
-
-        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.url = f"http://127.0.0.1:{self.server.server_port}/hook"
-        threading.Thread(target=self.server.serve_forever, daemon=True).start()
-
-    def ids(self):
-        return [json.loads(b)["id"] for _, _, _, b in self.requests if b]
-
-    def close(self):
-        self.server.shutdown()
-        self.server.server_close()
 
 
 def test_a_redirect_is_never_followed_and_the_outbox_keeps_the_alert(monkeypatch, caplog):
@@ -93,7 +53,7 @@ def test_a_redirect_is_never_followed_and_the_outbox_keeps_the_alert(monkeypatch
                 assert box.pending() == 1 and box.dead() == 0
                 [row] = box.rows()
                 assert f"HTTP {code} redirect" in row["last_error"] and "not followed" in row["last_error"]
-                assert [r[0] for r in rx.requests] == ["POST"]        # not retried, not re-sent
+                assert rx.methods == ["POST"]        # not retried, not re-sent
                 box.close()
             finally:
                 rx.close()
@@ -263,3 +223,15 @@ def test_secrets_are_never_shown_stored_or_passed_on(tmp_path, monkeypatch, capl
             assert token.encode() not in f.read_bytes(), f.name
     env = json.loads((tmp_path / "env.json").read_text())
     assert "FAULT_SCREEN_ALERT" in env and "FS_HOOK_SECRET" not in env
+
+
+@pytest.mark.parametrize("spec, message", [
+    ('webhook:{"url": "https://hooks.example/T1/s3cr3tT0ken"', "not valid JSON"),
+    ("webhook:" + "[" * 100000, "nested too deeply"),
+    ("webhook:url=https://hooks.example/T1/s3cr3tT0ken,retries=x", "invalid literal"),
+    ("webhook:ftp://hooks.example/T1/s3cr3tT0ken", "must start with http"),
+])
+def test_bad_alert_options_are_refused_without_echoing_a_token(spec, message):
+    with pytest.raises(plugins.PluginError, match=message) as err:
+        plugins.instantiate("alert", spec)
+    assert "s3cr3tT0ken" not in str(err.value) and "\n" not in str(err.value)

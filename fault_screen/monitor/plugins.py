@@ -85,7 +85,11 @@ def parse_config(text: str | None, main_option: str | None = None) -> dict:
         try:
             val = json.loads(t)
         except json.JSONDecodeError as exc:
-            raise PluginError(f"options {text!r}: not valid JSON ({exc.msg})") from None
+            # the options are not echoed: they may hold a URL with a token
+            raise PluginError(f"options: not valid JSON ({exc.msg} at character {exc.pos + 1})") \
+                from None
+        except RecursionError:
+            raise PluginError("options: JSON nested too deeply") from None
         if isinstance(val, list):
             return {"argv": val}
         return dict(val)
@@ -97,7 +101,7 @@ def parse_config(text: str | None, main_option: str | None = None) -> dict:
             out[k] = _scalar(v)
         return out
     if main_option is None:
-        raise PluginError(f"options {text!r}: give key=value pairs or a JSON object")
+        raise PluginError("options: give key=value pairs or a JSON object")
     return {main_option: t}
 
 
