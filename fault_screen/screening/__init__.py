@@ -25,7 +25,7 @@ from ..rules import METRICS
 from .metrics import MetricsTracker, fault_metrics, result_metrics
 from .screener import (GREEN, LEVEL_NAMES, RED, UNSTABLE_RULE, YELLOW, Events, Screener, Transition,
                        Verdict, event_metrics, thresholds_of)
-from .stepwise import TRANSITION_DTYPE, StepScreening
+from .stepwise import TRANSITION_DTYPE, Screening, StepScreening
 
 __all__ = ["screen_result", "Screening", "Screener", "StepScreening", "MetricsTracker", "event_metrics", "Transition", "Verdict", "Events",
            "fault_metrics", "result_metrics", "thresholds_of", "stopped_unstable", "GREEN", "YELLOW",
@@ -40,28 +40,6 @@ def stopped_unstable(result) -> float | None:
         return None
     t = stopped.get("time")
     return float(t) if t is not None else float(result.time[-1])
-
-
-class Screening:
-    """What :func:`screen_result` found: metrics and level per output time, transitions, verdict."""
-
-    def __init__(self, time, metrics: dict, level, transitions: list[Transition], verdict: Verdict, spec):
-        self.time = time
-        self.metrics = metrics
-        self.level = level
-        self.transitions = transitions
-        self.verdict = verdict
-        self.spec = spec
-
-    def arrays(self) -> dict:
-        """The ``/screening/`` group as arrays (what :attr:`Result.extra` holds)."""
-        out = {k: np.asarray(v, dtype=float) for k, v in self.metrics.items()}
-        out["level"] = np.asarray(self.level, dtype=np.int8)
-        tr = np.zeros(len(self.transitions), dtype=TRANSITION_DTYPE)
-        for i, t in enumerate(self.transitions):
-            tr[i] = (t.time, t.from_level, t.to_level, t.rule.encode("utf-8")[:64])
-        out["transitions"] = tr
-        return out
 
 
 def _stored_events(result):

@@ -14,12 +14,39 @@ import numpy as np
 
 from ..rules import METRICS
 from .metrics import MetricsTracker
-from .screener import Events, Screener
+from .screener import Events, Screener, Transition, Verdict
 
-__all__ = ["StepScreening", "TRANSITION_DTYPE"]
+__all__ = ["StepScreening", "Screening", "TRANSITION_DTYPE"]
 
 #: the compound type of ``/screening/transitions``
 TRANSITION_DTYPE = np.dtype([("time", "f8"), ("from", "i1"), ("to", "i1"), ("rule", "S64")])
+
+
+def _transition_row(tr) -> tuple:
+    """A level change as a record of :data:`TRANSITION_DTYPE` (the rule's name cut to 64 bytes)."""
+    return (tr.time, tr.from_level, tr.to_level, tr.rule.encode("utf-8")[:64])
+
+
+class Screening:
+    """What :func:`screen_result` found: metrics and level per output time, transitions, verdict."""
+
+    def __init__(self, time, metrics: dict, level, transitions: list[Transition], verdict: Verdict, spec):
+        self.time = time
+        self.metrics = metrics
+        self.level = level
+        self.transitions = transitions
+        self.verdict = verdict
+        self.spec = spec
+
+    def arrays(self) -> dict:
+        """The ``/screening/`` group as arrays (what :attr:`Result.extra` holds)."""
+        out = {k: np.asarray(v, dtype=float) for k, v in self.metrics.items()}
+        out["level"] = np.asarray(self.level, dtype=np.int8)
+        tr = np.zeros(len(self.transitions), dtype=TRANSITION_DTYPE)
+        for i, t in enumerate(self.transitions):
+            tr[i] = _transition_row(t)
+        out["transitions"] = tr
+        return out
 
 
 class StepScreening:
@@ -89,7 +116,7 @@ class StepScreening:
     @staticmethod
     def transition_record(tr) -> dict:
         rec = np.zeros((), dtype=TRANSITION_DTYPE)
-        rec[()] = (tr.time, tr.from_level, tr.to_level, tr.rule.encode("utf-8")[:64])
+        rec[()] = _transition_row(tr)
         return {"/screening/transitions": rec}
 
     def write(self, writer, metrics: dict, transitions) -> None:
@@ -125,8 +152,6 @@ class StepScreening:
     def screening(self, result):
         """The :class:`~fault_screen.screening.Screening` of the streamed run (its verdict and
         level changes; the per-row values from ``result``, the file read back)."""
-        from . import Screening
-
         arrays = result.extra.get("screening", {})
         metrics = {k: v for k, v in arrays.items() if k not in ("level", "transitions")}
         return Screening(result.time, metrics, arrays.get("level"), self.transitions,
