@@ -234,8 +234,9 @@ class Stage:
     replay, :class:`~fault_screen.screening.StepScreening`); ``metrics``: function
     ``(row, scene) -> dict`` of the screening metrics of a recorded row (default: the screening
     layer's).  A screener or metrics function given here is checkpointed through its own
-    ``state()`` (plain data) and must be given again to :meth:`restore`.  ``site``: :class:`~fault_screen.monitor.seismicity.Site` to place
-    hypocentres (default: the scene's ``[site]``).  ``event_window``: seconds over which
+    ``state()`` (plain data) and must be given again to :meth:`restore`.  ``site``:
+    :class:`~fault_screen.monitor.seismicity.Site` to place hypocentres (default: the scene's
+    ``[site]``).  ``event_window``: seconds over which
     ``event_rate`` counts events (default: ``[monitor] event_rate_window``).
     """
 
