@@ -46,7 +46,7 @@ def test_a_redirect_is_never_followed_and_the_outbox_keeps_the_alert(monkeypatch
             try:
                 hook = plugins.instantiate(
                     "alert", f"webhook:url={rx.url},secret_env=FS_RX_SECRET,retries=2,backoff=0.01")
-                box = Outbox(":memory:", {hook.identity: hook}, backoff=10.0)
+                box = Outbox(":memory:", {"hook": hook}, backoff=10.0)
                 box.put(alert(f"fs_{code}", "red"))
                 with caplog.at_level(logging.WARNING):
                     assert box.deliver_due() == 0
@@ -72,7 +72,7 @@ def test_a_refused_alert_is_dead_lettered_reported_and_blocks_nothing(tmp_path, 
     try:
         hook = plugins.instantiate("alert", f"webhook:url={rx.url},retries=3,backoff=0.01")
         path = tmp_path / "box.sqlite"
-        box = Outbox(path, {hook.identity: hook}, backoff=0.01)
+        box = Outbox(path, {"hook": hook}, backoff=0.01)
         box.put(alert("fs_refused", "yellow"))
         with caplog.at_level(logging.ERROR):
             box.deliver_due()
@@ -86,7 +86,7 @@ def test_a_refused_alert_is_dead_lettered_reported_and_blocks_nothing(tmp_path, 
         rx.close()
     out = CliRunner().invoke(main, ["plugins", "--outbox", str(path)])
     assert out.exit_code == 0, out.output
-    assert "0 pending, 1 delivered, 1 refused for good" in out.output
+    assert "hook: 0 pending, 1 delivered, 1 refused for good" in out.output
     assert "dead letter fs_refused (level 1)" in out.output and "HTTP 400" in out.output
 
 
@@ -125,8 +125,8 @@ def test_a_hung_receiver_delays_no_other_sink(tmp_path):
         jsonl = plugins.instantiate("alert", f"jsonl:{lines}")
         # the hung sink first: a single deliverer would reach the file only after 60 s
         box = Outbox(tmp_path / "b.sqlite", {"hook": hook, "file": jsonl})
+        box.put(alert("fs_1", "red"))       # stored before the deliverers start: no race
         box.start()
-        box.put(alert("fs_1", "red"))
         deadline = time.monotonic() + 30.0          # guards the test against a hang only
         while box.pending() == 2 and time.monotonic() < deadline:
             time.sleep(0.02)
@@ -148,7 +148,7 @@ def test_a_pager_that_leaves_a_background_child_is_delivered_once(tmp_path):
               f"open({str(runs)!r}, 'a').write(str(child.pid) + '\\n')")
     pager = plugins.instantiate("alert", "command:" + json.dumps(
         {"argv": [sys.executable, "-c", script], "timeout": 20}))
-    box = Outbox(tmp_path / "b.sqlite", {pager.identity: pager})
+    box = Outbox(tmp_path / "b.sqlite", {"pager": pager})
     try:
         box.put(alert("fs_page", "red"))
         assert box.deliver_due() == 1
