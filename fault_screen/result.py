@@ -95,13 +95,38 @@ class Result:
                     grp.create_dataset(k, data=v).attrs["unit"] = unit(name, k)
         return path
 
+    def check_lengths(self) -> None:
+        """Raise ValueError (one line) unless every per-time array has one row per output
+        time and every fault profile one column per fault point."""
+        n, n_x = len(self.time), len(self.fault_x)
+        n_profiles = len(self.profile_time)
+        want = [(f"/{g}/{k}", v, n) for g in ("injection", "balance", "solver")
+                for k, v in getattr(self, g).items()]
+        want += [(f"/screening/{k}", v, n) for k, v in (self.extra.get("screening") or {}).items()
+                 if k != "transitions"]
+        want += [(f"/fault/{k}", v, n_profiles) for k, v in self.fault.items()]
+        for name, v, rows in want:
+            shape = np.shape(v)
+            if not shape or shape[0] != rows:
+                got = shape[0] if shape else "no"
+                raise ValueError(f"damaged result: {name} has {got} rows for {rows} output times")
+        for k, v in self.fault.items():
+            if np.ndim(v) != 2 or np.shape(v)[1] != n_x:
+                raise ValueError(f"damaged result: /fault/{k} has shape {np.shape(v)} for "
+                                 f"{n_profiles} times and {n_x} fault points")
+        if len(self.fault_weights) != n_x or np.shape(self.fault_xy)[:1] != (n_x,):
+            raise ValueError(f"damaged result: /fault/weight and /fault/xy do not have one row "
+                             f"per fault point ({n_x})")
+
     @classmethod
     def load(cls, path) -> "Result":
         """A result file, also one still being streamed (opened as a single-writer/multiple-
-        reader reader then: what the last flush wrote)."""
+        reader reader then: what the last flush wrote).  A complete file whose arrays disagree
+        in length is refused (ValueError, one line)."""
         import tomllib
 
         with _open_for_reading(path) as h5:
+            growing = h5.swmr_mode        # a writer may be between two datasets' flushes
             scene = Scene.from_dict(tomllib.loads(h5.attrs["scene"]))
             read = lambda grp: {k: grp[k][()] for k in grp}
             fault = read(h5["fault"])
@@ -111,7 +136,10 @@ class Result:
             if ft is not None and np.array_equal(ft, time):
                 ft = None
             extra = {k: read(h5[k]) for k in h5 if k not in ("time", "fault", "injection", "balance", "solver")}
-            return cls(scene=scene, time=time, fault_x=fx, fault_xy=fxy, fault_weights=fw, fault=fault,
-                       injection=read(h5["injection"]), balance=read(h5["balance"]),
-                       solver=read(h5["solver"]), meta=json.loads(h5.attrs["meta"]), extra=extra,
-                       fault_time=ft)
+            out = cls(scene=scene, time=time, fault_x=fx, fault_xy=fxy, fault_weights=fw, fault=fault,
+                      injection=read(h5["injection"]), balance=read(h5["balance"]),
+                      solver=read(h5["solver"]), meta=json.loads(h5.attrs["meta"]), extra=extra,
+                      fault_time=ft)
+        if not growing:
+            out.check_lengths()
+        return out

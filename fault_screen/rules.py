@@ -14,10 +14,19 @@ Grammar (keywords lower case; every operand in SI units)::
     comparison := operand ('<' | '<=' | '>' | '>=' | '==' | '!=') operand
     operand    := NAME | ['+' | '-'] NUMBER          (NUMBER: 12, 0.5, .5, 1e-6, 2.5E+3)
 
-A comparison with a missing value (a metric that is NaN or absent, e.g. ``event_magnitude``
-when no event occurred) is false.  Expressions are parsed by the code below, never by ``eval``,
-so a rule can only compare numbers.  This module sits beside the scene (which validates rules at
-load time) and imports nothing of the package.
+Missing values.  A comparison with a missing value (a metric that is NaN or
+absent, e.g. ``event_magnitude`` when no event occurred) is *unknown*, and
+``not``, ``and``, ``or`` follow three-valued (Kleene) logic: ``not unknown`` is unknown,
+``false and unknown`` is false, ``true or unknown`` is true, otherwise unknown.  A rule holds
+only when its condition is *true*: so ``not event_magnitude < 2`` does not hold when there is
+no event (it holds for an event of magnitude 2 or more), and ``event_magnitude >= 2 or
+peak_slip_rate > 1e-6`` holds on the slip rate alone.
+
+Size.  ``and``/``or`` chains of any length are evaluated without recursion; parentheses and
+``not`` may nest :data:`MAX_NESTING` levels deep (deeper is a :class:`RuleError`).  Expressions
+are parsed by the code below, never by ``eval``, so a rule can only compare numbers.  This
+module sits beside the scene (which validates rules at load time) and imports nothing of the
+package.
 """
 from __future__ import annotations
 
@@ -25,7 +34,10 @@ import math
 import re
 from dataclasses import dataclass
 
-__all__ = ["METRICS", "EVENT_METRICS", "RuleError", "Condition", "parse_condition"]
+__all__ = ["METRICS", "EVENT_METRICS", "MAX_NESTING", "RuleError", "Condition", "parse_condition"]
+
+#: deepest nesting of parentheses and ``not`` in a condition
+MAX_NESTING = 64
 
 #: Screening metrics a rule may name: unit and meaning (stored per output time in /screening/).
 METRICS = {
@@ -109,19 +121,25 @@ class Condition:
         return any(n in EVENT_METRICS for n in self.names)
 
     def evaluate(self, values) -> bool:
+        """True when the condition holds for ``values`` (name -> number; NaN or absent:
+        missing); false when it is false or unknown (see the module docstring)."""
+        return _eval(self._tree, values) is True
+
+    def truth(self, values):
+        """True, False, or None (unknown: it depends on a missing value)."""
         return _eval(self._tree, values)
 
     def comparisons(self):
         """Every comparison as (left, op, right), operands a name (str) or a number (float)."""
-        out = []
-
-        def walk(node):
+        out, stack = [], [self._tree]
+        while stack:
+            node = stack.pop()
             if node[0] == "cmp":
                 out.append((node[2][1], node[1], node[3][1]))
+            elif node[0] == "not":
+                stack.append(node[1])
             else:
-                for child in node[1:]:
-                    walk(child)
-        walk(self._tree)
+                stack.extend(reversed(node[1]))
         return out
 
     def __repr__(self):
@@ -140,18 +158,27 @@ def _value(operand, values):
     return None if got is None else float(got)
 
 
-def _eval(node, values) -> bool:
+def _eval(node, values):
+    """Three-valued value of ``node``: True, False or None (unknown).  ``and``/``or`` nodes
+    hold their operands in a list (no recursion along a chain); nesting is bounded by the
+    parser."""
     tag = node[0]
-    if tag == "or":
-        return _eval(node[1], values) or _eval(node[2], values)
-    if tag == "and":
-        return _eval(node[1], values) and _eval(node[2], values)
+    if tag == "cmp":
+        a, b = _value(node[2], values), _value(node[3], values)
+        if _missing(a) or _missing(b):
+            return None
+        return bool(_COMPARE[node[1]](a, b))
     if tag == "not":
-        return not _eval(node[1], values)
-    a, b = _value(node[2], values), _value(node[3], values)
-    if _missing(a) or _missing(b):
-        return False
-    return bool(_COMPARE[node[1]](a, b))
+        v = _eval(node[1], values)
+        return None if v is None else not v
+    decisive = tag == "or"          # the operand value that decides the whole chain
+    unknown = False
+    for child in node[1]:
+        v = _eval(child, values)
+        if v is decisive:
+            return decisive
+        unknown = unknown or v is None
+    return None if unknown else not decisive
 
 
 class _Parser:
@@ -185,28 +212,32 @@ class _Parser:
                       else "the end (unbalanced ')')")
         return tree
 
-    def condition(self):
-        node = self.conjunct()
+    def condition(self, depth: int = 0):
+        terms = [self.conjunct(depth)]
         while self.peek().kind == "keyword" and self.peek().text == "or":
             self.take()
-            node = ("or", node, self.conjunct())
-        return node
+            terms.append(self.conjunct(depth))
+        return terms[0] if len(terms) == 1 else ("or", terms)
 
-    def conjunct(self):
-        node = self.negation()
+    def conjunct(self, depth: int):
+        terms = [self.negation(depth)]
         while self.peek().kind == "keyword" and self.peek().text == "and":
             self.take()
-            node = ("and", node, self.negation())
-        return node
+            terms.append(self.negation(depth))
+        return terms[0] if len(terms) == 1 else ("and", terms)
 
-    def negation(self):
+    def negation(self, depth: int):
         tok = self.peek()
+        if tok.kind in ("keyword", "paren") and tok.text in ("not", "("):
+            if depth >= MAX_NESTING:
+                raise RuleError(f"nesting of parentheses and 'not' deeper than {MAX_NESTING} "
+                                f"levels at column {tok.column}", tok.text, tok.column)
         if tok.kind == "keyword" and tok.text == "not":
             self.take()
-            return ("not", self.negation())
+            return ("not", self.negation(depth + 1))
         if tok.kind == "paren" and tok.text == "(":
             self.take()
-            node = self.condition()
+            node = self.condition(depth + 1)
             close = self.peek()
             if not (close.kind == "paren" and close.text == ")"):
                 self.fail(close, "')'")

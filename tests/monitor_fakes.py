@@ -1,5 +1,6 @@
 """Small stand-ins with the interfaces the monitor stage drives (for fast tests of its data
-handling): a stepper with ``fault_screen.Simulation``'s methods and a threshold screener.
+handling): a stepper with ``fault_screen.Simulation``'s methods and a threshold screener; and an
+HTTP receiver on 127.0.0.1 for the alert plugins.
 
 The fake stepper takes fixed steps ``k * dt`` (dt from the scene) and records, per step, the
 volume it was given; its fault "state" is a made-up function of the injected volume, so that
@@ -7,8 +8,11 @@ levels change as volume accumulates.
 """
 from __future__ import annotations
 
+import http.server
 import json
 import math
+import threading
+import time
 
 import numpy as np
 
@@ -34,7 +38,8 @@ class FakeSimulation:
         return {"time": t, "volume": vol, "flow_rate": rate,
                 "slip_rate": np.where(u >= 1, 1e-5 * u, 0.0),
                 "contact_state": (u >= 1).astype(np.int64),
-                "shear_traction": tau, "effective_normal_stress": sn}
+                "shear_traction": tau, "effective_normal_stress": sn,
+                "inj_overpressure": 1e5 * vol, "inj_slip": 0.0}
 
     @property
     def last_row(self):
@@ -99,6 +104,15 @@ class ThresholdScreener:
     def __init__(self):
         self.level = 0
 
+    def state(self):
+        return {"level": self.level}
+
+    @classmethod
+    def from_state(cls, state):
+        out = cls()
+        out.level = int(state["level"])
+        return out
+
     def update(self, time, metrics, events=()):
         u = metrics.get("max_utilisation", 0.0)
         new = 2 if u >= 1.0 else 1 if u >= 0.9 else 0
@@ -130,3 +144,45 @@ def run_service(scene_path, follow, state, out, alerts_path, idle_exit=1.0,
                              screener=ThresholdScreener())
     service.install_signal_handlers()
     return service.run()
+
+
+class Receiver:
+    """HTTP receiver on 127.0.0.1 answering ``codes`` in turn (then 200; a 3xx with a Location
+    header to ``location``), recording each request as (headers, body, time) and its method."""
+
+    def __init__(self, codes=(), location=None):
+        self.codes = list(codes)
+        self.requests = []
+        self.methods = []
+        outer = self
+
+        class Handler(http.server.BaseHTTPRequestHandler):
+            def _answer(self):
+                n = int(self.headers.get("content-length") or 0)
+                body = self.rfile.read(n) if n else b""
+                outer.methods.append(self.command)
+                outer.requests.append(({k.lower(): v for k, v in self.headers.items()}, body,
+                                       time.time()))
+                code = outer.codes.pop(0) if outer.codes else 200
+                self.send_response(code)
+                if 300 <= code < 400 and location:
+                    self.send_header("Location", location)
+                self.send_header("content-length", "0")
+                self.end_headers()
+
+            do_POST = do_GET = _answer
+
+            def log_message(self, *a):
+                pass
+
+        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.url = f"http://127.0.0.1:{self.server.server_port}/hook"
+        threading.Thread(target=self.server.serve_forever, daemon=True).start()
+
+    def ids(self):
+        """The alert ids received, in order."""
+        return [json.loads(body)["id"] for _, body, _ in self.requests if body]
+
+    def close(self):
+        self.server.shutdown()
+        self.server.server_close()

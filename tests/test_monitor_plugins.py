@@ -5,10 +5,8 @@ from __future__ import annotations
 import base64
 import hashlib
 import hmac
-import http.server
 import json
 import sys
-import threading
 import time
 
 import pytest
@@ -16,6 +14,7 @@ import pytest
 import monitor_env
 from fault_screen.monitor import plugins
 from fault_screen.monitor.outbox import Outbox
+from monitor_fakes import Receiver
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -68,35 +67,6 @@ def test_signature_matches_the_published_vector():
     for secret in (VECTOR["secret"], VECTOR["secret"][len("whsec_"):]):
         assert sign(secret_key(secret), VECTOR["id"], VECTOR["ts"], VECTOR["body"]) == \
             VECTOR["sig"]
-
-
-class Receiver:
-    """HTTP receiver on 127.0.0.1 answering ``codes`` in turn (then 200), recording requests."""
-
-    def __init__(self, codes):
-        self.codes = list(codes)
-        self.requests = []
-        outer = self
-
-        class Handler(http.server.BaseHTTPRequestHandler):
-            def do_POST(self):
-                body = self.rfile.read(int(self.headers["content-length"]))
-                outer.requests.append((dict((k.lower(), v) for k, v in self.headers.items()),
-                                       body, time.time()))
-                code = outer.codes.pop(0) if outer.codes else 200
-                self.send_response(code)
-                self.end_headers()
-
-            def log_message(self, *a):
-                pass
-
-        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.url = f"http://127.0.0.1:{self.server.server_port}/hook"
-        threading.Thread(target=self.server.serve_forever, daemon=True).start()
-
-    def close(self):
-        self.server.shutdown()
-        self.server.server_close()
 
 
 ALERT = {"id": "fs_0123456789abcdef", "level": "red", "previous_level": "yellow",

@@ -140,3 +140,22 @@ def test_kill_9_while_following_then_resume_equals_replay(case, dist, tmp_path):
     same_arrays(Result.load(tmp_path / "m.h5"), case["replay"])
     ids = [json.loads(x)["id"] for x in (tmp_path / "alerts.jsonl").read_text().splitlines()]
     assert len(set(ids)) == 2            # none lost, none under a second id
+
+
+def test_monitor_out_never_destroys_an_earlier_result(case, tmp_path):
+    """An existing --out is refused (exit 2, the file untouched) unless --overwrite; without
+    --state the results stream to OUT.part and replace OUT only when complete."""
+    out = tmp_path / "m.h5"
+    out.write_bytes(b"an earlier result")
+    log = tmp_path / "log.csv"
+    log.write_bytes(b"".join(case["lines"]))
+    args = ["monitor", str(case["scene"]), "--follow", str(log), "--out", str(out),
+            "--idle-exit", "0.3", "--poll", "0.05"]
+    r = CliRunner().invoke(main, args, catch_exceptions=False)
+    assert r.exit_code == 2, r.output
+    assert f"--out {out}: the file exists; give --overwrite" in r.output
+    assert out.read_bytes() == b"an earlier result"
+    r = CliRunner().invoke(main, args + ["--overwrite"], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    same_arrays(Result.load(out), case["replay"])
+    assert not out.with_name("m.h5.part").exists()

@@ -103,7 +103,8 @@ def test_sigterm_checkpoints_and_writes_the_results_so_far(dist, scene_file, tmp
     assert res.time[-1] == 7.0 * math.floor(t80 / 7.0)      # aligned: no partial step
     from fault_screen.monitor import Stage
 
-    back, extra = Stage.restore(tmp_path / "s.h5", simulation_class=FakeSimulation)
+    back, extra = Stage.restore(tmp_path / "s.h5", simulation_class=FakeSimulation,
+                              screener=ThresholdScreener())
     assert back.samples.count == 75 and back.time == res.time[-1]
     assert extra["decoder"]["last"][0] == t80
 
@@ -223,3 +224,34 @@ def test_seedlink_detections_reach_the_results(dist, scene_file, tmp_path):
     ev = Result.load(tmp_path / "out.h5").extra["events"]
     assert ev["kind"][0] == b"detection" and ev["time"][0] == pytest.approx(4.99, abs=1e-9)
     assert ev["model_time"][0] == 7.0                  # the first step (dt = 7 s) holds it
+
+
+def test_the_monitor_says_at_once_what_it_follows_and_its_first_sample(dist, scene_file,
+                                                                        tmp_path, caplog):
+    """Before the model is built: the log, the source, the scene, the outputs and the alert
+    sinks; then the first sample's time and flow rate as read from the log."""
+    import logging
+
+    log = read_injection_log(STANDIN)
+    cfg = MonitorConfig(follow=str(STANDIN), out=tmp_path / "o.h5", state=tmp_path / "s.h5",
+                        alerts=[f"jsonl:{tmp_path / 'a.jsonl'}"], idle_exit=0.2,
+                        poll_interval=0.02, label=str(scene_file))
+    built = []
+
+    class Recorded(FakeSimulation):
+        def __init__(self, scene):
+            built.append(len(caplog.records))       # how much was said before the model
+            super().__init__(scene)
+    with caplog.at_level(logging.INFO, logger="fault_screen.monitor"):
+        service = MonitorService(Scene.from_toml(scene_file), cfg, simulation_class=Recorded,
+                                 screener=ThresholdScreener())
+        service.run()
+    said = [r.getMessage() for r in caplog.records if r.name == "fault_screen.monitor"]
+    first = said[0]
+    assert built[0] >= 1 and first.startswith(f"following {STANDIN} (source csv) with the scene "
+                                              f"{scene_file}")
+    for part in (f"results: {tmp_path / 'o.h5'}", f"state: {tmp_path / 's.h5'}",
+                 f"alerts: jsonl:{(tmp_path / 'a.jsonl').resolve()}"):
+        assert part in first
+    sample = next(m for m in said if m.startswith("first sample"))
+    assert f"model time {log.time[0]:.6g} s, flow rate {log.flow_rate[0]:.6g} m3/s" in sample

@@ -128,7 +128,8 @@ def test_restart_from_a_checkpoint_equals_an_uninterrupted_run(scene, log, tmp_p
         st.checkpoint(tmp_path / "state.h5")
         # a kill after more samples: those after the checkpoint are lost with the process
         st.feed_samples(log.time[cut:cut + 20], log.flow_rate[cut:cut + 20])
-        back, _ = Stage.restore(tmp_path / "state.h5", simulation_class=FakeSimulation)
+        back, _ = Stage.restore(tmp_path / "state.h5", simulation_class=FakeSimulation,
+                              screener=ThresholdScreener())
         # the restarted source replays the log from its start: earlier samples are ignored
         for k in range(log.time.size):
             got += back.feed_samples(log.time[k], log.flow_rate[k]).alerts
@@ -159,7 +160,8 @@ def test_checkpoint_is_atomic(scene, log, tmp_path):
         st.checkpoint(path)
     assert path.read_bytes() == before
     assert not list(tmp_path.glob("*.tmp"))
-    back, _ = Stage.restore(path, simulation_class=FakeSimulation)
+    back, _ = Stage.restore(path, simulation_class=FakeSimulation,
+                              screener=ThresholdScreener())
     assert back.samples.count == 30
 
 
@@ -248,3 +250,91 @@ def test_dense_samples_let_the_model_take_its_own_longer_steps(tmp_path):
                    injected_volume=every.volume)
     assert np.array_equal(ref.time, got.time)
     assert np.array_equal(ref.fault["slip"], got.fault["slip"])
+
+
+def _rules_stage(scene, log):
+    """A stage screening with the scene's own rules (the one per-step path)."""
+    return Stage(scene, start=log.start, simulation=FakeSimulation(scene))
+
+
+def test_the_scenes_rules_resume_from_a_checkpoint_of_plain_data(scene, log, tmp_path):
+    """The per-step screening (tracker and screener) checkpoints as numbers and strings and
+    continues exactly: the same transitions, levels and verdict as an uninterrupted stage."""
+    import json
+
+    import h5py
+
+    ref = _rules_stage(scene, log)
+    ref.feed_samples(log.time, log.flow_rate)
+    assert len(ref.transitions) >= 1          # the fake's fault reaches the scene's thresholds
+    st = _rules_stage(scene, log)
+    st.feed_samples(log.time[:40], log.flow_rate[:40])
+    st.checkpoint(tmp_path / "state.h5")
+    with h5py.File(tmp_path / "state.h5", "r") as h5:
+        record = json.loads(h5.attrs["fault_screen_monitor"])
+
+    def leaves(v):
+        if isinstance(v, dict):
+            assert all(isinstance(k, str) for k in v)
+            for x in v.values():
+                yield from leaves(x)
+        elif isinstance(v, list):
+            for x in v:
+                yield from leaves(x)
+        else:
+            yield v
+    assert all(v is None or isinstance(v, (int, float, str, bool)) for v in leaves(record))
+    text = json.dumps(record)
+    assert "pickle" not in text and "fault_screen." not in text    # no code, no import paths
+    back, _ = Stage.restore(tmp_path / "state.h5", simulation_class=FakeSimulation)
+    back.feed_samples(log.time, log.flow_rate)
+    assert back.transitions == ref.transitions
+    # as JSON: equal NaN metrics compare equal
+    assert json.dumps(back.screening.state()) == json.dumps(ref.screening.state())
+
+
+def test_a_crafted_state_file_never_runs_code(scene, log, tmp_path):
+    """A state file whose record names a pickle or a class to import is refused with a
+    ValueError; the payload (touching a file) never runs."""
+    import base64
+    import json
+    import pickle
+
+    import h5py
+
+    marker = tmp_path / "ran"
+
+    class Payload:
+        def __reduce__(self):
+            return (Path.touch, (marker,))
+    st = _rules_stage(scene, log)
+    st.feed_samples(log.time[:20], log.flow_rate[:20])
+    path = tmp_path / "state.h5"
+    st.checkpoint(path)
+    with h5py.File(path, "a") as h5:
+        record = json.loads(h5.attrs["fault_screen_monitor"])
+        record["screener"] = {"pickle": base64.b64encode(pickle.dumps(Payload())).decode()}
+        record["metrics"] = {"class": "pathlib:Path.touch", "state": str(marker)}
+        h5.attrs["fault_screen_monitor"] = json.dumps(record)
+    with pytest.raises(ValueError, match="own screener"):
+        Stage.restore(path, simulation_class=FakeSimulation)
+    assert not marker.exists()
+    with h5py.File(path, "a") as h5:       # a state of the old layout (with a pickle)
+        record["version"], record["screener"], record["metrics"] = 1, None, None
+        h5.attrs["fault_screen_monitor"] = json.dumps(record)
+    with pytest.raises(ValueError, match="layout 1"):
+        Stage.restore(path, simulation_class=FakeSimulation)
+    assert not marker.exists()
+
+
+def test_no_module_of_the_package_imports_pickle():
+    """Checkpoints hold data only: nothing in the package can unpickle."""
+    import ast
+
+    found = []
+    for path in (ROOT / "fault_screen").rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                     [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            found += [f"{path.name}: {n}" for n in names if n.split(".")[0] in ("pickle", "dill", "marshal")]
+    assert found == []

@@ -46,11 +46,16 @@ def invoke(*args):
     ("not a > 1 and b > 1", {"a": 0, "b": 2}, True),
     ("not (a > 1 and b > 1)", {"a": 2, "b": 2}, False),
     ("not not a == 3", {"a": 3}, True),
-    # a missing value (absent or NaN) makes its comparison false, whatever the operator
+    # a missing value (absent or NaN) makes its comparison unknown, whatever the operator, and
+    # a rule holds only when its condition is true (three-valued logic)
     ("event_magnitude >= 1", {}, False),
     ("event_magnitude < 1", {"event_magnitude": math.nan}, False),
     ("event_magnitude != 1", {"event_magnitude": math.nan}, False),
-    ("not event_magnitude >= 1", {}, True),
+    ("not event_magnitude >= 1", {}, False),
+    ("not event_magnitude < 2", {"event_magnitude": math.nan}, False),
+    ("not event_magnitude < 2", {"event_magnitude": 2.0}, True),
+    ("a > 1 and not event_magnitude > 1", {"a": 2}, False),
+    ("not (a > 1 and event_magnitude > 1)", {"a": 0}, True),
     ("a > 1 or event_magnitude > 1", {"a": 2}, True),
 ])
 def test_conditions_evaluate_with_precedence_and_missing_values(text, values, expected):
@@ -384,3 +389,32 @@ def test_rescreening_reads_the_stored_event_distances():
     stored = SimpleNamespace(extra={"events": {"time": np.array([10.0]), "magnitude": np.array([1.5]),
                                                "distance_to_injection": np.array([420.0])}})
     assert np.asarray(_stored_events(stored).distance).tolist() == [420.0]
+
+
+def test_screen_refuses_a_result_whose_arrays_disagree_in_length(tmp_path):
+    """5 output times but 135 rows of injection overpressure: one line, exit 2, no verdict."""
+    from click.testing import CliRunner
+
+    from fault_screen import Result
+    from fault_screen.cli import main
+
+    n, x = 5, np.linspace(-10.0, 10.0, 4)
+    fault = {k: np.zeros((n, x.size)) for k in ("slip_rate", "shear_traction",
+                                                "effective_normal_stress", "slip")}
+    fault["contact_state"] = np.zeros((n, x.size), dtype=np.int64)
+    fault["effective_normal_stress"] += 1e6          # a locked fault, far from failure
+    good = dict(scene=Scene.from_dict({}), time=np.arange(n, dtype=float), fault_x=x,
+                fault_xy=np.column_stack([x, 0 * x]), fault_weights=np.full(x.size, 5.0),
+                fault=fault, balance={}, solver={})
+    inj = {k: np.zeros(n) for k in ("overpressure", "slip", "shear_traction", "volume", "flow_rate")}
+    inj["effective_normal_stress"] = np.full(n, 1e6)
+    Result(injection=inj, **good).save(tmp_path / "good.h5")
+    Result(injection=dict(inj, overpressure=np.zeros(135)), **good).save(tmp_path / "bad.h5")
+    ok = CliRunner().invoke(main, ["screen", str(tmp_path / "good.h5")])
+    assert ok.exit_code == 0 and "verdict: GREEN" in ok.output, ok.output
+    r = CliRunner().invoke(main, ["screen", str(tmp_path / "bad.h5")])
+    assert r.exit_code == 2, r.output
+    lines = r.output.strip().splitlines()
+    assert len(lines) == 1 and "verdict" not in r.output
+    assert "/injection/overpressure has 135 rows for 5 output times" in lines[0]
+    assert "bad.h5" in lines[0]

@@ -59,7 +59,11 @@ def _count_callback(ctx, param, value):
                    "SIGINT/SIGTERM; an existing one is resumed.")
 @click.option("--out", "-o", type=FILE, default=None, metavar="RESULT.h5",
               help="HDF5 result file, written as the monitor goes (readable meanwhile, HDF5 "
-                   "SWMR) and completed when it stops.")
+                   "SWMR; without --state under RESULT.h5.part, renamed when it stops) and "
+                   "completed when it stops. An existing file is refused unless --overwrite "
+                   "(resuming from --state continues its own file).")
+@click.option("--overwrite", is_flag=True,
+              help="Replace an existing --out file (of an earlier run).")
 @click.option("--idle-exit", type=float, default=None, metavar="SECONDS",
               callback=_positive_callback,
               help="Stop cleanly (state and results written) after this long without a new "
@@ -101,7 +105,7 @@ def _count_callback(ctx, param, value):
               help="STA/LTA windows (s) and trigger thresholds [default: 0.5,10,3.5,1].")
 @click.option("--quiet", "-q", is_flag=True, help="Only warnings and errors on stderr.")
 @version_option
-def monitor(scene_path, follow, events, waveforms, seedlink, seedlink_streams, state, out, idle_exit, alerts, source,
+def monitor(scene_path, follow, events, waveforms, seedlink, seedlink_streams, state, out, overwrite, idle_exit, alerts, source,
             poll_interval, checkpoint_every, outbox, flow_unit, pressure_unit, max_gap, policy,
             log_date, log_tz, time_column, flow_column, pressure_column, t0, sta_lta, quiet):
     """Follow a growing injection log with the model of SCENE, screen every step, and alert.
@@ -155,13 +159,13 @@ def monitor(scene_path, follow, events, waveforms, seedlink, seedlink_streams, s
                         poll_interval=poll_interval, checkpoint_every=checkpoint_every,
                         outbox=outbox, flow_unit=flow_unit, pressure_unit=pressure_unit,
                         max_gap=max_gap, policy=policy, t0=t0, sta_lta=sta_lta,
-                        label=str(scene_path),
+                        label=str(scene_path), overwrite=overwrite,
                         log_options=dict(date=log_date, tz=log_tz, time_column=time_column,
                                          flow_column=flow_column, pressure_column=pressure_column,
                                          option_names=CLI_OPTION_NAMES))
     try:
         service = MonitorService(scene, cfg)
-    except (PluginError, InjectionLogError) as exc:
+    except (PluginError, InjectionLogError, MonitorInputError) as exc:
         raise BadInput(str(exc)) from None
     except (ValueError, OSError) as exc:
         with reading(state):
@@ -176,4 +180,6 @@ def monitor(scene_path, follow, events, waveforms, seedlink, seedlink_streams, s
                    f"t = {summary['time']:g} s from {summary['samples']} samples; level "
                    f"{summary['level']}, {summary['alerts']} alert(s)"
                    + (f", {summary['pending_alerts']} still pending"
-                      if summary["pending_alerts"] else ""))
+                      if summary["pending_alerts"] else "")
+                   + (f", {summary['dead_alerts']} refused for good (fault-screen plugins "
+                      f"--outbox {summary['outbox']})" if summary["dead_alerts"] else ""))

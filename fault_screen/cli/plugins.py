@@ -15,11 +15,18 @@ def _summary(cls) -> str:
 
 @click.command("plugins")
 @click.argument("name", required=False)
+@click.option("--outbox", "outbox", default=None, metavar="FILE",
+              help="Show the deliveries of a monitor's alert outbox instead: pending, delivered "
+                   "and refused for good (dead letters) per sink, and each dead letter.")
 @version_option
-def plugins(name):
+def plugins(name, outbox):
     """List the installed monitoring plugins (entry-point groups fault_screen.alerts and
     fault_screen.sources), or describe the plugin NAME with its options."""
     from ..monitor.plugins import GROUPS, PluginError, available, load
+
+    if outbox is not None:
+        _outbox_report(outbox)
+        return
 
     found = {kind: available(kind) for kind in GROUPS}
     if name is None:
@@ -47,3 +54,18 @@ def plugins(name):
                          for p in params)
         click.echo(f"{name} ({kind}, {found[kind][name].value})\n  options: {opts}\n")
         click.echo(inspect.getdoc(cls) or "")
+
+
+def _outbox_report(path) -> None:
+    from ..monitor.outbox import outbox_status
+
+    try:
+        status = outbox_status(path)
+    except ValueError as exc:
+        raise BadInput(f"--outbox {exc}") from None
+    click.echo(f"outbox {path}:")
+    for sink, n in status["sinks"].items():
+        click.echo(f"  {sink}: {n['pending']} pending, {n['delivered']} delivered, "
+                   f"{n['dead']} refused for good")
+    for d in status["dead_letters"]:
+        click.echo(f"  dead letter {d['id']} (level {d['level']}) to {d['sink']}: {d['error']}")

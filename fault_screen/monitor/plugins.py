@@ -15,7 +15,11 @@ Alert plugins (group ``fault_screen.alerts``)
     ``cls(**options)``; ``deliver(alert: dict) -> None`` hands one alert (the JSON-able dict
     of :func:`fault_screen.monitor.stage.alert_payload`; ``alert["id"]`` is its stable
     idempotency key) to the operator.  Raising any exception means "not delivered": the
-    outbox retries later with backoff, with the same id.  Optional ``close()``.
+    outbox retries later with backoff, with the same id; an exception with a true
+    ``permanent`` attribute means "never deliverable" (the outbox dead-letters the alert and
+    goes on).  Optional ``identity`` (str: what it delivers to, without secrets; the outbox
+    keys its rows by it, so options such as retries may change across restarts) and
+    ``close()``.
 
 Source plugins (group ``fault_screen.sources``)
     ``cls(target: str, *, decoder, poll_interval: float, log: logging.Logger, **options)``;
@@ -38,7 +42,7 @@ import re
 from importlib.metadata import entry_points
 from typing import Dict
 
-__all__ = ["GROUPS", "PluginError", "available", "load", "parse_config", "instantiate"]
+__all__ = ["GROUPS", "PluginError", "available", "load", "parse_config", "instantiate", "alert_sinks"]
 
 GROUPS = {"alert": "fault_screen.alerts", "source": "fault_screen.sources"}
 
@@ -81,7 +85,11 @@ def parse_config(text: str | None, main_option: str | None = None) -> dict:
         try:
             val = json.loads(t)
         except json.JSONDecodeError as exc:
-            raise PluginError(f"options {text!r}: not valid JSON ({exc.msg})") from None
+            # the options are not echoed: they may hold a URL with a token
+            raise PluginError(f"options: not valid JSON ({exc.msg} at character {exc.pos + 1})") \
+                from None
+        except RecursionError:
+            raise PluginError("options: JSON nested too deeply") from None
         if isinstance(val, list):
             return {"argv": val}
         return dict(val)
@@ -93,7 +101,7 @@ def parse_config(text: str | None, main_option: str | None = None) -> dict:
             out[k] = _scalar(v)
         return out
     if main_option is None:
-        raise PluginError(f"options {text!r}: give key=value pairs or a JSON object")
+        raise PluginError("options: give key=value pairs or a JSON object")
     return {main_option: t}
 
 
@@ -124,3 +132,13 @@ def instantiate(kind: str, spec: str, *args, **extra):
         return cls(*args, **options, **extra)
     except (TypeError, ValueError, KeyError, OSError) as exc:
         raise PluginError(f"{kind} plugin {name!r}: {exc}") from None
+
+
+def alert_sinks(specs) -> Dict[str, object]:
+    """The alert plugins of ``--alert`` specs keyed by their identity (the plugin's
+    ``identity``, else its name and options): what the outbox keys its rows by."""
+    out = {}
+    for spec in specs:
+        sink = instantiate("alert", spec)
+        out[str(getattr(sink, "identity", spec))] = sink
+    return out

@@ -66,6 +66,7 @@ class MonitorConfig:
     sta_lta: dict = field(default_factory=dict)   # SdsDetector options
     drain_timeout: float = 10.0                # s spent on pending alerts at exit
     label: str = ""
+    overwrite: bool = False                    # replace an existing --out of an earlier run
 
 
 class MonitorService:
@@ -87,15 +88,23 @@ class MonitorService:
         resuming = config.state is not None and Path(config.state).exists()
         extra = Stage.saved_extra(config.state) if resuming else {}
         # plugins first: a bad name or option fails before the model is built
-        all_sinks = {spec: plugins.instantiate("alert", spec) for spec in config.alerts}
+        all_sinks = plugins.alert_sinks(config.alerts)
         all_sinks.update(sinks or {})
+        name = config.source or ("stdin" if config.follow == "-" else "csv")
+        # at once, before the model is built (which takes a while): what is being followed
+        log.info("following %s (source %s) with the scene %s; results: %s; state: %s; "
+                 "alerts: %s; events: %s", "standard input" if config.follow == "-" else
+                 config.follow, name, config.label or "given", config.out or "kept in memory",
+                 (f"{config.state} (resumed)" if resuming else config.state) or "none",
+                 ", ".join(all_sinks) or "none",
+                 ", ".join(str(x) for x in (config.events, config.waveforms, config.seedlink)
+                           if x is not None) or "none")
         self.decoder = LogDecoder(config.follow, flow_unit=config.flow_unit,
                                   pressure_unit=config.pressure_unit, max_gap=config.max_gap,
                                   policy=config.policy, **config.log_options,
                                   resume=extra.get("decoder"),
                                   on_warning=lambda m: log.warning("%s", m),
                                   flowback=scene.injection.allow_flowback)
-        name = config.source or ("stdin" if config.follow == "-" else "csv")
         self.source = plugins.instantiate("source", name, config.follow, decoder=self.decoder,
                                           poll_interval=config.poll_interval,
                                           log=logging.getLogger(f"fault_screen.sources.{name}"))
@@ -108,9 +117,13 @@ class MonitorService:
                      config.state, self.stage.time, self.stage.steps, self.stage.samples.count)
         else:
             sim = simulation_class(scene) if simulation_class is not None else None
+            if config.out is not None and Path(config.out).exists() and not config.overwrite:
+                raise MonitorInputError(f"--out {config.out}: the file exists; give --overwrite to "
+                                        f"replace it, or another name")
+            # without checkpoints nothing continues the file: written as OUT.part, renamed
             self.stage = Stage(scene, start=config.t0, simulation=sim, screener=screener,
                                metrics=metrics, site=config.site, label=config.label,
-                               out=config.out)
+                               out=config.out, out_via_temporary=config.state is None)
         box = config.outbox
         if box is None and not all_sinks:
             box = ":memory:"           # no alert plugin: nothing to deliver, no file
@@ -118,6 +131,8 @@ class MonitorService:
             base = config.state or config.out or Path("fault-screen-monitor")
             box = Path(str(base) + ".outbox.sqlite")
         self.outbox = Outbox(box, all_sinks, log=logging.getLogger("fault_screen.monitor.outbox"))
+        log.info("model ready at model time %.6g s; waiting for samples", self.stage.time)
+        self._first_sample_logged = False
         self.catalog: Optional[CatalogFollower] = None
         self.detector: Optional[SdsDetector] = None
         self._detector_state = extra.get("detector")
@@ -182,6 +197,13 @@ class MonitorService:
     def _feed(self, samples) -> None:
         if not samples:
             return
+        if not self._first_sample_logged:
+            first = samples[0]
+            log.info("first sample%s: model time %.6g s, flow rate %.6g m3/s%s (%d in this read)",
+                     " after the restart" if self.stage.samples.count else "", first.time,
+                     first.flow_rate, "" if first.pressure is None else
+                     f", pressure {first.pressure:.6g} Pa", len(samples))
+            self._first_sample_logged = True
         self._start_known()
         self._poll_seismicity()
         upd = self.stage.feed_samples([s.time for s in samples], [s.flow_rate for s in samples],
@@ -238,6 +260,11 @@ class MonitorService:
             if left:
                 log.warning("%d alert deliveries pending in %s; they are retried at the next "
                             "start", left, self.outbox.path)
+            dead = self.outbox.dead()
+            if dead:
+                log.error("%d alert deliveries refused for good (dead letters in %s; "
+                          "'fault-screen plugins --outbox %s' lists them)", dead,
+                          self.outbox.path, self.outbox.path)
             self.outbox.close()
             self.source.close()
             if hasattr(self.detector, "close"):
@@ -247,7 +274,8 @@ class MonitorService:
         st = self.stage
         return {"ended": ended, "steps": st.steps, "time": st.time, "samples": st.samples.count,
                 "level": LEVELS[st.level] if 0 <= st.level < len(LEVELS) else st.level,
-                "alerts": st.alerts_raised, "pending_alerts": left}
+                "alerts": st.alerts_raised, "pending_alerts": left, "dead_alerts": dead,
+                "outbox": str(self.outbox.path)}
 
     def _loop(self, last_data: float) -> str:
         ended = "stopped"

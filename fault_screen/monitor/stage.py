@@ -34,13 +34,11 @@ origin time in the last ``event_window`` seconds, per hour.
 """
 from __future__ import annotations
 
-import base64
 import bisect
 import hashlib
 import json
 import math
 import os
-import pickle
 from collections import deque
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta, timezone
@@ -49,12 +47,17 @@ from typing import List, Optional, Sequence
 
 import numpy as np
 
-from .seismicity import SeismicEvent, Site, associate, utilisation
+from ..stepper import Simulation
+from ..screening import Events, StepScreening, event_metrics, screen_result
+from ..screening.metrics import MetricsTracker
+from .seismicity import SeismicEvent, Site, associate
 
 __all__ = ["Stage", "Update", "SampleBuffer", "alert_payload", "alert_id", "LEVELS"]
 
 LEVELS = ("green", "yellow", "red")
 _STATE_ATTR = "fault_screen_monitor"
+#: the layout of the stage's state record (plain data only: never code nor import paths)
+_STATE_VERSION = 2
 #: what an event association reads from a recorded row
 _ROW_KEYS = ("time", "slip_rate", "contact_state", "shear_traction", "effective_normal_stress")
 
@@ -227,17 +230,20 @@ class Stage:
     model time 0 (the log's first stamp; needed to place events and for alert times).
     ``simulation``: a stepper with the ``fault_screen.Simulation`` interface (default: a new
     one for ``scene``).  ``screener``: object with ``update(time, metrics, events=...) -> list
-    of transitions`` (default: the scene's rules through ``fault_screen.screening``, when that
-    module is present); ``metrics``: function ``(row, scene) -> dict`` of the screening metrics
-    of a recorded row.  ``site``: :class:`~fault_screen.monitor.seismicity.Site` to place
-    hypocentres (default: the scene's ``[site]``).  ``event_window``: seconds over which
+    of transitions`` (default: the scene's rules, through the same per-step path as run and
+    replay, :class:`~fault_screen.screening.StepScreening`); ``metrics``: function
+    ``(row, scene) -> dict`` of the screening metrics of a recorded row (default: the screening
+    layer's).  A screener or metrics function given here is checkpointed through its own
+    ``state()`` (plain data) and must be given again to :meth:`restore`.  ``site``:
+    :class:`~fault_screen.monitor.seismicity.Site` to place hypocentres (default: the scene's
+    ``[site]``).  ``event_window``: seconds over which
     ``event_rate`` counts events (default: ``[monitor] event_rate_window``).
     """
 
     def __init__(self, scene, *, start: Optional[datetime] = None, simulation=None,
                  screener=None, metrics=None, site: Optional[Site] = None,
                  event_window: Optional[float] = None, label: str = "", history: int = 16,
-                 out=None):
+                 out=None, out_via_temporary: bool = False):
         if getattr(scene.injection, "control", "rate") != "rate":
             raise ValueError(f"injection.control = {scene.injection.control!r}: the monitor "
                              f"drives the flow rate; use a scene with control = 'rate'")
@@ -251,7 +257,10 @@ class Stage:
         self.site = site if site is not None else _site_of(scene)
         self.event_window = float(event_window)
         self.sim = simulation if simulation is not None else _new_simulation(scene)
-        self.screener, self.metrics_fn = _screening(scene, screener, metrics)
+        # the scene's rules through the one per-step path (bound to the fault points at the
+        # first row), or an embedding program's own screener / metrics
+        self.screener, self.metrics_fn = screener, metrics
+        self.screening: Optional[StepScreening] = None
         self.samples = SampleBuffer()
         self.ignored = 0                  # samples at or before the last one (replays, repeats)
         self.steps = 0
@@ -266,6 +275,9 @@ class Stage:
         self._geometry = None
         # results streamed to this HDF5 file as the stage goes (a stepper that can), else kept
         self.out = Path(out) if out is not None and hasattr(self.sim, "stream_to") else None
+        # streamed under OUT.part and renamed when complete (a run without checkpoints, as run
+        # and replay write): an earlier OUT stays intact until then
+        self.out_via_temporary = bool(out_via_temporary)
         self.screened = 0                 # rows screened, the in-situ row included
 
     # -- identity ---------------------------------------------------------------------------
@@ -322,14 +334,20 @@ class Stage:
         """Start the result file: the model's rows, the screening of every row and the
         samples that drive the model (``/log``, as replay writes it) grow in it as the stage
         goes (readable meanwhile: HDF5 single-writer/multiple-reader)."""
-        from ..api import StepScreening
-
-        streams = dict(StepScreening.streams()) if _is_layer_screener(self.screener) else {}
+        streams = dict(StepScreening.streams()) if self.screener is None else {}
         log = {"/log/time": ("<f8", ()), "/log/flow_rate": ("<f8", ())}
         if with_pressure:
             log["/log/pressure"] = ("<f8", ())
         streams["log"] = log
-        self.sim.stream_to(self.out, streams=streams, meta=self._meta())
+        self.sim.stream_to(self.stream_path, streams=streams, meta=self._meta())
+
+    @property
+    def stream_path(self) -> Optional[Path]:
+        """The file the results stream to while the stage runs (``out``, or ``out.part`` when
+        renamed at the end)."""
+        if self.out is None or not self.out_via_temporary:
+            return self.out
+        return self.out.with_name(self.out.name + ".part")
 
     def flush(self) -> None:
         """Write the streamed results so far to the file (readers see them)."""
@@ -341,7 +359,11 @@ class Stage:
         (None when the stage keeps its results in memory: see :meth:`result`)."""
         if self.out is None or self.sim.writer is None:
             return None
-        return self.sim.close_stream(meta=self._meta(), groups=self._final_groups())
+        path = Path(self.sim.close_stream(meta=self._meta(), groups=self._final_groups()))
+        if path != self.out:
+            os.replace(path, self.out)
+            _fsync_dir(self.out.parent)
+        return self.out
 
     def _meta(self) -> dict:
         meta = {"monitor_samples": self.samples.count, "monitor_ignored_samples": self.ignored,
@@ -399,44 +421,47 @@ class Stage:
         upd.time, upd.level = self.time, self.level
         return upd
 
-    def _screen_step(self, row: dict, upd: Update) -> None:
-        t = float(row["time"])
+    def _bind(self) -> None:
+        """The fault geometry and the per-step screening, at the first row."""
         if self._geometry is None:
             self._geometry = _fault_geometry(self.sim)
-            if hasattr(self.metrics_fn, "bind"):
-                self.metrics_fn.bind(self._geometry, self.scene)
+        if self.screening is None:
+            g = self._geometry
+            tracker = MetricsTracker(g.x, g.weights, self.scene.fault.friction)
+            self.screening = StepScreening(self.scene.monitor, tracker)
+
+    def _screen_step(self, row: dict, upd: Update) -> None:
+        t = float(row["time"])
+        self._bind()
         # the last few states, for events reported after the model passed their time
         self._rows.append({k: row[k] for k in _ROW_KEYS if k in row})
-        metrics = dict(self.metrics_fn(row, self.scene)) if self.metrics_fn else {}
+        if self.metrics_fn is not None:
+            metrics = dict(self.metrics_fn(row, self.scene))
+        else:
+            metrics = self.screening.tracker.row_metrics(row)
         due = [e for e in self.pending_events if e.time <= t]
         if due:
             self.pending_events = [e for e in self.pending_events if e.time > t]
         assoc = [self._associate(e) for e in due]
         self.associations.extend(a.to_dict() for a in assoc)
-        metrics.update(self._event_metrics(t, assoc))
+        while self.event_times and self.event_times[0] <= t - self.event_window:
+            self.event_times.popleft()
         upd.metrics, upd.state = metrics, row
         self.screened += 1
-        if self.screener is None:
-            return
         events = {"time": [a.event.time for a in assoc],
                   "magnitude": [a.event.magnitude for a in assoc],
                   "distance": [a.distance_injection for a in assoc]} if assoc else None
-        layer = _is_layer_screener(self.screener)
-        options = {}
-        if layer:     # a run stopped on an unstable fault is red from that row, as in replay
-            options["unstable"] = (getattr(self.sim, "stopped", None) or {}).get("reason") == "unstable"
-        # the screening layer adds its own event metrics to ``metrics`` (same definitions)
-        changes = list(self.screener.update(t, metrics, events=events, **options) or ())
-        writer = self.sim.writer if self.out is not None else None
-        if writer is not None and layer:
-            from ..api import StepScreening
-            from ..rules import METRICS
-
-            record = {f"/screening/{k}": float(metrics[k]) for k in METRICS}
-            record["/screening/level"] = self.screener.level
-            writer.append("screening", record)
-            for tr in changes:
-                writer.append("transitions", StepScreening.transition_record(tr))
+        if self.screener is None:
+            # a run stopped on an unstable fault is red from that row, as in replay; the
+            # screener adds the event metrics to ``metrics``
+            unstable = (getattr(self.sim, "stopped", None) or {}).get("reason") == "unstable"
+            changes = self.screening.screen(t, metrics, events=events, unstable=unstable)
+            if self.out is not None and self.sim.writer is not None:
+                self.screening.write(self.sim.writer, metrics, changes)
+        else:
+            new = [(a.event.time, a.event.magnitude, a.distance_injection) for a in assoc]
+            metrics.update(event_metrics(t, new, self.event_times, self.event_window))
+            changes = list(self.screener.update(t, metrics, events=events) or ())
         if changes and hasattr(self.sim, "recorder"):
             self.sim.recorder.keep_profile()      # the fault profile at every level change
         for tr in changes:
@@ -461,19 +486,6 @@ class Stage:
         return associate(ev, row, site=self.site, fault_xy=geo.xy, injection_xy=geo.injection_xy,
                          friction=float(self.scene.fault.friction))
 
-    def _event_metrics(self, t: float, assoc) -> dict:
-        while self.event_times and self.event_times[0] <= t - self.event_window:
-            self.event_times.popleft()
-        n = sum(1 for x in self.event_times if x <= t)
-        out = {"event_magnitude": math.nan, "event_distance": math.nan,
-               "event_rate": n / (self.event_window / 3600.0)}
-        if assoc:
-            with_mag = [a for a in assoc if math.isfinite(a.event.magnitude)]
-            top = max(with_mag, key=lambda a: a.event.magnitude) if with_mag else assoc[0]
-            out["event_magnitude"] = top.event.magnitude
-            out["event_distance"] = top.distance_injection
-        return out
-
     # -- output -----------------------------------------------------------------------------
     def result(self):
         """The model's :class:`~fault_screen.Result` so far, with the live level changes
@@ -483,11 +495,9 @@ class Stage:
         extra = dict(getattr(res, "extra", {}) or {})
         extra.update(self._final_groups())
         res.extra = extra
-        if _is_layer_screener(self.screener):
+        if self.screener is None:
             # /screening/ as replay and run write it: the rules over the whole result, with the
             # associated events at their origin times
-            from ..screening import Events, screen_result
-
             a = self.associations
             screen_result(res, events=Events([x["time"] for x in a],
                                              [_nan(x["magnitude"]) for x in a],
@@ -532,18 +542,18 @@ class Stage:
     def state(self) -> dict:
         """The stage's own state (JSON-able; the stepper's is written by the stepper)."""
         return {
-            "version": 1, "samples": self.samples.state(), "ignored": self.ignored,
+            "version": _STATE_VERSION, "samples": self.samples.state(), "ignored": self.ignored,
             "steps": self.steps, "level": self.level,
             "pending_events": [e.to_dict() for e in self.pending_events],
             "event_times": list(self.event_times), "event_ids": sorted(self._event_ids),
             "associations": self.associations,
             "transitions": self.transitions, "alerts_raised": self.alerts_raised,
-            "screener": _dump_screener(self.screener),
-            "metrics": _dump_screener(self.metrics_fn),
+            "screening": None if self.screening is None else self.screening.state(),
+            "screener": _own_state(self.screener), "metrics": _own_state(self.metrics_fn),
             "start": self.start.isoformat() if self.start else None,
             "event_window": self.event_window, "label": self.label,
             "rows": [_row_json(r) for r in self._rows],
-            "screened": self.screened, "out": str(self.out) if self.out is not None else None,
+            "screened": self.screened, "out": str(self.stream_path) if self.out is not None else None,
         }
 
     def checkpoint(self, path, extra: Optional[dict] = None) -> Path:
@@ -591,8 +601,15 @@ class Stage:
         A stage that streamed its results continues its result file (``out``, default the one
         it streamed to), cut back to what the checkpoint counts."""
         state = cls._saved_state(path)
+        if state.get("version") != _STATE_VERSION:
+            raise ValueError(f"{path}: a monitor state of layout {state.get('version')!r} (this "
+                             f"version reads layout {_STATE_VERSION}); start without --state")
+        for key, given in (("screener", screener), ("metrics", metrics)):
+            if state.get(key) is not None and given is None:
+                raise ValueError(f"{path}: this state was written with an embedding program's "
+                                 f"own {key}: give it to restore again")
         if simulation_class is None:
-            simulation_class = _simulation_class()
+            simulation_class = Simulation
         streamed = state.get("out") is not None
         if streamed:
             sim = simulation_class.restore(path, stream_to=out if out is not None else state["out"])
@@ -606,10 +623,12 @@ class Stage:
         st = cls(scene, start=start, simulation=sim, screener=screener, metrics=metrics,
                  site=site, event_window=state["event_window"], label=state["label"],
                  out=(out if out is not None else state["out"]) if streamed else None)
-        if state["screener"] is not None:
-            st.screener = _load_screener(state["screener"])
-        if state.get("metrics") is not None:
-            st.metrics_fn = _load_screener(state["metrics"])
+        st.screener = _with_own_state(screener, state["screener"])
+        st.metrics_fn = _with_own_state(metrics, state["metrics"])
+        if state["screening"] is not None:
+            st._geometry = _fault_geometry(st.sim)
+            g = st._geometry
+            st.screening = StepScreening.from_state(scene, g.x, g.weights, state["screening"])
         st.samples = SampleBuffer.from_state(state["samples"])
         st.ignored, st.steps, st.level = state["ignored"], state["steps"], state["level"]
         st.pending_events = [SeismicEvent(**_event_args(e)) for e in state["pending_events"]]
@@ -625,17 +644,8 @@ class Stage:
 # ---------------------------------------------------------------------------------------------
 # adapters to the stepper and the screening layer
 # ---------------------------------------------------------------------------------------------
-def _simulation_class():
-    try:
-        from .. import Simulation
-    except ImportError:
-        raise RuntimeError("the stepper (fault_screen.Simulation) is not available in this "
-                           "build; the monitor needs it") from None
-    return Simulation
-
-
 def _new_simulation(scene):
-    return _simulation_class()(scene)
+    return Simulation(scene)
 
 
 @dataclass(frozen=True)
@@ -665,99 +675,24 @@ def _fault_geometry(sim) -> _Geometry:
     return _Geometry(np.asarray(x, dtype=float), xy, np.asarray(w, dtype=float), inj)
 
 
-def _is_layer_screener(screener) -> bool:
-    """Is ``screener`` the screening layer's (whose rules can re-screen a whole result)?"""
-    try:
-        from ..screening import Screener
-    except ImportError:
-        return False
-    return isinstance(screener, Screener)
-
-
-def _screening(scene, screener, metrics):
-    """The screener and the metrics function: given, or the scene's ``[monitor]`` rules through
-    ``fault_screen.screening`` when that layer is present (else none, and basic metrics)."""
-    if screener is not None or metrics is not None:
-        return screener, metrics or _basic_metrics
-    try:
-        from .. import screening
-    except ImportError:
-        return None, _basic_metrics
-    return screening.Screener(scene.monitor), _LayerMetrics()
-
-
-class _LayerMetrics:
-    """The screening layer's metrics of a stepper row, through its ``MetricsTracker`` (which
-    keeps the reference of ``delta_cff`` and the induced slip so far: part of the state)."""
-
-    def __init__(self):
-        self.tracker = None
-        self.point = 0
-
-    def bind(self, geometry: "_Geometry", scene) -> None:
-        from ..screening import MetricsTracker
-
-        if self.tracker is None:
-            self.tracker = MetricsTracker(geometry.x, geometry.weights, scene.fault.friction)
-            self.point = self.tracker.point
-
-    def __call__(self, row: dict, scene) -> dict:
-        from ..screening.metrics import FAULT_FIELDS
-
-        g = self.point
-        point = {"overpressure": row["inj_overpressure"], "slip": row["inj_slip"],
-                 "shear_traction": _at(row["shear_traction"], g),
-                 "effective_normal_stress": _at(row["effective_normal_stress"], g)}
-        return self.tracker.update({k: row[k] for k in FAULT_FIELDS}, point)
-
-
-def _at(values, k):
-    a = np.asarray(values, dtype=float).reshape(-1)
-    return float(a[k]) if a.size else 0.0
-
-
-def _basic_metrics(row: dict, scene) -> dict:
-    """Metrics of a row without the screening layer: peak slip rate and max utilisation."""
-    out = {}
-    if "slip_rate" in row:
-        out["peak_slip_rate"] = float(np.max(np.abs(np.asarray(row["slip_rate"], dtype=float))))
-    if "shear_traction" in row and "effective_normal_stress" in row:
-        u = utilisation(row["shear_traction"], row["effective_normal_stress"],
-                        float(scene.fault.friction))
-        out["max_utilisation"] = float(np.max(u)) if np.size(u) else 0.0
-    return out
-
-
 def _site_of(scene) -> Optional[Site]:
     return Site.from_spec(getattr(scene, "site", None))
 
 
-def _dump_screener(screener):
-    """A JSON-able record of a screener or metrics object (its own ``state()``/``from_state``,
-    else a pickle), or None for None or an object that cannot be pickled (e.g. a lambda: the
-    one given at restore is used)."""
-    if screener is None:
+def _own_state(obj):
+    """The plain-data state of an embedding program's screener or metrics object (its own
+    ``state()``), or None (none given, or one that keeps no state)."""
+    if obj is None or not hasattr(obj, "state"):
         return None
-    if hasattr(screener, "state") and hasattr(type(screener), "from_state"):
-        return {"class": f"{type(screener).__module__}:{type(screener).__qualname__}",
-                "state": screener.state()}
-    # pickled: the state file is the monitor's own, never read from elsewhere
-    try:
-        return {"pickle": base64.b64encode(pickle.dumps(screener)).decode()}
-    except (pickle.PicklingError, AttributeError, TypeError):
-        return None
+    return obj.state()
 
 
-def _load_screener(d):
-    if "pickle" in d:
-        return pickle.loads(base64.b64decode(d["pickle"]))
-    import importlib
-
-    mod, _, name = d["class"].partition(":")
-    obj = importlib.import_module(mod)
-    for part in name.split("."):
-        obj = getattr(obj, part)
-    return obj.from_state(d["state"])
+def _with_own_state(given, saved):
+    """``given`` continuing from its ``saved`` state: its class's ``from_state(saved)`` (the
+    class of the object given at restore, never one named by the file)."""
+    if given is None or saved is None or not hasattr(type(given), "from_state"):
+        return given
+    return type(given).from_state(saved)
 
 
 def _row_json(row: dict) -> dict:

@@ -11,10 +11,11 @@ event_distance, event_rate}`` one value per output time (unit attribute each, ta
 :data:`fault_screen.rules.METRICS`); ``/screening/level`` (0 green, 1 yellow, 2 red);
 ``/screening/transitions`` compound (time s, from, to, rule).
 
-The live monitor drives the same pieces step by step::
+Runs and the live monitor take the same path step by step
+(:class:`~fault_screen.screening.stepwise.StepScreening`)::
 
-    tracker, screener = MetricsTracker(fault_x, fault_weights, scene.fault.friction), Screener(scene.monitor)
-    for each new output row:  screener.update(t, tracker.update(fault_row, injection_row), events=new_events)
+    steps = StepScreening.for_scene(scene, fault_x, fault_weights)
+    for each new stepper row:  metrics, transitions = steps.update(row, events=new_events)
 """
 from __future__ import annotations
 
@@ -23,14 +24,13 @@ import numpy as np
 from ..rules import METRICS
 from .metrics import MetricsTracker, fault_metrics, result_metrics
 from .screener import (GREEN, LEVEL_NAMES, RED, UNSTABLE_RULE, YELLOW, Events, Screener, Transition,
-                       Verdict, thresholds_of)
+                       Verdict, event_metrics, thresholds_of)
+from .stepwise import TRANSITION_DTYPE, Screening, StepScreening
 
-__all__ = ["screen_result", "Screening", "Screener", "MetricsTracker", "Transition", "Verdict", "Events",
+__all__ = ["screen_result", "Screening", "Screener", "StepScreening", "MetricsTracker", "event_metrics", "Transition", "Verdict", "Events",
            "fault_metrics", "result_metrics", "thresholds_of", "stopped_unstable", "GREEN", "YELLOW",
            "RED", "LEVEL_NAMES", "UNSTABLE_RULE", "TRANSITION_DTYPE", "METRICS", "read_transitions"]
 
-#: the compound type of ``/screening/transitions``
-TRANSITION_DTYPE = np.dtype([("time", "f8"), ("from", "i1"), ("to", "i1"), ("rule", "S64")])
 
 
 def stopped_unstable(result) -> float | None:
@@ -40,28 +40,6 @@ def stopped_unstable(result) -> float | None:
         return None
     t = stopped.get("time")
     return float(t) if t is not None else float(result.time[-1])
-
-
-class Screening:
-    """What :func:`screen_result` found: metrics and level per output time, transitions, verdict."""
-
-    def __init__(self, time, metrics: dict, level, transitions: list[Transition], verdict: Verdict, spec):
-        self.time = time
-        self.metrics = metrics
-        self.level = level
-        self.transitions = transitions
-        self.verdict = verdict
-        self.spec = spec
-
-    def arrays(self) -> dict:
-        """The ``/screening/`` group as arrays (what :attr:`Result.extra` holds)."""
-        out = {k: np.asarray(v, dtype=float) for k, v in self.metrics.items()}
-        out["level"] = np.asarray(self.level, dtype=np.int8)
-        tr = np.zeros(len(self.transitions), dtype=TRANSITION_DTYPE)
-        for i, t in enumerate(self.transitions):
-            tr[i] = (t.time, t.from_level, t.to_level, t.rule.encode("utf-8")[:64])
-        out["transitions"] = tr
-        return out
 
 
 def _stored_events(result):
@@ -99,18 +77,17 @@ def screen_result(result, spec=None, events=None, *, store: bool = True) -> Scre
     i_stop = None
     if t_stop is not None and times.size:
         i_stop = min(int(np.searchsorted(times, t_stop - 1e-9 * max(1.0, abs(t_stop)))), times.size - 1)
-    screener = Screener(spec)
-    screener.add_events(events)
+    steps = StepScreening(spec, events=events)
     rows = {k: [] for k in ("event_magnitude", "event_distance", "event_rate")}
     level = np.zeros(times.size, dtype=np.int8)
     for i, t in enumerate(times):
         row = {k: float(v[i]) for k, v in metrics.items()}
-        screener.update(t, row, unstable=(i_stop is not None and i >= i_stop))
+        steps.screen(t, row, unstable=(i_stop is not None and i >= i_stop))
         for k in rows:
             rows[k].append(row[k])
-        level[i] = screener.level
+        level[i] = steps.level
     metrics.update({k: np.asarray(v, dtype=float) for k, v in rows.items()})
-    out = Screening(times, metrics, level, screener.transitions, screener.verdict, spec)
+    out = Screening(times, metrics, level, steps.transitions, steps.verdict, spec)
     if store:
         result.extra["screening"] = out.arrays()
     return out

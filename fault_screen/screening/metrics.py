@@ -96,6 +96,29 @@ class MetricsTracker:
         self._slip_before = None
         self.induced_slip_signed = 0.0
 
+    def state(self) -> dict:
+        """What the tracker keeps of earlier rows, as plain data (the geometry is the model's)."""
+        return {"cff0": self._cff0, "slip_before": self._slip_before,
+                "induced_slip_signed": self.induced_slip_signed}
+
+    @classmethod
+    def from_state(cls, fault_x, fault_weights, mu0: float, state: dict) -> "MetricsTracker":
+        out = cls(fault_x, fault_weights, mu0)
+        out._cff0 = None if state["cff0"] is None else float(state["cff0"])
+        out._slip_before = None if state["slip_before"] is None else float(state["slip_before"])
+        out.induced_slip_signed = float(state["induced_slip_signed"])
+        return out
+
+    def row_metrics(self, row: dict) -> dict:
+        """Metrics of a row the stepper recorded (``Simulation.last_row``: fault arrays and the
+        ``inj_*`` values at the injection point)."""
+        at = lambda k: float(np.asarray(row[k], dtype=float).reshape(-1)[self.point]) \
+            if np.size(row[k]) else 0.0  # noqa: E731
+        return self.update({k: row[k] for k in FAULT_FIELDS},
+                           {"overpressure": row["inj_overpressure"], "slip": row["inj_slip"],
+                            "shear_traction": at("shear_traction"),
+                            "effective_normal_stress": at("effective_normal_stress")})
+
     @classmethod
     def for_result(cls, result) -> "MetricsTracker":
         return cls(result.fault_x, result.fault_weights, result.scene.fault.friction)

@@ -16,7 +16,9 @@ Semantics
   before the first update are background and ignored by the rules).  A rule that names
   ``event_magnitude`` or ``event_distance`` holds if it holds for one of the events counted at
   this update, each with its own magnitude and distance; with no such event, or an event without
-  a distance, those values are missing and their comparisons are false.  ``event_rate`` counts
+  a distance, those values are missing: their comparisons are unknown and a rule holds only when
+  its condition is true (``not event_magnitude < 2`` does not hold without an event; see
+  :mod:`fault_screen.rules`).  ``event_rate`` counts
   the events received so far whose origin times lie in the trailing ``event_rate_window``.
 """
 from __future__ import annotations
@@ -96,6 +98,19 @@ class Events:
         return int(self.time.size)
 
 
+def event_metrics(time: float, new_events, known_times, window: float) -> dict:
+    """The event metrics at ``time`` (s): ``event_magnitude`` and ``event_distance`` of the
+    largest of ``new_events`` ((time, magnitude, distance) tuples; an event without a magnitude
+    counts below every magnitude; NaN when there is none), ``event_rate`` the number of
+    ``known_times`` in ``(time - window, time]`` per hour.  The one definition the screener and
+    the monitor stage use."""
+    recent = sum(1 for t in known_times if time - window < t <= time)
+    biggest = max(new_events, key=lambda e: -math.inf if math.isnan(e[1]) else e[1], default=None)
+    return {"event_rate": recent * 3600.0 / window,
+            "event_magnitude": float(biggest[1]) if biggest else math.nan,
+            "event_distance": float(biggest[2]) if biggest else math.nan}
+
+
 class _Rule:
     def __init__(self, spec, index, known):
         self.name = spec.name or f"rules[{index}]"
@@ -104,6 +119,10 @@ class _Rule:
         self.action = spec.action
         self.condition = parse_condition(spec.when, known)
         self.last_true = None
+
+
+def _plain(metrics: dict) -> dict:
+    return {str(k): float(v) for k, v in metrics.items()}
 
 
 def thresholds_of(spec) -> dict:
@@ -128,6 +147,38 @@ class Screener:
         self._pending: list[tuple[float, float, float]] = []   # (time, magnitude, distance)
         self._known_times: list[float] = []
 
+    def state(self) -> dict:
+        """What the screener has seen so far, as plain data (JSON-able; the rules come from the
+        spec given to :meth:`from_state`)."""
+        tr = [dict(time=t.time, from_level=t.from_level, to_level=t.to_level, rule=t.rule,
+                   action=t.action, metrics=_plain(t.metrics)) for t in self.transitions]
+        v = self.verdict
+        return {"level": self.level, "rule": self.rule, "unstable": self.unstable,
+                "transitions": tr, "start": self._start,
+                "verdict": dict(level=v.level, time=v.time, rule=v.rule, action=v.action,
+                                metrics=_plain(v.metrics), final_level=v.final_level),
+                "pending": [list(e) for e in self._pending], "known_times": list(self._known_times),
+                "last_true": [r.last_true for r in self.rules]}
+
+    @classmethod
+    def from_state(cls, spec, state: dict) -> "Screener":
+        """The screener of ``spec`` continuing from :meth:`state`."""
+        out = cls(spec)
+        if len(state["last_true"]) != len(out.rules):
+            raise ValueError(f"screener state of {len(state['last_true'])} rules for a spec of "
+                             f"{len(out.rules)} rules")
+        out.level, out.rule, out.unstable = int(state["level"]), state["rule"], bool(state["unstable"])
+        out.transitions = [Transition(float(d["time"]), int(d["from_level"]), int(d["to_level"]),
+                                      str(d["rule"]), str(d["action"]), dict(d["metrics"]))
+                           for d in state["transitions"]]
+        out.verdict = Verdict(**state["verdict"])
+        out._start = state["start"]
+        out._pending = [(float(t), float(m), float(d)) for t, m, d in state["pending"]]
+        out._known_times = [float(t) for t in state["known_times"]]
+        for rule, last in zip(out.rules, state["last_true"]):
+            rule.last_true = last
+        return out
+
     def add_events(self, events) -> None:
         """Events to take into account from now on (each once, at its origin time)."""
         ev = Events.coerce(events)
@@ -150,13 +201,9 @@ class Screener:
         now = [e for e in now if e[0] >= self._start]
         window = self.spec.event_rate_window
         self._known_times = [t for t in self._known_times if t > time - window]  # time only grows
-        recent = sum(1 for t in self._known_times if t <= time)
         values = dict(self.thresholds)
         values.update(metrics)
-        values["event_rate"] = recent * 3600.0 / window
-        biggest = max(now, key=lambda e: -math.inf if math.isnan(e[1]) else e[1], default=None)
-        values["event_magnitude"] = biggest[1] if biggest else math.nan
-        values["event_distance"] = biggest[2] if biggest else math.nan
+        values.update(event_metrics(time, now, self._known_times, window))
         metrics.update({k: values[k] for k in ("event_rate", "event_magnitude", "event_distance")})
 
         in_force = []
