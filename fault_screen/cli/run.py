@@ -45,10 +45,13 @@ def load_scene(path: Path):
     return scene
 
 
-def load_events(path: Path, start: datetime | None, site=None):
+def load_events(path: Path | str, start: datetime | None, site=None, end: float | None = None):
     from ..io.events import read_events
+    from ..io.fdsn_events import is_event_service, read_event_service
 
     with reading(path):
+        if is_event_service(path):     # the window from start to end (s) of an FDSN event service
+            return read_event_service(path, start, end=end, site=site)
         return read_events(path, start, site=site)
 
 
@@ -109,7 +112,8 @@ def run_scene(scene, *, scene_label: str, out: Path | None, plot_dir: Path | Non
     out = Path(out) if out is not None else Path.cwd() / f"{stem}.h5"
     _check_outputs(out, plot_dir)
     check_size(scene, scene_label)
-    catalog = load_events(events_path, start, scene.site) if events_path is not None else None
+    catalog = (load_events(events_path, start, scene.site, end=scene.time.end)
+               if events_path is not None else None)
 
     if not quiet:
         m = scene.mesh

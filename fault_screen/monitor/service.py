@@ -24,7 +24,8 @@ from ..io.injection_log import InjectionLogError
 from ..io.log_stream import LogDecoder
 from . import plugins
 from .outbox import Outbox
-from .seismicity import CatalogFollower, SdsDetector, SeedLinkDetector, Site
+from .event_service import follower_for
+from .seismicity import SdsDetector, SeedLinkDetector, Site
 from .stage import LEVELS, Stage
 
 __all__ = ["MonitorConfig", "MonitorService", "MonitorInputError"]
@@ -46,7 +47,7 @@ class MonitorConfig:
     follow: str                                # log path, or "-" for standard input
     state: Optional[Path] = None               # checkpoint file (HDF5)
     out: Optional[Path] = None                 # result file written at the end
-    events: Optional[Path] = None              # QuakeML / FDSN text catalogue (polled)
+    events: Optional[Path] = None              # QuakeML / FDSN text catalogue or service URL
     waveforms: Optional[Path] = None           # SDS archive root
     seedlink: Optional[str] = None             # SeedLink server HOST:PORT
     seedlink_streams: str = ""                 # NET_STA[:SELECTORS],... (obspy's stream list)
@@ -118,7 +119,7 @@ class MonitorService:
             base = config.state or config.out or Path("fault-screen-monitor")
             box = Path(str(base) + ".outbox.sqlite")
         self.outbox = Outbox(box, all_sinks, log=logging.getLogger("fault_screen.monitor.outbox"))
-        self.catalog: Optional[CatalogFollower] = None
+        self.catalog = None               # a CatalogFollower or an EventServiceFeed
         self.detector: Optional[SdsDetector] = None
         self._detector_state = extra.get("detector")
         self._last_ckpt = self.stage.steps
@@ -153,7 +154,7 @@ class MonitorService:
             return
         if self.cfg.events is not None and self.catalog is None:
             site = st.site.spec if st.site is not None else None
-            self.catalog = CatalogFollower(self.cfg.events, st.start, site=site)
+            self.catalog = follower_for(self.cfg.events, st.start, site=site)
         if self.detector is None and (self.cfg.waveforms is not None or self.cfg.seedlink is not None):
             if self.cfg.seedlink is not None:
                 # the same STA/LTA path on the records a SeedLink server streams
@@ -167,6 +168,8 @@ class MonitorService:
     def _poll_seismicity(self, force: bool = False) -> None:
         if self.catalog is not None:
             new = self.catalog.poll()
+            # an event service's revised and deleted events are forgotten (the revised come again)
+            self.stage.withdraw_events(getattr(self.catalog, "take_withdrawn", list)())
             if new:
                 log.info("%d new event(s) from %s", len(new), self.cfg.events)
                 self.stage.feed_events(new)
