@@ -144,6 +144,7 @@ def test_fdsn_events_revised_and_deleted_while_followed(scene_file, tmp_path, mo
     assert [(a["previous_level"], a["level"], a["rule"]) for a in alerts] == \
         [("green", "red", "large event")]
     assert alerts[0]["metrics"]["event_magnitude"] == 3.1
+    assert alerts[0]["metrics"]["event_rate"] == 2.0      # events 1 and 2 in the last hour, once
     assert 700.0 < alerts[0]["model_time"] < 1000.0
     assert any(f"1 event(s) revised: {EVENT_ID.format(2)}" in m for m in caplog.messages)
     assert any(f"1 event(s) deleted: {EVENT_ID.format(3)}" in m for m in caplog.messages)
@@ -270,43 +271,35 @@ def services(tmp_path_factory):
         yield srv
 
 
-@pytest.mark.parametrize("which,message", [
-    ("unreachable", "HYDWS server unreachable (connection refused)"),
-    ("404", "HTTP 404 Not Found (no such borehole section"),
-    ("malformed", "malformed JSON in the HYDWS answer"),
-])
-@pytest.mark.parametrize("command", ["monitor", "replay"])
-def test_bad_hydws_url_is_one_line_naming_it(which, message, command, services, scene_file,
-                                             tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-    url = {"unreachable": f"http://127.0.0.1:{free_port()}/hydws/v1/boreholes/BH1/sections/S1",
-           "404": services.base + "/hydws/v1/boreholes/BH1/sections/NOPE",
-           "malformed": services.base + "/broken/hydws/v1/boreholes/BH1/sections/S1"}[which]
-    if command == "monitor":
-        r = invoke("monitor", scene_file, "--source", "hydws", "--follow", url, "-q")
-    else:
-        r = invoke("replay", scene_file, "--log", url, "-q")
-    assert r.exit_code == 2, r.output
-    lines = [x for x in r.output.splitlines() if x.strip()]
-    assert len(lines) == 1 and url in lines[0] and message in lines[0], r.output
+BAD = {   # (service, what is wrong) -> (URL path on the test servers, message)
+    ("hydws", "unreachable"): ("/hydws/v1/boreholes/BH1/sections/S1",
+                               "HYDWS server unreachable (connection refused)"),
+    ("hydws", "404"): ("/hydws/v1/boreholes/BH1/sections/NOPE",
+                       "HTTP 404 Not Found (no such borehole section"),
+    ("hydws", "malformed"): ("/broken/hydws/v1/boreholes/BH1/sections/S1",
+                             "malformed JSON in the HYDWS answer"),
+    ("fdsn", "unreachable"): ("/fdsnws/event/1/query", "event service unreachable"),
+    ("fdsn", "404"): ("/fdsnws/event/9/query", "event service answered with an error"),
+    ("fdsn", "html"): ("/broken/fdsnws/event/1/query",
+                       "the answer is not QuakeML (it starts with '<html><body>Service moved"),
+}
 
 
-@pytest.mark.parametrize("which,message", [
-    ("unreachable", "event service unreachable"),
-    ("404", "event service answered with an error"),
-    ("html", "the answer is not QuakeML (it starts with '<html><body>Service moved"),
-])
-@pytest.mark.parametrize("command", ["monitor", "run"])
-def test_bad_event_service_is_one_line_naming_it(which, message, command, services, scene_file,
-                                                 tmp_path, monkeypatch):
+@pytest.mark.parametrize("service,which", sorted(BAD))
+@pytest.mark.parametrize("live", [True, False], ids=["monitor", "past-window"])
+def test_bad_service_is_one_line_naming_it(service, which, live, services, scene_file,
+                                           tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    url = {"unreachable": f"http://127.0.0.1:{free_port()}/fdsnws/event/1/query",
-           "404": services.base + "/fdsnws/event/9/query",
-           "html": services.base + "/broken/fdsnws/event/1/query"}[which]
-    if command == "monitor":
-        r = invoke("monitor", scene_file, "--follow", STANDIN, "--events", url, "-q")
+    path, message = BAD[service, which]
+    base = f"http://127.0.0.1:{free_port()}" if which == "unreachable" else services.base
+    url = base + path
+    if service == "hydws":
+        args = (["monitor", scene_file, "--source", "hydws", "--follow", url] if live else
+                ["replay", scene_file, "--log", url])
     else:
-        r = invoke("run", scene_file, "--events", url, "--t0", "2015-03-12T09:00:00Z", "-q")
+        args = (["monitor", scene_file, "--follow", STANDIN, "--events", url] if live else
+                ["run", scene_file, "--events", url, "--t0", "2015-03-12T09:00:00Z"])
+    r = invoke(*args, "-q")
     assert r.exit_code == 2, r.output
     lines = [x for x in r.output.splitlines() if x.strip()]
     assert len(lines) == 1 and url in lines[0] and message in lines[0], r.output

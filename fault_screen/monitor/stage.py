@@ -371,8 +371,10 @@ class Stage:
         ids = set(ids)
         if not ids:
             return
-        gone = [e.time for e in self.pending_events if e.id in ids]
-        gone += [a["time"] for a in self.associations if a.get("id") in ids]
+        screened = [a["time"] for a in self.associations if a.get("id") in ids]
+        gone = [e.time for e in self.pending_events if e.id in ids] + screened
+        if hasattr(self.screener, "forget_events"):   # its event_rate counts them no more
+            self.screener.forget_events(screened)
         self.pending_events = [e for e in self.pending_events if e.id not in ids]
         self.associations = [a for a in self.associations if a.get("id") not in ids]
         times = list(self.event_times)

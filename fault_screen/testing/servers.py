@@ -5,8 +5,8 @@
 * HYDWS: ``/hydws/v1/boreholes/BH1/sections/S1/hydraulics`` with the samples of a bundled log
   (``configs/logs/rustrel-2015-standin.csv`` unless ``--log``) in HYDWS JSON (``topflow`` and
   ``bottomflow`` in m3/s, ``toppressure``/``bottompressure`` in Pa when the log has pressures),
-  revealed a few at a time (``--grow-by`` samples every ``--grow-every`` seconds; all at once
-  with ``--grow-by 0``), and down (connections refused) for ``--down-for`` seconds after
+  revealed a few at a time once it is first asked for (``--grow-by`` samples every
+  ``--grow-every`` seconds; all at once with ``--grow-by 0``), and down (connections refused) for ``--down-for`` seconds after
   ``--down-after`` requests.  ``?starttime=``/``?endtime=`` select a window (inclusive).
 * FDSN event: ``/fdsnws/event/1/query`` answering QuakeML with three small events during the
   log (public ids ``smi:local/fault-screen-test/event/1`` to ``/3``); after ``--revise-after``
@@ -298,8 +298,8 @@ def main(argv=None) -> None:
     ap.add_argument("--down-after", type=int, default=None,
                     help="hydraulics requests after which the server goes down once")
     ap.add_argument("--down-for", type=float, default=3.0, help="seconds down [3]")
-    ap.add_argument("--revise-after", type=int, default=5,
-                    help="event queries after which event 2 is revised and event 3 deleted [5]")
+    ap.add_argument("--revise-after", type=int, default=3,
+                    help="event queries after which event 2 is revised and event 3 deleted [3]")
     a = ap.parse_args(argv)
     srv = FakeServices(a.log, port=a.port, visible=2 if a.grow_by else None,
                        down_after=a.down_after, down_for=a.down_for,
@@ -308,7 +308,7 @@ def main(argv=None) -> None:
     try:
         while True:
             time.sleep(a.grow_every)
-            if a.grow_by:
+            if a.grow_by and srv.hydws_requests:      # the section grows once it is followed
                 srv.reveal(a.grow_by)
     except KeyboardInterrupt:
         srv.stop()
