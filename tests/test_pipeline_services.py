@@ -100,6 +100,37 @@ def test_hydws_section_followed_through_an_outage_equals_its_replay(scene_file, 
     assert mon["time"][-1] == expected.time[-1]          # the run ends at the last sample
 
 
+def test_hydws_monitor_restarted_with_its_state_asks_from_there_and_equals_the_replay(
+        scene_file, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    log = short_log(tmp_path, 60)
+    args = ["monitor", scene_file, "--source", "hydws", "-o", "m.h5", "--state", "s.h5",
+            "--idle-exit", "1", "--poll", "0.05", "-q"]
+    with FakeServices(log, visible=30) as srv:
+        r = invoke(*args, "--follow", srv.hydws_url)
+        assert r.exit_code == 0, r.output
+        first = len(srv.hydws_queries)
+        srv.reveal(30)
+        r = invoke(*args, "--follow", srv.hydws_url)
+        assert r.exit_code == 0, r.output
+        # the restart asked from the checkpoint's last sample (the 30th), not from the start
+        resumed = srv.hydws_queries[first]
+        assert resumed["starttime"] == _utc_stamp(srv.stamps[29])
+        r = invoke("replay", scene_file, "--log", srv.hydws_url, "-o", "r.h5", "-q")
+        assert r.exit_code == 0, r.output
+    mon, rep = datasets(tmp_path / "m.h5"), datasets(tmp_path / "r.h5")
+    assert np.array_equal(mon["log/time"], read_injection_log(log).time)
+    assert sorted(mon) == sorted(rep)
+    assert [k for k in mon if not np.array_equal(mon[k], rep[k],
+                                                 equal_nan=mon[k].dtype.kind == "f")] == []
+
+
+def _utc_stamp(dt):
+    from datetime import timezone
+
+    return dt.astimezone(timezone.utc).strftime("%Y-%m-%dT%H:%M:%S")
+
+
 def test_hydws_bottom_position_and_window_reach_replay(scene_file, tmp_path, monkeypatch):
     from fault_screen_plugins.hydws import hydraulics_url, read_log
 

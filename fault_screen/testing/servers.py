@@ -95,6 +95,7 @@ class FakeServices:
         self.events = list(default_events() if events is None else events)
         self.revise_after, self.revised_magnitude = revise_after, float(revised_magnitude)
         self.hydws_requests = self.fdsn_requests = 0
+        self.hydws_queries: list = []     # the query parameters of each hydraulics request
         self.outages = 0
         self.port = int(port)
         self._lock = threading.Lock()
@@ -176,6 +177,7 @@ class FakeServices:
         connection (the server going down now)."""
         with self._lock:
             self.hydws_requests += 1
+            self.hydws_queries.append(dict(query))
             if self.down_after is not None and self.hydws_requests == self.down_after:
                 self.go_down(self.down_for)
                 return None

@@ -25,7 +25,7 @@ import math
 import os
 import tempfile
 import time
-from datetime import datetime, timezone
+from datetime import datetime, timedelta, timezone
 from urllib.parse import parse_qsl, urlsplit, urlunsplit
 
 import requests
@@ -180,11 +180,22 @@ def _stamp_param(dt: datetime) -> str:
     return dt.astimezone(timezone.utc).strftime("%Y-%m-%dT%H:%M:%S")
 
 
+def _resumed_last(decoder) -> datetime | None:
+    """Stamp of the last sample of a decoder resumed from a checkpoint (None otherwise): its
+    model time 0 plus the sample's seconds after it."""
+    state = decoder.state() if hasattr(decoder, "state") else {}
+    if not state.get("start") or not state.get("last") or state.get("offset") is None:
+        return None
+    start = datetime.fromisoformat(state["start"])
+    return (start + timedelta(seconds=state["last"][0] - state["offset"])).astimezone(timezone.utc)
+
+
 class HydwsSource:
     """Follow a HYDWS borehole section (``--source hydws --follow URL``).
 
     Every ``poll_interval`` seconds the section's samples from the last one received on are
-    asked for and those after it handed on, each once.  A server that cannot be reached or
+    asked for and those after it handed on, each once (after a restart with ``--state``: from
+    the checkpoint's last sample on).  A server that cannot be reached or
     gives a bad answer is logged once and asked again with a doubling wait (up to
     ``max_backoff`` s); its return is logged.  At the start the section must answer (else
     :class:`HydwsError`, which the monitor reports with exit code 2).
@@ -209,6 +220,7 @@ class HydwsSource:
         self._next_try = 0.0
         self._line = 0
         self._with_pressure = None
+        self.last = _resumed_last(decoder)    # a restart asks from the checkpoint's sample on
         self._pending = self._fetch()         # the section must answer at the start
 
     def _fetch(self):
