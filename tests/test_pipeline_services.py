@@ -181,6 +181,31 @@ def test_fdsn_events_revised_and_deleted_while_followed(scene_file, tmp_path, mo
     assert any(f"1 event(s) deleted: {EVENT_ID.format(3)}" in m for m in caplog.messages)
 
 
+def test_fdsn_revision_while_the_monitor_was_down_is_seen_after_its_restart(
+        scene_file, tmp_path, monkeypatch):
+    from fault_screen.monitor import event_service
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(event_service, "POLL_INTERVAL", 0.0)
+    args = ["monitor", scene_file, "--source", "hydws", "--state", "s.h5", "-o", "out.h5",
+            "--alert", "jsonl:alerts.jsonl", "--idle-exit", "1", "--poll", "0.05", "-q"]
+    # first run to ~750 s: events 1 and 2 (ML 1.2) screened, event 3 (1000 s) pending
+    with FakeServices(short_log(tmp_path, 110), visible=80) as srv:
+        r = invoke(*args, "--follow", srv.hydws_url, "--events", srv.fdsn_url)
+        assert r.exit_code == 0, r.output
+        assert not (tmp_path / "alerts.jsonl").exists() or \
+            (tmp_path / "alerts.jsonl").read_text() == ""
+        # while it is down: event 2 revised to ML 3.1, event 3 deleted; the section grows
+        srv.revise_after = srv.fdsn_requests
+        srv.reveal(30)
+        r = invoke(*args, "--follow", srv.hydws_url, "--events", srv.fdsn_url)
+        assert r.exit_code == 0, r.output
+    ev = Result.load(tmp_path / "out.h5").extra["events"]
+    assert list(ev["time"]) == [400.0, 700.0] and list(ev["magnitude"]) == [0.6, 3.1]
+    alerts = [json.loads(x) for x in (tmp_path / "alerts.jsonl").read_text().splitlines()]
+    assert [(a["level"], a["metrics"]["event_magnitude"]) for a in alerts] == [("red", 3.1)]
+
+
 def test_fdsn_window_for_run_replay_and_screen(scene_file, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     log = short_log(tmp_path, 60)           # 09:00:00 to ~09:09:30 UTC: events 1 (400 s) only

@@ -6,6 +6,8 @@ catalogue file would give (:class:`~fault_screen.monitor.seismicity.SeismicEvent
 the scene's ``[site]``, ``id`` the event's public id), plus the public ids of the events the
 service revised or deleted since (:meth:`EventServiceFeed.take_withdrawn`): the stage forgets
 those before the revised ones come in again, so each event is kept once with its latest values.
+What was handed on is part of the monitor's checkpoint (:meth:`EventServiceFeed.state`), so a
+restarted monitor sees the revisions and deletions made while it was down.
 A service that fails while the monitor runs is logged once and asked again at the next polls.
 """
 from __future__ import annotations
@@ -62,6 +64,14 @@ class EventServiceFeed:
         self._withdrawn += ch.revised + ch.deleted
         events = events_from_catalog(ch.catalog, self.site, self.url)
         return [dataclasses.replace(e, id=pid) for e, pid in zip(events, ch.ids)]
+
+    def state(self) -> dict:
+        """JSON-able state for a checkpoint: what was handed on, per public id."""
+        return {"known": {pid: list(fp) for pid, fp in self.follower.known.items()}}
+
+    def restore(self, state: dict) -> None:
+        """Continue after a checkpoint: an event revised or deleted meanwhile is seen as such."""
+        self.follower.known = {pid: tuple(fp) for pid, fp in state.get("known", {}).items()}
 
     def take_withdrawn(self) -> List[str]:
         """Public ids of the events revised or deleted since the last call."""

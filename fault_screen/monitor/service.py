@@ -122,6 +122,7 @@ class MonitorService:
         self.catalog = None               # a CatalogFollower or an EventServiceFeed
         self.detector: Optional[SdsDetector] = None
         self._detector_state = extra.get("detector")
+        self._events_state = extra.get("event_service")    # an event service's feed
         self._last_ckpt = self.stage.steps
         self._last_wave_poll = 0.0
         self._last_flush = time.monotonic()
@@ -155,6 +156,8 @@ class MonitorService:
         if self.cfg.events is not None and self.catalog is None:
             site = st.site.spec if st.site is not None else None
             self.catalog = follower_for(self.cfg.events, st.start, site=site)
+            if self._events_state and hasattr(self.catalog, "restore"):
+                self.catalog.restore(self._events_state)
         if self.detector is None and (self.cfg.waveforms is not None or self.cfg.seedlink is not None):
             if self.cfg.seedlink is not None:
                 # the same STA/LTA path on the records a SeedLink server streams
@@ -211,7 +214,9 @@ class MonitorService:
         if self.cfg.state is None:
             return
         extra = {"decoder": self.decoder.state(), "outbox_position": self.outbox.count(),
-                 "detector": self.detector.state() if self.detector else self._detector_state}
+                 "detector": self.detector.state() if self.detector else self._detector_state,
+                 "event_service": (self.catalog.state() if hasattr(self.catalog, "state")
+                                   else self._events_state)}
         self.stage.checkpoint(self.cfg.state, extra=extra)
         self._last_ckpt = self.stage.steps
 
