@@ -269,8 +269,8 @@ def test_metrics_scraped_during_a_run_hold_the_result_files_values(scene_file, t
     scrapes = []
     with FakeServices(short_log(tmp_path, 60), visible=3, grow_per_request=10) as srv:
         exporter = MetricsExporter(scene)
-        cfg = MonitorConfig(follow=srv.hydws_url, source="hydws", out=tmp_path / "out.h5",
-                            idle_exit=1.0, poll_interval=0.05)
+        cfg = MonitorConfig(follow=srv.hydws_url, out=tmp_path / "out.h5", idle_exit=1.0,
+                            poll_interval=0.05)      # the source of a URL: hydws
 
         def on_update(upd):
             exporter.update(upd)
@@ -278,6 +278,7 @@ def test_metrics_scraped_during_a_run_hold_the_result_files_values(scene_file, t
                 scrapes.append(scrape(port))
 
         service = MonitorService(scene, cfg, on_update=on_update)
+        assert type(service.source).__name__ == "HydwsSource"
         exporter.attach(service)
         port = exporter.start(0)
         try:

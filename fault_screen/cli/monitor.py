@@ -42,9 +42,9 @@ def _count_callback(ctx, param, value):
 
 @click.command("monitor")
 @click.argument("scene_path", type=FILE, metavar="SCENE")
-@click.option("--follow", "follow", required=True, metavar="LOG|-",
-              help="Injection log to follow as it grows (CSV, the replay format), or '-' to "
-                   "read it from standard input.")
+@click.option("--follow", "follow", required=True, metavar="LOG|-|URL",
+              help="Injection log to follow as it grows (CSV, the replay format), '-' to "
+                   "read it from standard input, or the URL of a HYDWS borehole section.")
 @click.option("--events", type=FILE_OR_URL, default=None, metavar="CATALOG|URL",
               help="Seismic catalogue (QuakeML, CSV or FDSN text) polled as it grows, or an "
                    "FDSN event service URL polled for new, revised and deleted events.")
@@ -69,7 +69,7 @@ def _count_callback(ctx, param, value):
               help="Alert plugin (repeatable): jsonl:FILE, webhook:url=URL,secret_env=VAR, "
                    "command:[\"prog\",\"arg\"]; 'fault-screen plugins' lists them.")
 @click.option("--source", default=None, metavar="NAME",
-              help="Source plugin [default: csv, or stdin for '--follow -'].")
+              help="Source plugin [default: csv; stdin for '--follow -', hydws for a URL].")
 @click.option("--poll", "poll_interval", type=float, default=0.5, show_default=True,
               metavar="S", callback=_positive_callback, help="Polling interval (s).")
 @click.option("--checkpoint-every", type=int, default=50, show_default=True, metavar="N",

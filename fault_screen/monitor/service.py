@@ -53,7 +53,7 @@ class MonitorConfig:
     seedlink_streams: str = ""                 # NET_STA[:SELECTORS],... (obspy's stream list)
     idle_exit: Optional[float] = None          # s without a new sample -> clean exit
     alerts: List[str] = field(default_factory=list)   # NAME[:CONFIG] specs
-    source: Optional[str] = None               # source plugin (default: csv, or stdin for "-")
+    source: Optional[str] = None               # source plugin (default: csv; stdin, hydws for "-", URLs)
     poll_interval: float = 0.5
     checkpoint_every: int = 50                 # steps
     outbox: Optional[Path] = None              # default: next to the state file
@@ -96,7 +96,8 @@ class MonitorService:
                                   resume=extra.get("decoder"),
                                   on_warning=lambda m: log.warning("%s", m),
                                   flowback=scene.injection.allow_flowback)
-        name = config.source or ("stdin" if config.follow == "-" else "csv")
+        name = config.source or ("stdin" if config.follow == "-" else "hydws" if
+                                 config.follow.startswith(("http://", "https://")) else "csv")
         self.source = plugins.instantiate("source", name, config.follow, decoder=self.decoder,
                                           poll_interval=config.poll_interval,
                                           log=logging.getLogger(f"fault_screen.sources.{name}"))

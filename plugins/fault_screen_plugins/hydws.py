@@ -205,14 +205,14 @@ class HydwsSource:
 
     def __init__(self, target: str, *, decoder, poll_interval: float = 0.5,
                  log: logging.Logger | None = None, position: str | None = None,
-                 timeout: float = 10.0, max_backoff: float = 60.0, session=None):
+                 timeout: float = 10.0, max_backoff: float = 60.0):
         self.url, self.query, self.position = hydraulics_url(target, position)
         self.target = str(target)
         self.decoder = decoder
         self.poll_interval = float(poll_interval)
         self.timeout, self.max_backoff = float(timeout), float(max_backoff)
         self.log = log or logging.getLogger("fault_screen.sources.hydws")
-        self.session = session or requests.Session()
+        self.session = requests.Session()
         self.finished = False
         self.last: datetime | None = None     # stamp of the last sample handed on
         self.failures = 0                     # consecutive failed requests
@@ -286,20 +286,15 @@ class HydwsSource:
         return read_log(url, **options)
 
 
-def read_log(url: str, *, position: str | None = None, timeout: float = 30.0, session=None,
-             **log_options):
+def read_log(url: str, *, position: str | None = None, timeout: float = 30.0, **log_options):
     """The :class:`~fault_screen.io.injection_log.InjectionLog` of the samples of a HYDWS
     section (the window is the URL's ``starttime``/``endtime``); ``log_options`` as
     :func:`~fault_screen.io.injection_log.read_injection_log`.  Messages name the URL."""
     from fault_screen.io.injection_log import InjectionLogError, read_injection_log
 
     base, query, position = hydraulics_url(url, position)
-    sess = session or requests.Session()
-    try:
+    with requests.Session() as sess:
         rows = parse_hydraulics(_get(sess, base, query, timeout), base, position)
-    finally:
-        if session is None:
-            sess.close()
     if not rows:
         raise HydwsError(f"{url}: the HYDWS section has no samples in this window")
     with_p = any(p is not None for _, _, p in rows)
