@@ -246,6 +246,37 @@ def test_event_service_failing_while_running_is_logged_once_and_asked_again(tmp_
     assert sum("answers again" in m for m in caplog.messages) == 1
 
 
+def test_event_service_box_of_the_site_and_events_without_depth(tmp_path):
+    from datetime import datetime, timezone
+
+    from fault_screen.io.fdsn_events import EventServiceFollower, read_event_service, site_box
+    from fault_screen.scene import SiteSpec
+    from fault_screen.testing.servers import TestEvent
+
+    start = datetime(2015, 3, 12, 9, tzinfo=timezone.utc)
+    box = site_box(SiteSpec(latitude=43.9411, longitude=5.4834), half_width=20_000.0)
+    assert box["maxlatitude"] - 43.9411 == pytest.approx(math.degrees(20_000.0 / 6_371_000.0),
+                                                         rel=1e-12)      # 0.17987 deg
+    assert box["maxlongitude"] - 5.4834 == pytest.approx(
+        math.degrees(20_000.0 / 6_371_000.0) / math.cos(math.radians(43.9411)), rel=1e-12)
+    events = [TestEvent(1, 400.0, 0.6), TestEvent(2, 500.0, 0.7, depth=None),
+              TestEvent(3, 600.0, 0.8, latitude=44.5)]            # 62 km north of the site
+    with FakeServices(short_log(tmp_path, 20), events=events) as srv:
+        near = read_event_service(srv.fdsn_url, start, site=SiteSpec(latitude=43.9411,
+                                                                     longitude=5.4834))
+        assert list(near.time) == [400.0, 500.0]
+        far = read_event_service(srv.fdsn_url, start, site=SiteSpec(latitude=46.0, longitude=8.0))
+        assert len(far) == 0
+        # the URL's own bounds win over the site's box
+        wide = read_event_service(srv.fdsn_url + "?minlatitude=40&maxlatitude=50", start,
+                                  site=SiteSpec(latitude=46.0, longitude=8.0))
+        assert list(wide.time) == [400.0, 500.0, 600.0]
+        follower = EventServiceFollower(srv.fdsn_url, start)
+        assert len(follower.poll().ids) == 3
+        again = follower.poll()            # the event without a depth is not "revised"
+        assert (again.ids, again.revised, again.deleted) == ([], [], [])
+
+
 # -------------------------------------------------------------------------------------------
 # Prometheus
 # -------------------------------------------------------------------------------------------

@@ -22,10 +22,12 @@ from __future__ import annotations
 import math
 import os
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import datetime, timedelta, timezone
 from typing import Dict, List, Optional, Tuple
 from urllib.parse import parse_qsl, urlsplit, urlunsplit
+
+import numpy as np
 
 from .events import EventCatalog, EventsError, read_events
 
@@ -158,7 +160,7 @@ def parse_quakeml(data: bytes, url: str, start: Optional[datetime], site=None) \
     if len(ids) != len(cat):
         raise EventServiceError(f"{url}: the answer's events could not be matched to their "
                                 f"public ids")
-    return _named(cat, url), ids
+    return replace(cat, source=url), ids
 
 
 def _read(url: str, start: Optional[datetime], window: Tuple[datetime, Optional[datetime]],
@@ -167,7 +169,7 @@ def _read(url: str, start: Optional[datetime], window: Tuple[datetime, Optional[
     os.close(fd)
     try:
         if not _fetch(url, window[0], window[1], box, timeout, tmp):
-            return read_events_empty(url, start or window[0]), []
+            return _empty(url, start or window[0]), []
         with open(tmp, "rb") as fh:
             data = fh.read()
     finally:
@@ -175,16 +177,8 @@ def _read(url: str, start: Optional[datetime], window: Tuple[datetime, Optional[
     return parse_quakeml(data, url, start, site)
 
 
-def read_events_empty(url: str, start: datetime) -> EventCatalog:
-    import numpy as np
-
+def _empty(url: str, start: datetime) -> EventCatalog:
     return EventCatalog(np.zeros(0), np.zeros(0), (), start, url)
-
-
-def _named(cat: EventCatalog, url: str) -> EventCatalog:
-    from dataclasses import replace
-
-    return replace(cat, source=url)
 
 
 def read_event_service(url: str, start: Optional[datetime], *, end: Optional[float] = None,
@@ -203,8 +197,9 @@ def read_event_service(url: str, start: Optional[datetime], *, end: Optional[flo
 
 @dataclass
 class ServiceChanges:
-    """What one poll found: ``new`` and ``revised`` events (one-row catalogues' rows: the
-    catalogue ``catalog`` and the public ``ids`` of its rows) and ``deleted`` public ids."""
+    """What one poll found: the new and revised events (the rows of ``catalog``, with their
+    public ``ids`` in the same order), the public ids of the ``revised`` ones among them, and
+    the public ids of the events ``deleted`` since the last poll."""
 
     catalog: EventCatalog
     ids: List[str]
@@ -213,8 +208,10 @@ class ServiceChanges:
 
 
 def _fingerprint(cat: EventCatalog, k: int) -> tuple:
+    # NaN (unknown) as None: NaN != NaN would make an event without a depth "revised" each poll
     cols = [cat.time, cat.magnitude, cat.latitude, cat.longitude, cat.depth, cat.x, cat.y, cat.z]
-    return tuple(None if c is None else float(c[k]) for c in cols) + (cat.magnitude_type[k],)
+    values = (None if c is None or not math.isfinite(c[k]) else float(c[k]) for c in cols)
+    return tuple(values) + (cat.magnitude_type[k],)
 
 
 class EventServiceFollower:
@@ -244,8 +241,6 @@ class EventServiceFollower:
                     revised.append(pid)
         deleted = [pid for pid in self.known if pid not in seen]
         self.known = seen
-        import numpy as np
-
         mask = np.zeros(len(cat), dtype=bool)
         mask[keep] = True
         return ServiceChanges(cat._subset(mask), [ids[k] for k in keep], revised, deleted)

@@ -44,7 +44,7 @@ class TestEvent:
     __test__ = False          # not a pytest class
 
     def __init__(self, number: int, time: float, magnitude: float, latitude: float = 43.9411,
-                 longitude: float = 5.4834, depth: float = 280.0):
+                 longitude: float = 5.4834, depth: float | None = 280.0):
         self.id = EVENT_ID.format(number)
         self.time, self.magnitude = float(time), float(magnitude)
         self.latitude, self.longitude, self.depth = latitude, longitude, depth
