@@ -7,8 +7,8 @@ from pathlib import Path
 
 import click
 
-from ._options import (DIR, FILE, FILE_OR_URL, BadInput, _positive_callback, _t0_callback, _unit_callback,
-                       check_size, reading, version_option)
+from ._options import (DIR, FILE, FILE_OR_URL, BadInput, _positive_callback, _t0_callback,
+                       _unit_callback, check_size, reading, version_option)
 from .run import load_scene
 
 

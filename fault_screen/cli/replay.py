@@ -49,10 +49,10 @@ def replay(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, end,
         read = load("source", "hydws").read_log
     with reading(log_path):
         log = read(log_path, flow_unit=flow_unit, pressure_unit=pressure_unit,
-                                 max_gap=max_gap, policy=policy, date=log_date, tz=log_tz,
-                                 time_column=time_column, flow_column=flow_column,
-                                 pressure_column=pressure_column, option_names=CLI_OPTION_NAMES,
-                                 flowback=scene.injection.allow_flowback)
+                   max_gap=max_gap, policy=policy, date=log_date, tz=log_tz,
+                   time_column=time_column, flow_column=flow_column,
+                   pressure_column=pressure_column, option_names=CLI_OPTION_NAMES,
+                   flowback=scene.injection.allow_flowback)
     click.echo(f"log: {log.summary}")
     for w in log.warnings:
         click.echo(f"Warning: {w}", err=True)

@@ -86,8 +86,8 @@ class MetricsExporter:
                                registry=r)
         self.events = Gauge("fault_screen_events_received",
                             "Seismic events and detections held (revised ones once)", registry=r)
-        self.pending = Gauge("fault_screen_alerts_pending", "Alert deliveries waiting in the outbox",
-                             registry=r)
+        self.pending = Gauge("fault_screen_alerts_pending",
+                             "Alert deliveries waiting in the outbox", registry=r)
         self.info = Info("fault_screen", "The scene followed and the program", registry=r)
         self.info.info({"scene_title": str(getattr(scene, "title", "")), "version": __version__})
         for g in (*self.screening.values(), self.time_to_yellow, self.time_to_red,

@@ -53,7 +53,7 @@ class MonitorConfig:
     seedlink_streams: str = ""                 # NET_STA[:SELECTORS],... (obspy's stream list)
     idle_exit: Optional[float] = None          # s without a new sample -> clean exit
     alerts: List[str] = field(default_factory=list)   # NAME[:CONFIG] specs
-    source: Optional[str] = None               # source plugin (default: csv; stdin, hydws for "-", URLs)
+    source: Optional[str] = None               # source plugin (default: csv, stdin, hydws)
     poll_interval: float = 0.5
     checkpoint_every: int = 50                 # steps
     outbox: Optional[Path] = None              # default: next to the state file

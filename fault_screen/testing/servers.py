@@ -6,8 +6,9 @@
   (``configs/logs/rustrel-2015-standin.csv`` unless ``--log``) in HYDWS JSON (``topflow`` and
   ``bottomflow`` in m3/s, ``toppressure``/``bottompressure`` in Pa when the log has pressures),
   revealed a few at a time once it is first asked for (``--grow-by`` samples every
-  ``--grow-every`` seconds; all at once with ``--grow-by 0``), and down (connections refused) for ``--down-for`` seconds after
-  ``--down-after`` requests.  ``?starttime=``/``?endtime=`` select a window (inclusive).
+  ``--grow-every`` seconds; all at once with ``--grow-by 0``), and down (connections refused)
+  for ``--down-for`` seconds after ``--down-after`` requests.  ``?starttime=``/``?endtime=``
+  select a window (inclusive).
 * FDSN event: ``/fdsnws/event/1/query`` answering QuakeML with three small events during the
   log (public ids ``smi:local/fault-screen-test/event/1`` to ``/3``); after ``--revise-after``
   queries the magnitude of event 2 is revised to 3.1 and event 3 is deleted.

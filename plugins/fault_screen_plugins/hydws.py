@@ -92,7 +92,9 @@ def _stamp(text) -> datetime:
         raise ValueError(f"datetime value {text!r} is not a string")
     dt = datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
     # HYDWS stamps are UTC; a stamp written without an offset is UTC
-    return dt.replace(tzinfo=timezone.utc) if dt.utcoffset() is None else dt.astimezone(timezone.utc)
+    if dt.utcoffset() is None:
+        return dt.replace(tzinfo=timezone.utc)
+    return dt.astimezone(timezone.utc)
 
 
 def parse_hydraulics(data: bytes | str, url: str, position: str = "top"):
@@ -282,7 +284,7 @@ class HydwsSource:
 
     @staticmethod
     def read_log(url: str, **options):
-        """A past window of a section as ``fault-screen replay`` reads a log (see :func:`read_log`)."""
+        """A past window of a section, as ``fault-screen replay`` reads a log (:func:`read_log`)."""
         return read_log(url, **options)
 
 
@@ -299,10 +301,13 @@ def read_log(url: str, *, position: str | None = None, timeout: float = 30.0, **
         raise HydwsError(f"{url}: the HYDWS section has no samples in this window")
     with_p = any(p is not None for _, _, p in rows)
     fd, tmp = tempfile.mkstemp(suffix=".csv", prefix="hydws-")
+
+    def named(text):       # messages name the URL, not the temporary file
+        return text.replace(tmp, str(url)).replace(os.path.basename(tmp), str(url))
+
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
             fh.write("\n".join([_header(with_p)] + replay_lines(rows, with_p)) + "\n")
-        named = lambda text: text.replace(tmp, str(url)).replace(os.path.basename(tmp), str(url))  # noqa: E731
         try:
             log = read_injection_log(tmp, **log_options)
         except InjectionLogError as exc:
