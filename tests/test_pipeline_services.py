@@ -131,6 +131,38 @@ def _utc_stamp(dt):
     return dt.astimezone(timezone.utc).strftime("%Y-%m-%dT%H:%M:%S")
 
 
+def test_bad_answers_while_running_are_logged_once_and_asked_again(tmp_path, caplog):
+    from datetime import datetime, timezone
+
+    from fault_screen.io.log_stream import LogDecoder
+    from fault_screen.monitor.event_service import EventServiceFeed
+    from fault_screen_plugins.hydws import HydwsSource
+
+    caplog.set_level(logging.INFO)
+    log = short_log(tmp_path, 30)
+    with FakeServices(log, visible=10) as srv:
+        source = HydwsSource(srv.hydws_url, decoder=LogDecoder(srv.hydws_url),
+                             poll_interval=0.01, max_backoff=0.05)
+        feed = EventServiceFeed(srv.fdsn_url, datetime(2015, 3, 12, 9, tzinfo=timezone.utc),
+                                interval=0.0)
+        got = source.read(0.0)
+        assert len(got) == 10 and len(feed.poll()) == 3
+        for answer in ("malformed", "404", "html"):
+            srv.answer = answer
+            srv.reveal(5)
+            assert source.read(0.2) == [] and feed.poll() == []
+        srv.answer = "ok"
+        got += source.read(0.5)
+        assert feed.poll() == []                 # nothing new, nothing twice
+    # the 15 samples revealed meanwhile arrive, none lost or doubled
+    assert [s.time for s in got] == list(read_injection_log(log).time[:25])
+    warned = [m for m in caplog.messages if "asking again" in m]
+    # one warning per service, at its first bad answer (the section is asked first)
+    assert len(warned) == 2 and "malformed JSON" in warned[0] and "not QuakeML" in warned[1]
+    assert sum("answers again" in m for m in caplog.messages) == 2
+    assert source.outages == 1 and source.failures == 0
+
+
 def test_hydws_bottom_position_and_window_reach_replay(scene_file, tmp_path, monkeypatch):
     from fault_screen_plugins.hydws import hydraulics_url, read_log
 

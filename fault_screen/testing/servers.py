@@ -97,6 +97,8 @@ class FakeServices:
         self.revise_after, self.revised_magnitude = revise_after, float(revised_magnitude)
         self.hydws_requests = self.fdsn_requests = 0
         self.hydws_queries: list = []     # the query parameters of each hydraulics request
+        self.answer = "ok"                # or "malformed", "404", "html": the section and the
+                                          # event service answer badly (while a monitor runs)
         self.outages = 0
         self.port = int(port)
         self._lock = threading.Lock()
@@ -266,7 +268,10 @@ class _Handler(BaseHTTPRequestHandler):
         parts = urlsplit(self.path)
         query = {k: v[-1] for k, v in parse_qs(parts.query).items()}
         srv = self.services
-        if parts.path == HYDWS_PATH:
+        if parts.path in (HYDWS_PATH, FDSN_PATH) and srv.answer != "ok":
+            self._send(*{"malformed": (200, b'[{"datetime": '), "404": (404, b"not found"),
+                         "html": (200, b"<html>maintenance</html>", "text/html")}[srv.answer])
+        elif parts.path == HYDWS_PATH:
             body = srv.hydraulics(query)
             if body is None:
                 self.close_connection = True
