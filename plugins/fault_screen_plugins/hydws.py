@@ -196,11 +196,11 @@ class HydwsSource:
     """Follow a HYDWS borehole section (``--source hydws --follow URL``).
 
     Every ``poll_interval`` seconds the section's samples from the last one received on are
-    asked for and those after it handed on, each once (after a restart with ``--state``: from
-    the checkpoint's last sample on).  A server that cannot be reached or
-    gives a bad answer is logged once and asked again with a doubling wait (up to
-    ``max_backoff`` s); its return is logged.  At the start the section must answer (else
-    :class:`HydwsError`, which the monitor reports with exit code 2).
+    asked for, and those after it are handed on, each once (after a restart with ``--state``:
+    from the checkpoint's last sample on).  ``position``: ``top`` or ``bottom`` flow and
+    pressure.  A server that cannot be reached or gives a bad answer is logged once and asked
+    again with a doubling wait (up to ``max_backoff`` s); its return is logged.  At the start
+    the section must answer (else :class:`HydwsError`: exit code 2).
     """
 
     main_option = "position"
