@@ -33,21 +33,22 @@ def test_plugins_lists_every_builtin_and_describes_one():
                         ("webhook", "fault_screen_plugins.alerts:WebhookAlert"),
                         ("command", "fault_screen_plugins.alerts:CommandAlert"),
                         ("csv", "fault_screen_plugins.sources:CsvFollower"),
-                        ("stdin", "fault_screen_plugins.sources:StdinSource")]:
+                        ("stdin", "fault_screen_plugins.sources:StdinSource"),
+                        ("hydws", "fault_screen_plugins.hydws:HydwsSource")]:
         assert f"{name:10s} {where}" in r.output
     r = invoke("plugins", "webhook")
     assert r.exit_code == 0
     assert "options: url, secret_env=None, retries=4, backoff=0.5" in r.output
     r = invoke("plugins", "pager")
     assert r.exit_code == 2
-    assert "unknown plugin 'pager'; supported: command, csv, jsonl, stdin, webhook" in r.output
+    assert "unknown plugin 'pager'; supported: command, csv, hydws, jsonl, stdin, webhook" in r.output
 
 
 @pytest.mark.parametrize("args,message", [
     (["--alert", "pager"], "unknown alert plugin 'pager'; supported: command, jsonl, webhook"),
     (["--alert", "webhook:colour=red"], "alert plugin 'webhook'"),
     (["--alert", "command:ls -l"], "not a shell string"),
-    (["--source", "mqtt"], "unknown source plugin 'mqtt'; supported: csv, stdin"),
+    (["--source", "mqtt"], "unknown source plugin 'mqtt'; supported: csv, hydws, stdin"),
     (["--sta-lta", "10,1,3,1"], "--sta-lta '10,1,3,1': need 0 < STA < LTA"),
     (["--events", "no-such-catalog.xml"], "--events no-such-catalog.xml: file not found"),
     (["--waveforms", "no-such-sds"], "--waveforms no-such-sds: folder not found"),

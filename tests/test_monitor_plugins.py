@@ -24,7 +24,7 @@ def entry_points_visible(tmp_path_factory):
 
 def test_builtins_are_registered_and_unknown_names_list_them():
     assert list(plugins.available("alert")) == ["command", "jsonl", "webhook"]
-    assert list(plugins.available("source")) == ["csv", "stdin"]
+    assert list(plugins.available("source")) == ["csv", "hydws", "stdin"]
     with pytest.raises(plugins.PluginError, match=r"unknown alert plugin 'pager'; supported: "
                                                   r"command, jsonl, webhook"):
         plugins.load("alert", "pager")

@@ -37,10 +37,13 @@ def load_scene(path: Path):
             click.echo(f"Warning: {path}: {w.message}", err=True)
     return scene
 
-def load_events(path: Path, start: datetime | None, site=None):
+def load_events(path: Path | str, start: datetime | None, site=None, end: float | None = None):
     from ..io.events import read_events
+    from ..io.fdsn_events import is_event_service, read_event_service
 
     with reading(path):
+        if is_event_service(path):     # the window from start to end (s) of an FDSN event service
+            return read_event_service(path, start, end=end, site=site)
         return read_events(path, start, site=site)
 
 #: how the scene's log keys are named in messages about a scene's injection.log

@@ -163,6 +163,20 @@ def _compose(*decorators):
 
 
 FILE = click.Path(dir_okay=False, path_type=Path)
+
+
+class _FileOrUrl(click.ParamType):
+    """A file path, or an http(s) URL of a web service kept as text (HYDWS, FDSN event)."""
+
+    name = "file_or_url"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, str) and value.lower().startswith(("http://", "https://")):
+            return value
+        return FILE.convert(value, param, ctx)
+
+
+FILE_OR_URL = _FileOrUrl()
 DIR = click.Path(file_okay=False, path_type=Path)
 
 out_option = click.option(
@@ -203,8 +217,9 @@ set_option = click.option(
          "--set time.dt=20.")
 
 events_option = click.option(
-    "--events", type=FILE, default=None, metavar="CATALOG",
-    help="Seismic event catalogue (QuakeML, CSV or FDSN text) drawn on the time axes and stored "
+    "--events", type=FILE_OR_URL, default=None, metavar="CATALOG|URL",
+    help="Seismic event catalogue (QuakeML, CSV or FDSN text) or FDSN event service URL, "
+         "drawn on the time axes and stored "
          "under /events; with a [site] table in the scene, distances to the injection point and "
          "to the fault plane.")
 
@@ -226,8 +241,9 @@ run_options = _compose(
 
 #: options of ``replay`` that control how the injection log is read
 log_options = _compose(
-    click.option("--log", "log_path", type=FILE, required=True, metavar="LOG",
-                 help="Injection log (CSV: time + flow rate [+ pressure] columns)."),
+    click.option("--log", "log_path", type=FILE_OR_URL, required=True, metavar="LOG|URL",
+                 help="Injection log (CSV: time + flow rate [+ pressure] columns), or the URL "
+                      "of a HYDWS borehole section (?starttime=&endtime= for the window)."),
     click.option("--flow-unit", default=None, metavar="U", callback=_unit_callback("flow_rate"),
                  help="Unit of the flow-rate column when its header has none (e.g. L/min, m3/h)."),
     click.option("--pressure-unit", default=None, metavar="U", callback=_unit_callback("pressure"),

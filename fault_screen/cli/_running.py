@@ -41,7 +41,8 @@ def run_scene(scene, *, scene_label: str, out: Path | None, plot_dir: Path | Non
     out = Path(out) if out is not None else Path.cwd() / f"{stem}.h5"
     _check_outputs(out, plot_dir)
     check_size(scene, scene_label)
-    catalog = load_events(events_path, start, scene.site) if events_path is not None else None
+    catalog = (load_events(events_path, start, scene.site, end=scene.time.end)
+               if events_path is not None else None)
 
     if not quiet:
         m = scene.mesh

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import click
 
-from ._options import (DIR, FILE, BadInput, _positive_callback, _t0_callback, _unit_callback,
-                       check_size, reading, version_option)
+from ._options import (DIR, FILE, FILE_OR_URL, BadInput, _positive_callback, _t0_callback,
+                       _unit_callback, check_size, reading, version_option)
 from ._common import load_scene
 
 
@@ -42,11 +42,12 @@ def _count_callback(ctx, param, value):
 
 @click.command("monitor")
 @click.argument("scene_path", type=FILE, metavar="SCENE")
-@click.option("--follow", "follow", required=True, metavar="LOG|-",
-              help="Injection log to follow as it grows (CSV, the replay format), or '-' to "
-                   "read it from standard input.")
-@click.option("--events", type=FILE, default=None, metavar="CATALOG",
-              help="Seismic catalogue (QuakeML, CSV or FDSN text) polled as it grows.")
+@click.option("--follow", "follow", required=True, metavar="LOG|-|URL",
+              help="Injection log to follow as it grows (CSV, the replay format), '-' to "
+                   "read it from standard input, or the URL of a HYDWS borehole section.")
+@click.option("--events", type=FILE_OR_URL, default=None, metavar="CATALOG|URL",
+              help="Seismic catalogue (QuakeML, CSV or FDSN text) polled as it grows, or an "
+                   "FDSN event service URL polled for new, revised and deleted events.")
 @click.option("--waveforms", type=DIR, default=None, metavar="SDS_DIR",
               help="SDS waveform archive: classic STA/LTA detections as it fills.")
 @click.option("--seedlink", default=None, metavar="HOST:PORT", callback=_address_callback,
@@ -72,7 +73,7 @@ def _count_callback(ctx, param, value):
               help="Alert plugin (repeatable): jsonl:FILE, webhook:url=URL,secret_env=VAR, "
                    "command:[\"prog\",\"arg\"]; 'fault-screen plugins' lists them.")
 @click.option("--source", default=None, metavar="NAME",
-              help="Source plugin [default: csv, or stdin for '--follow -'].")
+              help="Source plugin [default: csv; stdin for '--follow -', hydws for a URL].")
 @click.option("--poll", "poll_interval", type=float, default=0.5, show_default=True,
               metavar="S", callback=_positive_callback, help="Polling interval (s).")
 @click.option("--checkpoint-every", type=int, default=50, show_default=True, metavar="N",
@@ -103,11 +104,16 @@ def _count_callback(ctx, param, value):
 @click.option("--sta-lta", "sta_lta", default=None, metavar="STA,LTA,ON,OFF",
               callback=_sta_lta_callback,
               help="STA/LTA windows (s) and trigger thresholds [default: 0.5,10,3.5,1].")
+@click.option("--metrics-port", type=click.IntRange(0, 65535), default=None, metavar="PORT",
+              help="Serve Prometheus metrics at http://ADDRESS:PORT/metrics.")
+@click.option("--metrics-address", default="127.0.0.1", show_default=True, metavar="ADDRESS",
+              help="Address the metrics are served on (0.0.0.0: every interface).")
 @click.option("--quiet", "-q", is_flag=True, help="Only warnings and errors on stderr.")
 @version_option
 def monitor(scene_path, follow, events, waveforms, seedlink, seedlink_streams, state, out, overwrite, idle_exit, alerts, source,
             poll_interval, checkpoint_every, outbox, flow_unit, pressure_unit, max_gap, policy,
-            log_date, log_tz, time_column, flow_column, pressure_column, t0, sta_lta, quiet):
+            log_date, log_tz, time_column, flow_column, pressure_column, t0, sta_lta,
+            metrics_port, metrics_address, quiet):
     """Follow a growing injection log with the model of SCENE, screen every step, and alert.
 
     The model advances only as far as the samples allow (whole steps ending at or before the
@@ -137,7 +143,12 @@ def monitor(scene_path, follow, events, waveforms, seedlink, seedlink_streams, s
     for opt, p in (("--out", out), ("--state", state)):
         if p is not None and not (p.parent if str(p.parent) else Path(".")).is_dir():
             raise BadInput(f"{opt} {p}: directory {p.parent} does not exist")
-    if events is not None and not events.is_file():
+    if isinstance(events, str):      # an FDSN event service: it must answer at the start
+        from ..io.fdsn_events import check_event_service
+
+        with reading(f"--events {events}"):
+            check_event_service(events)
+    elif events is not None and not events.is_file():
         raise BadInput(f"--events {events}: file not found")
     if waveforms is not None and not waveforms.is_dir():
         raise BadInput(f"--waveforms {waveforms}: folder not found")
@@ -163,18 +174,30 @@ def monitor(scene_path, follow, events, waveforms, seedlink, seedlink_streams, s
                         log_options=dict(date=log_date, tz=log_tz, time_column=time_column,
                                          flow_column=flow_column, pressure_column=pressure_column,
                                          option_names=CLI_OPTION_NAMES))
+    exporter = None
+    if metrics_port is not None:
+        from ..monitor.metrics_exporter import MetricsExporter
+
+        exporter = MetricsExporter(scene)
     try:
-        service = MonitorService(scene, cfg)
+        service = MonitorService(scene, cfg, on_update=exporter.update if exporter else None)
     except (PluginError, InjectionLogError, MonitorInputError) as exc:
         raise BadInput(str(exc)) from None
     except (ValueError, OSError) as exc:
         with reading(state):
             raise exc
+    if exporter is not None:
+        exporter.attach(service)
+        with reading(f"--metrics-port {metrics_port}"):
+            exporter.start(metrics_port, metrics_address)
     service.install_signal_handlers()
     try:
         summary = service.run()
     except (InjectionLogError, MonitorInputError) as exc:
         raise BadInput(str(exc)) from None
+    finally:
+        if exporter is not None:
+            exporter.stop()
     if not quiet:
         click.echo(f"monitor stopped ({summary['ended']}): {summary['steps']} steps to "
                    f"t = {summary['time']:g} s from {summary['samples']} samples; level "

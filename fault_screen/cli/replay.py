@@ -44,12 +44,17 @@ def replay(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, end,
     if scene.injection.control != "rate":
         raise BadInput(f"{scene_path}: injection.control = {scene.injection.control!r}: a log "
                        f"replay drives the flow rate; use a scene with control = 'rate'")
+    read = read_injection_log
+    if isinstance(log_path, str):    # a HYDWS section's URL: read by the hydws source plugin
+        from ..monitor.plugins import load
+
+        read = load("source", "hydws").read_log
     with reading(log_path):
-        log = read_injection_log(log_path, flow_unit=flow_unit, pressure_unit=pressure_unit,
-                                 max_gap=max_gap, policy=policy, date=log_date, tz=log_tz,
-                                 time_column=time_column, flow_column=flow_column,
-                                 pressure_column=pressure_column, option_names=CLI_OPTION_NAMES,
-                                 flowback=scene.injection.allow_flowback)
+        log = read(log_path, flow_unit=flow_unit, pressure_unit=pressure_unit,
+                   max_gap=max_gap, policy=policy, date=log_date, tz=log_tz,
+                   time_column=time_column, flow_column=flow_column,
+                   pressure_column=pressure_column, option_names=CLI_OPTION_NAMES,
+                   flowback=scene.injection.allow_flowback)
     click.echo(f"log: {log.summary}")
     for w in log.warnings:
         click.echo(f"Warning: {w}", err=True)

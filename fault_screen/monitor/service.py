@@ -24,7 +24,8 @@ from ..io.injection_log import InjectionLogError
 from ..io.log_stream import LogDecoder
 from . import plugins
 from .outbox import Outbox
-from .seismicity import CatalogFollower, SdsDetector, SeedLinkDetector, Site
+from .event_service import follower_for
+from .seismicity import SdsDetector, SeedLinkDetector, Site
 from .stage import LEVELS, Stage
 
 __all__ = ["MonitorConfig", "MonitorService", "MonitorInputError"]
@@ -46,13 +47,13 @@ class MonitorConfig:
     follow: str                                # log path, or "-" for standard input
     state: Optional[Path] = None               # checkpoint file (HDF5)
     out: Optional[Path] = None                 # result file written at the end
-    events: Optional[Path] = None              # QuakeML / FDSN text catalogue (polled)
+    events: Optional[Path] = None              # QuakeML / FDSN text catalogue or service URL
     waveforms: Optional[Path] = None           # SDS archive root
     seedlink: Optional[str] = None             # SeedLink server HOST:PORT
     seedlink_streams: str = ""                 # NET_STA[:SELECTORS],... (obspy's stream list)
     idle_exit: Optional[float] = None          # s without a new sample -> clean exit
     alerts: List[str] = field(default_factory=list)   # NAME[:CONFIG] specs
-    source: Optional[str] = None               # source plugin (default: csv, or stdin for "-")
+    source: Optional[str] = None               # source plugin (default: csv, stdin, hydws)
     poll_interval: float = 0.5
     checkpoint_every: int = 50                 # steps
     outbox: Optional[Path] = None              # default: next to the state file
@@ -90,7 +91,8 @@ class MonitorService:
         # plugins first: a bad name or option fails before the model is built
         all_sinks = plugins.alert_sinks(config.alerts)
         all_sinks.update(sinks or {})
-        name = config.source or ("stdin" if config.follow == "-" else "csv")
+        name = config.source or ("stdin" if config.follow == "-" else "hydws" if
+                                 config.follow.startswith(("http://", "https://")) else "csv")
         # at once, before the model is built (which takes a while): what is being followed
         log.info("following %s (source %s) with the scene %s; results: %s; state: %s; "
                  "alerts: %s; events: %s", "standard input" if config.follow == "-" else
@@ -133,9 +135,10 @@ class MonitorService:
         self.outbox = Outbox(box, all_sinks, log=logging.getLogger("fault_screen.monitor.outbox"))
         log.info("model ready at model time %.6g s; waiting for samples", self.stage.time)
         self._first_sample_logged = False
-        self.catalog: Optional[CatalogFollower] = None
+        self.catalog = None               # a CatalogFollower or an EventServiceFeed
         self.detector: Optional[SdsDetector] = None
         self._detector_state = extra.get("detector")
+        self._events_state = extra.get("event_service")    # an event service's feed
         self._last_ckpt = self.stage.steps
         self._last_wave_poll = 0.0
         self._last_flush = time.monotonic()
@@ -168,7 +171,9 @@ class MonitorService:
             return
         if self.cfg.events is not None and self.catalog is None:
             site = st.site.spec if st.site is not None else None
-            self.catalog = CatalogFollower(self.cfg.events, st.start, site=site)
+            self.catalog = follower_for(self.cfg.events, st.start, site=site)
+            if self._events_state and hasattr(self.catalog, "restore"):
+                self.catalog.restore(self._events_state)
         if self.detector is None and (self.cfg.waveforms is not None or self.cfg.seedlink is not None):
             if self.cfg.seedlink is not None:
                 # the same STA/LTA path on the records a SeedLink server streams
@@ -182,6 +187,8 @@ class MonitorService:
     def _poll_seismicity(self, force: bool = False) -> None:
         if self.catalog is not None:
             new = self.catalog.poll()
+            # an event service's revised and deleted events are forgotten (the revised come again)
+            self.stage.withdraw_events(getattr(self.catalog, "take_withdrawn", list)())
             if new:
                 log.info("%d new event(s) from %s", len(new), self.cfg.events)
                 self.stage.feed_events(new)
@@ -230,7 +237,9 @@ class MonitorService:
         if self.cfg.state is None:
             return
         extra = {"decoder": self.decoder.state(), "outbox_position": self.outbox.count(),
-                 "detector": self.detector.state() if self.detector else self._detector_state}
+                 "detector": self.detector.state() if self.detector else self._detector_state,
+                 "event_service": (self.catalog.state() if hasattr(self.catalog, "state")
+                                   else self._events_state)}
         self.stage.checkpoint(self.cfg.state, extra=extra)
         self._last_ckpt = self.stage.steps
 

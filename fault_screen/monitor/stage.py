@@ -43,6 +43,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
+from time import perf_counter
 from typing import List, Optional, Sequence
 
 import numpy as np
@@ -221,6 +222,7 @@ class Update:
     transitions: list = field(default_factory=list)
     alerts: list = field(default_factory=list)
     level: int = 0
+    step_seconds: list = field(default_factory=list)   # wall time of each step taken (s)
 
 
 class Stage:
@@ -385,6 +387,25 @@ class Stage:
         self.pending_events.sort(key=lambda e: e.time)
         self.event_times = deque(sorted(self.event_times))
 
+    def withdraw_events(self, ids) -> None:
+        """Forget the events of these ids (an event service revised or deleted them), pending
+        or already associated; a revised event is then fed again like a new one."""
+        ids = set(ids)
+        if not ids:
+            return
+        screened = [a["time"] for a in self.associations if a.get("id") in ids]
+        gone = [e.time for e in self.pending_events if e.id in ids] + screened
+        if hasattr(self.screener, "forget_events"):   # its event_rate counts them no more
+            self.screener.forget_events(screened)
+        self.pending_events = [e for e in self.pending_events if e.id not in ids]
+        self.associations = [a for a in self.associations if a.get("id") not in ids]
+        times = list(self.event_times)
+        for t in gone:
+            if float(t) in times:
+                times.remove(float(t))
+        self.event_times = deque(times)
+        self._event_ids -= ids
+
     def finish(self) -> Update:
         """Take the final partial step to the last sample (as a replay ends at its last stamp).
         Events reported after the model passed their time and not yet associated are associated
@@ -409,11 +430,13 @@ class Stage:
         # one step per call: each step is screened (and its alerts raised) as soon as it is done;
         # the stepper's sequence state makes this the same steps as one call
         while True:
+            wall = perf_counter()
             n = int(self.sim.advance(t_last, volume=self.samples.volume, align=align,
                                      max_steps=1) or 0)
             if n == 0:
                 break
             self._screen_step(dict(self.sim.last_row), upd)
+            upd.step_seconds.append(perf_counter() - wall)
             upd.steps += 1
             self.steps += 1
         if upd.steps:

@@ -188,6 +188,16 @@ class Screener:
             self._pending.append((float(t), float(m), float(d)))
             self._known_times.append(float(t))
 
+    def forget_events(self, times) -> None:
+        """Forget events given earlier (a revised or deleted event of an event service): each
+        origin time leaves the events still to count and the ``event_rate`` history once."""
+        for t in map(float, times):
+            if t in self._known_times:
+                self._known_times.remove(t)
+            pending = next((e for e in self._pending if e[0] == t), None)
+            if pending is not None:
+                self._pending.remove(pending)
+
     def update(self, time: float, metrics: dict, events=None, unstable: bool = False) -> list[Transition]:
         """Evaluate the rules at ``time`` (s) with ``metrics`` (name -> SI value, NaN = missing)
         and the new ``events``; ``unstable``: the run stopped here on an unstable fault.

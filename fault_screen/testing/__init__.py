@@ -1,0 +1,1 @@
+"""Helpers for trying the monitor against local stand-ins of the services it reads."""
