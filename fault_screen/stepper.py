@@ -332,6 +332,33 @@ class Simulation:
         rec.writer = None
         return path
 
+    # ------------------------------------------------------------------ forks
+    def fork(self) -> "Simulation":
+        """An independent simulation continuing from this one's state, in memory: advancing it
+        never changes this one, and it takes the steps this one would take (bit for bit, as a
+        checkpoint restored does). The scene, the discretisation and the physics terms are
+        shared: the steps only read them. The fork makes its own solver and factorisations
+        (restored from this solver's checkpoint state) and keeps its rows in memory, starting
+        with this run's newest row (a look-ahead; this run may stream to a file)."""
+        twin = object.__new__(type(self))
+        twin.__dict__.update(self.__dict__)     # the counters and step-sequence state: scalars
+        twin.solver = self._forked_solver()
+        twin.x = self.x.copy()
+        twin.history = None if self.history is None else self.history.copy()
+        twin.stopped = None if self.stopped is None else dict(self.stopped)
+        twin.recorder = self.recorder.fork()
+        return twin
+
+    def _forked_solver(self) -> NewtonSolver:
+        """A new solver in the state ``checkpoint`` stores for this one (the one place a fork
+        gets its solver: sharing the current factorisations would go here)."""
+        solver = NewtonSolver(self.disc)
+        self.disc.release_element_groups()   # (assembled again: the steps do not read them)
+        if self.solver.scale is not None:
+            solver.scale = self.solver.scale.copy()
+        solver.restore_state({k: np.array(v, copy=True) for k, v in self.solver.checkpoint_state().items()})
+        return solver
+
     # ------------------------------------------------------------------ checkpoints
     def checkpoint(self, path) -> Path:
         """Write the complete state (unknowns, fault history, step size, time, recorded rows,
@@ -533,6 +560,17 @@ class Recorder:
         row["profile"] = True
         if self.writer is not None and not self._open:     # its series are already in the file
             self.writer.append("profiles", self.profile_record(row))
+
+    def fork(self) -> "Recorder":
+        """A recorder for a fork: the same layout, its rows in memory, beginning with the newest
+        row of this one (which is left as it is, its file included)."""
+        twin = object.__new__(type(self))
+        twin.__dict__.update(self.__dict__)    # the layout (disc, store weights): read only
+        twin.writer = None
+        twin._open = False
+        twin.last = dict(self.last) if self.last is not None else None
+        twin.rows = [twin.last] if twin.last is not None else []
+        return twin
 
     # -- the layout of the result -----------------------------------------------------------
     def series_record(self, row: dict) -> dict:

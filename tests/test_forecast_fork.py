@@ -1,0 +1,41 @@
+"""Simulation.fork: a fork continues exactly as the run would, and advancing it never changes the
+run it was forked from (that run then continues bit for bit as one that never forked)."""
+import numpy as np
+import pytest
+
+from fault_screen import Simulation
+from fault_screen.simulate import simulate
+from test_stepper import _arrays, _assert_identical, hard_rustrel, pressure_controlled, poroelastic_growing
+
+CASES = {"rate, rate-and-state, evolving aperture": hard_rustrel,
+         "pressure control": pressure_controlled,
+         "poroelastic, growing steps": poroelastic_growing}
+
+
+@pytest.fixture(scope="module", params=list(CASES))
+def case(request):
+    scene = CASES[request.param]()
+    return scene, simulate(scene)
+
+
+def test_a_fork_never_changes_the_original_and_takes_the_same_steps(case):
+    scene, reference = case
+    n = len(reference.time) - 1
+    steps = n // 2
+    sim = Simulation(scene)
+    sim.advance(scene.time.end, max_steps=steps)
+    x, history, dt, t = sim.x.copy(), None if sim.history is None else sim.history.copy(), sim.dt, sim.time
+    fork = sim.fork()
+    fork.advance(scene.time.end)
+    # the original's state is untouched by the fork's steps
+    assert np.array_equal(sim.x, x) and sim.dt == dt and sim.time == t and sim.steps == steps
+    if history is not None:
+        assert np.array_equal(sim.history, history)
+    assert len(sim.result().time) == steps + 1
+    # the fork's rows are the uninterrupted run's rows from the fork on (every array, exactly)
+    forked = _arrays(fork.result())
+    for k, ref in _arrays(reference).items():
+        assert np.array_equal(forked[k], ref[steps:]), k
+    # and the original continues bit-identically to a run that never forked
+    sim.advance(scene.time.end)
+    _assert_identical(sim.result(), reference)
