@@ -58,6 +58,8 @@ class SimulationError(RuntimeError):
 class Simulation:
     """A scene advanced in time; see the module docstring."""
 
+    _solver_origin = None   # the solver state a fork or a restored run began from
+
     def __init__(self, scene: Scene):
         wall0 = _time.perf_counter()
         self.scene = scene
@@ -342,22 +344,31 @@ class Simulation:
         with this run's newest row (a look-ahead; this run may stream to a file)."""
         twin = object.__new__(type(self))
         twin.__dict__.update(self.__dict__)     # the counters and step-sequence state: scalars
-        twin.solver = self._forked_solver()
+        twin.solver, twin._solver_origin = self._forked_solver()
         twin.x = self.x.copy()
         twin.history = None if self.history is None else self.history.copy()
         twin.stopped = None if self.stopped is None else dict(self.stopped)
         twin.recorder = self.recorder.fork()
         return twin
 
-    def _forked_solver(self) -> NewtonSolver:
-        """A new solver in the state ``checkpoint`` stores for this one (the one place a fork
-        gets its solver: sharing the current factorisations would go here)."""
+    def _forked_solver(self) -> tuple:
+        """A new solver in the state ``checkpoint`` stores for this one, and that state (the one
+        place a fork gets its solver: sharing the current factorisations would go here)."""
         solver = NewtonSolver(self.disc)
         self.disc.release_element_groups()   # (assembled again: the steps do not read them)
         if self.solver.scale is not None:
             solver.scale = self.solver.scale.copy()
-        solver.restore_state({k: np.array(v, copy=True) for k, v in self.solver.checkpoint_state().items()})
-        return solver
+        state = self._solver_state()
+        solver.restore_state(state)
+        return solver, state
+
+    def _solver_state(self) -> dict:
+        """The solver's checkpoint state; for a fork (or a restored run) that has not taken a
+        step yet, the state it was given, which its solver holds but cannot report yet."""
+        origin = self._solver_origin
+        if origin is not None and self.solver.factorizations == 0:
+            return origin
+        return self.solver.checkpoint_state()
 
     # ------------------------------------------------------------------ checkpoints
     def checkpoint(self, path) -> Path:
@@ -382,7 +393,7 @@ class Simulation:
                 h5["history"] = self.history
             if self.solver.scale is not None:
                 h5["solver_scale"] = self.solver.scale
-            for key, value in self.solver.checkpoint_state().items():
+            for key, value in self._solver_state().items():
                 h5[f"solver/{key}"] = value
             rec = self.recorder
             h5.attrs["recorder"] = json.dumps(rec.state())
@@ -432,7 +443,8 @@ class Simulation:
             if "solver_scale" in h5:
                 sim.solver.scale = h5["solver_scale"][()]
             if "solver" in h5:
-                sim.solver.restore_state({k: h5["solver"][k][()] for k in h5["solver"]})
+                sim._solver_origin = {k: h5["solver"][k][()] for k in h5["solver"]}
+                sim.solver.restore_state(sim._solver_origin)
             rec_state = json.loads(h5.attrs["recorder"]) if "recorder" in h5.attrs else None
             stream = json.loads(h5.attrs["stream"]) if "stream" in h5.attrs else None
             if stream is not None:

@@ -18,6 +18,13 @@ def case(request):
     return scene, simulate(scene)
 
 
+def _assert_rows_from(result, reference, steps):
+    """``result``'s rows are the uninterrupted run's rows from step ``steps`` on (every array)."""
+    forked = _arrays(result)
+    for k, ref in _arrays(reference).items():
+        assert np.array_equal(forked[k], ref[steps:]), k
+
+
 def test_a_fork_never_changes_the_original_and_takes_the_same_steps(case):
     scene, reference = case
     n = len(reference.time) - 1
@@ -33,9 +40,11 @@ def test_a_fork_never_changes_the_original_and_takes_the_same_steps(case):
         assert np.array_equal(sim.history, history)
     assert len(sim.result().time) == steps + 1
     # the fork's rows are the uninterrupted run's rows from the fork on (every array, exactly)
-    forked = _arrays(fork.result())
-    for k, ref in _arrays(reference).items():
-        assert np.array_equal(forked[k], ref[steps:]), k
+    _assert_rows_from(fork.result(), reference, steps)
+    # a fork of a fork that has not stepped yet (a look-ahead's state) takes the same steps too
+    twice = sim.fork().fork()
+    twice.advance(scene.time.end)
+    _assert_rows_from(twice.result(), reference, steps)
     # and the original continues bit-identically to a run that never forked
     sim.advance(scene.time.end)
     _assert_identical(sim.result(), reference)
