@@ -154,6 +154,23 @@ def test_a_log_file_plan_counts_from_now(rustrel_now, tmp_path):
     assert full.metrics["injection_overpressure"][-1] - f.metrics["injection_overpressure"][-1] > 1e4
 
 
+def test_a_log_drive_equal_to_the_schedule_gives_its_forecasts(rustrel_now):
+    """The run driven by a log of the scene's own steps: ``scene`` and ``hold`` (the log's rate at
+    300 s, 22 L/min) forecast what the schedule does, to the rounding of the log's ramps."""
+    from fault_screen.io.injection_log import InjectionLog
+
+    scene = Scene.from_toml(CONFIGS / f"{IMPERMEABLE}.toml")
+    times, rates = zip(*scene.injection.schedule)
+    log = InjectionLog.from_steps(times, rates)
+    ahead = LookAhead(*run_to(scene, NOW, volume=log.volume), drive=log)
+    for name in ("scene", "hold"):
+        by_log = ahead.run(parse_plan(name), 120.0)
+        by_schedule = rustrel_now.run(parse_plan(name), 120.0)
+        assert by_log.time_to_yellow == by_schedule.time_to_yellow == 90.0, name
+        assert np.allclose(by_log.metrics["injection_overpressure"],
+                           by_schedule.metrics["injection_overpressure"], rtol=1e-9, atol=0), name
+
+
 def test_a_forecast_from_a_checkpoint_restored_in_another_process_is_the_same(rustrel_run, rustrel_now, tmp_path):
     before = rustrel_now.run(parse_plan("hold"), 60.0)
     path = rustrel_run[0].checkpoint(tmp_path / "state.h5")

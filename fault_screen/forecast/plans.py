@@ -55,18 +55,26 @@ class Plan:
         kind = "rate" if control == "rate" else "pressure"
         return cls(f"{kind}:{value:.6g} {unit}", kind, float(value))
 
+    def check(self, control: str) -> "Plan":
+        """This plan, if a scene with ``injection.control = control`` can follow it."""
+        if control == "pressure" and self.kind in ("rate", "log"):
+            raise PlanError(f"plan {self.name!r}: this scene is pressure-controlled; use "
+                            f"pressure:<value unit>, hold, stop, scale:<factor> or scene")
+        if control != "pressure" and self.kind == "pressure":
+            raise PlanError(f"plan {self.name!r}: a pressure plan needs a pressure-controlled scene "
+                            f"(this one has injection.control = {control!r}); use rate:<value unit>")
+        return self
+
     def drive(self, sim, drive=None, start: Optional[datetime] = None) -> dict:
         """The keyword arguments of ``sim.advance`` that follow this plan from ``sim.time`` on.
         ``drive``: what drove the run so far (an object with ``volume(t0, t1)`` and
         ``rate_at(t)``, e.g. an InjectionLog), None for the scene's own schedule; ``start``:
         the date-time of model time 0 (for a log plan with date-times)."""
         control = sim.scene.injection.control
+        self.check(control)
         now = float(sim.time)
         if control == "pressure":
             return {"pressure": self._pressure(sim, now)}
-        if self.kind == "pressure":
-            raise PlanError(f"plan {self.name!r}: a pressure plan needs a pressure-controlled scene "
-                            f"(this one has injection.control = {control!r}); use rate:<value unit>")
         base = drive.volume if drive is not None else sim.schedule.volume
         if self.kind == "scene":
             return {"volume": drive.volume if drive is not None else None}
@@ -89,9 +97,6 @@ class Plan:
         return {"volume": lambda t0, t1: log.volume(t0 - shift, t1 - shift)}
 
     def _pressure(self, sim, now):
-        if self.kind in ("rate", "log"):
-            raise PlanError(f"plan {self.name!r}: this scene is pressure-controlled; use "
-                            f"pressure:<value unit>, hold, stop, scale:<factor> or scene")
         schedule = sim.schedule
         if self.kind == "scene":
             return None
