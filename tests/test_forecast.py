@@ -281,3 +281,21 @@ def test_even_shut_in_reaching_the_level_is_said():
 def test_a_constant_plan_is_named_in_si():
     assert Plan.constant(5e-4).name == "rate:0.0005 m3/s"
     assert Plan.constant(2e6, "pressure").name == "pressure:2e+06 Pa"
+
+
+def test_longer_steps_grow_from_the_run_step_and_stay_within_a_step(rustrel_run):
+    """growth 1.2 up to 60 s from the run's 5 s step: steps 5 * 1.2^k (the last shortened to end
+    on the horizon); time to yellow within one of those steps of the exact 90 s."""
+    sim, screening = rustrel_run
+    f = LookAhead(sim, screening, growth=1.2, dt_max=60.0).run(parse_plan("hold"), 180.0)
+    steps = np.diff(f.time)
+    expected, t = [], 0.0
+    while t < 180.0 * (1 - 1e-12):
+        dt = min(5.0 * 1.2 ** len(expected), 60.0, 180.0 - t)
+        expected.append(dt)
+        t += dt
+    assert np.allclose(steps, expected, rtol=1e-12)
+    i = int(np.searchsorted(f.time - NOW, f.time_to_yellow))
+    assert abs(f.time_to_yellow - 90.0) <= steps[i - 1]
+    with pytest.raises(ValueError, match="growth"):
+        LookAhead(sim, screening, growth=0.5)

@@ -11,6 +11,7 @@ uninterrupted run row for row.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 import time as _time
 from dataclasses import dataclass, field
@@ -109,15 +110,21 @@ class LookAhead:
 
     ``drive``: what drove the run (``volume(t0, t1)``, ``rate_at(t)``; an InjectionLog, a live
     sample buffer), None for the scene's schedule; ``start``: date-time of model time 0 (for
-    log plans with date-times). Neither ``sim`` nor ``screening`` is changed, now or later."""
+    log plans with date-times). Neither ``sim`` nor ``screening`` is changed, now or later.
 
-    def __init__(self, sim, screening: StepScreening, *, drive=None, start: Optional[datetime] = None):
+    ``growth`` and ``dt_max`` (s): a look-ahead whose steps grow from the run's current step by
+    this factor up to ``dt_max`` instead of following the scene's sequence: faster, less exact
+    (``benchmarks/lookahead.py`` measures what it costs); default: the scene's own sequence."""
+
+    def __init__(self, sim, screening: StepScreening, *, drive=None, start: Optional[datetime] = None,
+                 growth: Optional[float] = None, dt_max: Optional[float] = None):
         self.state = sim.fork()
         self.screening = _copy_screening(screening)
         self.drive = drive
         self.start = start
         self.made_at = float(sim.time)
         self.level_now = int(screening.screener.level)
+        self.time_steps = _time_steps(sim.scene, growth, dt_max)
 
     @property
     def control(self) -> str:
@@ -127,6 +134,8 @@ class LookAhead:
         """The forecast of ``plan`` over ``horizon`` (s) from now, on a fork."""
         wall0 = _time.perf_counter()
         sim = self.state.fork()
+        if self.time_steps is not None:
+            sim.scene = self.time_steps
         screening = _copy_screening(self.screening)
         drive = plan.drive(sim, self.drive, self.start)
         first = {k.rsplit("/", 1)[1]: v for k, v in _now_record(self.state, screening).items()}
@@ -142,6 +151,18 @@ class LookAhead:
         return _summarise(self.made_at, plan.name, float(horizon), np.array(times), np.array(levels),
                           {k: np.asarray(v, dtype=float) for k, v in rows.items()},
                           _time.perf_counter() - wall0, (sim.stopped or {}).get("message"))
+
+
+def _time_steps(scene, growth, dt_max):
+    """The scene whose step sequence a look-ahead follows, when not the run's own (None)."""
+    if growth is None and dt_max is None:
+        return None
+    ts = scene.time
+    growth = ts.growth if growth is None else float(growth)
+    dt_max = (ts.dt_max if ts.dt_max is not None else ts.dt) if dt_max is None else float(dt_max)
+    if not (growth >= 1.0 and dt_max > 0):
+        raise ValueError(f"look-ahead steps: growth {growth!r} must be >= 1 and dt_max {dt_max!r} > 0")
+    return scene.replace(time=dataclasses.replace(ts, growth=growth, dt_max=dt_max))
 
 
 def _copy_screening(screening: StepScreening) -> StepScreening:
