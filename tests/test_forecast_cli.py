@@ -3,7 +3,6 @@ bad input (exit 2 with a message), and a run driven by a log."""
 import csv
 import dataclasses
 
-import numpy as np
 import pytest
 from click.testing import CliRunner
 from hypothesis import HealthCheck, given, settings

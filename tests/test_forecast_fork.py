@@ -5,11 +5,7 @@ import pytest
 
 from fault_screen import Simulation
 from fault_screen.simulate import simulate
-from test_stepper import _arrays, _assert_identical, hard_rustrel, pressure_controlled, poroelastic_growing
-
-CASES = {"rate, rate-and-state, evolving aperture": hard_rustrel,
-         "pressure control": pressure_controlled,
-         "poroelastic, growing steps": poroelastic_growing}
+from test_stepper import CASES, _arrays, _assert_identical
 
 
 @pytest.fixture(scope="module", params=list(CASES))

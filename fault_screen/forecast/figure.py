@@ -41,7 +41,7 @@ def plot_forecast(forecasts, path, *, spec=None, advice=None, title: str = "") -
     factor, unit = time_scale(span)
     fig = _figure(figsize=(9, 8), layout="constrained")
     axes = fig.subplots(len(PANELS), 1, sharex=True)
-    colours = [f"C{i}" for i in range(10)]
+    colours = [c for c in (f"C{i}" for i in range(10)) if c not in ("C3", "C8")]
     for k, (f, style) in enumerate(lines):
         t = (f.time - made_at) * factor
         label = _advised_label(advice) if style == "--" else f.plan
@@ -52,13 +52,14 @@ def plot_forecast(forecasts, path, *, spec=None, advice=None, title: str = "") -
             y = np.asarray(y, dtype=float) * scale
             if name == "peak_slip_rate":   # below SLIP_RATE_FLOOR: round-off of a fault at rest
                 y = np.maximum(y, SLIP_RATE_FLOOR)
-            ax.plot(t, y, style, color=colours[k % 10], label=label, lw=1.6)
+            colour = "k" if style == "--" else colours[k % len(colours)]   # (red and yellow mean levels)
+            ax.plot(t, y, style, color=colour, label=label, lw=1.6)
             for level, marker in ((YELLOW, "o"), (RED, "s")):
                 when = f.time_to_yellow if level == YELLOW else f.time_to_red
                 if when is None:
                     continue
                 i = int(np.argmin(np.abs(f.time - made_at - when)))
-                if np.isfinite(y[i]):
+                if np.isfinite(y[i]) and not (name == "peak_slip_rate" and y[i] <= SLIP_RATE_FLOOR):
                     ax.plot(t[i], y[i], marker, color=LEVEL_COLOURS[level], mec="k", ms=7, zorder=5)
     for ax, (name, label, scale) in zip(axes, PANELS):
         ax.set_ylabel(label)
