@@ -6,7 +6,8 @@ in-situ state at t = 0. ``advance(t_next, volume=...)`` (rate control) or
 step sequence (first step ``time.dt``, growing by ``time.growth`` up to ``time.dt_max``); a step
 whose Newton iteration fails is halved and retried up to ``solver.max_step_cuts`` times.
 ``checkpoint(path)`` writes the complete state to HDF5 and ``Simulation.restore(path)``
-continues bit-identically.
+continues bit-identically; ``fork()`` does the same in memory: an independent simulation that
+continues from the current state (a look-ahead), leaving this one as it was.
 
 A run advanced in chunks takes the same steps as one advanced in one go when every chunk ends
 on a step of the sequence, or always with ``align=True`` (then a chunk stops at the last whole

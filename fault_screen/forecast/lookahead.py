@@ -21,7 +21,7 @@ from typing import Optional
 import numpy as np
 
 from ..api import StepScreening
-from ..screening import GREEN, LEVEL_NAMES, RED, YELLOW
+from ..screening import LEVEL_NAMES, RED, YELLOW
 from .plans import Plan
 
 __all__ = ["LookAhead", "Forecast", "COLUMNS", "screening_of"]
@@ -198,5 +198,3 @@ def _summarise(made_at, name, horizon, times, levels, metrics, wall, stopped) ->
                     induced_slip_at_horizon=float(slip[-1]) if slip.size else math.nan,
                     wall_s=float(wall), time=times, metrics=metrics, level=levels, stopped=stopped)
 
-
-LEVELS = {"green": GREEN, "yellow": YELLOW, "red": RED}
