@@ -6,7 +6,8 @@ in-situ state at t = 0. ``advance(t_next, volume=...)`` (rate control) or
 step sequence (first step ``time.dt``, growing by ``time.growth`` up to ``time.dt_max``); a step
 whose Newton iteration fails is halved and retried up to ``solver.max_step_cuts`` times.
 ``checkpoint(path)`` writes the complete state to HDF5 and ``Simulation.restore(path)``
-continues bit-identically.
+continues bit-identically; ``fork()`` does the same in memory: an independent simulation that
+continues from the current state (a look-ahead), leaving this one as it was.
 
 A run advanced in chunks takes the same steps as one advanced in one go when every chunk ends
 on a step of the sequence, or always with ``align=True`` (then a chunk stops at the last whole
@@ -57,6 +58,8 @@ class SimulationError(RuntimeError):
 
 class Simulation:
     """A scene advanced in time; see the module docstring."""
+
+    _solver_origin = None   # the solver state a fork or a restored run began from
 
     def __init__(self, scene: Scene):
         wall0 = _time.perf_counter()
@@ -332,6 +335,42 @@ class Simulation:
         rec.writer = None
         return path
 
+    # ------------------------------------------------------------------ forks
+    def fork(self) -> "Simulation":
+        """An independent simulation continuing from this one's state, in memory: advancing it
+        never changes this one, and it takes the steps this one would take (bit for bit, as a
+        checkpoint restored does). The scene, the discretisation and the physics terms are
+        shared: the steps only read them. The fork makes its own solver and factorisations
+        (restored from this solver's checkpoint state) and keeps its rows in memory, starting
+        with this run's newest row (a look-ahead; this run may stream to a file)."""
+        twin = object.__new__(type(self))
+        twin.__dict__.update(self.__dict__)     # the counters and step-sequence state: scalars
+        twin.solver, twin._solver_origin = self._forked_solver()
+        twin.x = self.x.copy()
+        twin.history = None if self.history is None else self.history.copy()
+        twin.stopped = None if self.stopped is None else dict(self.stopped)
+        twin.recorder = self.recorder.fork()
+        return twin
+
+    def _forked_solver(self) -> tuple:
+        """A new solver in the state ``checkpoint`` stores for this one, and that state (the one
+        place a fork gets its solver: sharing the current factorisations would go here)."""
+        solver = NewtonSolver(self.disc)
+        self.disc.release_element_groups()   # (assembled again: the steps do not read them)
+        if self.solver.scale is not None:
+            solver.scale = self.solver.scale.copy()
+        state = self._solver_state()
+        solver.restore_state(state)
+        return solver, state
+
+    def _solver_state(self) -> dict:
+        """The solver's checkpoint state; for a fork (or a restored run) that has not taken a
+        step yet, the state it was given, which its solver holds but cannot report yet."""
+        origin = self._solver_origin
+        if origin is not None and self.solver.factorizations == 0:
+            return origin
+        return self.solver.checkpoint_state()
+
     # ------------------------------------------------------------------ checkpoints
     def checkpoint(self, path) -> Path:
         """Write the complete state (unknowns, fault history, step size, time, recorded rows,
@@ -355,7 +394,7 @@ class Simulation:
                 h5["history"] = self.history
             if self.solver.scale is not None:
                 h5["solver_scale"] = self.solver.scale
-            for key, value in self.solver.checkpoint_state().items():
+            for key, value in self._solver_state().items():
                 h5[f"solver/{key}"] = value
             rec = self.recorder
             h5.attrs["recorder"] = json.dumps(rec.state())
@@ -405,7 +444,8 @@ class Simulation:
             if "solver_scale" in h5:
                 sim.solver.scale = h5["solver_scale"][()]
             if "solver" in h5:
-                sim.solver.restore_state({k: h5["solver"][k][()] for k in h5["solver"]})
+                sim._solver_origin = {k: h5["solver"][k][()] for k in h5["solver"]}
+                sim.solver.restore_state(sim._solver_origin)
             rec_state = json.loads(h5.attrs["recorder"]) if "recorder" in h5.attrs else None
             stream = json.loads(h5.attrs["stream"]) if "stream" in h5.attrs else None
             if stream is not None:
@@ -533,6 +573,17 @@ class Recorder:
         row["profile"] = True
         if self.writer is not None and not self._open:     # its series are already in the file
             self.writer.append("profiles", self.profile_record(row))
+
+    def fork(self) -> "Recorder":
+        """A recorder for a fork: the same layout, its rows in memory, beginning with the newest
+        row of this one (which is left as it is, its file included)."""
+        twin = object.__new__(type(self))
+        twin.__dict__.update(self.__dict__)    # the layout (disc, store weights): read only
+        twin.writer = None
+        twin._open = False
+        twin.last = dict(self.last) if self.last is not None else None
+        twin.rows = [twin.last] if twin.last is not None else []
+        return twin
 
     # -- the layout of the result -----------------------------------------------------------
     def series_record(self, row: dict) -> dict:

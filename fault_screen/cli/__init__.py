@@ -12,6 +12,7 @@ from ._options import Group, version_option
 from .accuracy import accuracy
 from .calibrate import calibrate
 from .ensemble import ensemble
+from .forecast import forecast
 from .monitor import monitor
 from .plot import plot
 from .plugins import plugins
@@ -60,3 +61,4 @@ main.add_command(ensemble)
 main.add_command(accuracy)
 main.add_command(monitor)
 main.add_command(plugins)
+main.add_command(forecast)

@@ -1,0 +1,266 @@
+"""``fault-screen forecast SCENE (--at T ... | --every S) --horizon H --plan P ...``: look-aheads
+under injection plans from past states of a scene or of a replayed log (see
+:mod:`fault_screen.forecast`), a table, ``forecast.csv`` and, with ``--plot``, the figure."""
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import click
+
+# the command line's shared pieces, in one place per file
+from ._options import DIR, FILE, BadInput, check_size, log_options, reading, t0_option, version_option
+from ._progress import format_duration
+from ._common import default_scene_path, load_scene, read_scene_log
+
+DEFAULT_PLANS = ("scene", "hold", "stop")
+
+
+def _duration(what):
+    def check(ctx, param, value):
+        from ..forecast import PlanError, parse_duration
+
+        if value is None:
+            return None
+        values = value if isinstance(value, tuple) else (value,)
+        try:
+            out = tuple(parse_duration(v, what) for v in values)
+        except PlanError as exc:
+            raise BadInput(str(exc)) from None
+        return out if isinstance(value, tuple) else out[0]
+    return check
+
+
+@click.command("forecast")
+@click.argument("scene_path", type=FILE, required=False, metavar="[SCENE]")
+@log_options
+@click.option("--at", "at", multiple=True, metavar="T", callback=_duration("--at"),
+              help="Model time of a forecast: seconds or a duration (300, 5 min, 2h); repeat "
+                   "for several. The forecast is made at the last step of the run ending by T.")
+@click.option("--every", default=None, metavar="S", callback=_duration("--every"),
+              help="A forecast every S (seconds or a duration) from S to the end of the run.")
+@click.option("--horizon", required=True, metavar="H", callback=_duration("--horizon"),
+              help="How far each forecast looks ahead: seconds or a duration (1h, 30 min).")
+@click.option("--plan", "plans", multiple=True, metavar="P",
+              help="Injection plan from the forecast time on: scene, hold, stop, 'rate:30 L/min', "
+                   "'pressure:4 MPa', 'scale:1.2', or an injection log file (elapsed column: "
+                   "from now). Repeat for several [default: scene, hold, stop].")
+@click.option("--advise", is_flag=True,
+              help="Also find the largest constant rate (pressure control: overpressure) that "
+                   "stays below --advise-level over the horizon, to 2 %.")
+@click.option("--advise-level", type=click.Choice(["yellow", "red"]), default="yellow",
+              show_default=True, help="The level the advised rate stays below.")
+@click.option("--max-rate", default=None, metavar="Q",
+              help="Largest rate the advice tries, with a unit (e.g. '80 L/min'; pressure "
+                   "control: '8 MPa') [default: twice the largest rate so far].")
+@click.option("--out", "-o", "out", type=FILE, default=Path("forecast.csv"), show_default=True,
+              metavar="CSV", help="The forecasts, one row per time and plan.")
+@click.option("--plot", "plot_dir", type=DIR, default=None, metavar="DIR",
+              help="Write <scene-stem>-forecast.png (one per forecast time when several) into DIR.")
+@t0_option
+@click.option("--quiet", "-q", is_flag=True, help="Only the table.")
+@version_option
+def forecast(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, end, log_date, log_tz,
+             time_column, flow_column, pressure_column, at, every, horizon, plans, advise, advise_level,
+             max_rate, out, plot_dir, t0, quiet):
+    """Forecast what the fault of SCENE does over the next H under injection plans, from one or
+    more times of its run (or of the replay of --log LOG, with replay's log options).
+
+    \b
+    fault-screen forecast configs/rustrel-2015-impermeable.toml --at 5min --horizon 10min
+    fault-screen forecast SCENE --every 10min --horizon 1h --plan hold --plan 'rate:30 L/min' --advise
+    fault-screen forecast SCENE --log pump.csv --at 2h --horizon 1h --plan stop --plot figs
+
+    Each forecast forks the run at the time, runs each plan for the horizon and screens it with
+    the scene's [monitor] rules (their holds and the level so far included). The table and the
+    CSV give, per time and plan: the level now, at the horizon and the highest, the time to
+    yellow and to red, the peak slip rate, the largest utilisation, the induced slip at the
+    horizon and, with --advise, the advised rate.
+    """
+    from ..forecast import PlanError, parse_plan
+    from ..screening import LEVEL_NAMES
+
+    if (not at) == (every is None):
+        raise BadInput("give the forecast times: --at T (repeatable) or --every S, not both")
+    if not horizon > 0:
+        raise BadInput("--horizon must be > 0")
+    scene_path = Path(scene_path) if scene_path is not None else default_scene_path()
+    scene = load_scene(scene_path)
+    check_size(scene, str(scene_path))
+    drive, start, scene = _drive(scene, scene_path, log_path, end, t0, quiet,
+                                 dict(flow_unit=flow_unit, pressure_unit=pressure_unit, max_gap=max_gap,
+                                      policy=policy, date=log_date, tz=log_tz, time_column=time_column,
+                                      flow_column=flow_column, pressure_column=pressure_column))
+    plan_log_options = dict(flow_unit=flow_unit, pressure_unit=pressure_unit, max_gap=max_gap,
+                            policy=policy, date=log_date, tz=log_tz)
+    try:
+        plan_list = [parse_plan(p, log_options=plan_log_options).check(scene.injection.control)
+                     for p in (plans or DEFAULT_PLANS)]
+    except PlanError as exc:
+        raise BadInput(str(exc)) from None
+    run_end = scene.time.end
+    times = sorted(at) if at else _every(every, run_end)
+    late = [t for t in times if t > run_end]
+    if late:
+        raise BadInput(f"--at {late[0]:g} s is after the end of the run ({run_end:g} s)")
+    if not times:
+        raise BadInput(f"--every {every:g} s gives no forecast time before the end of the run "
+                       f"({run_end:g} s)")
+    level = LEVEL_NAMES.index(advise_level)
+    max_rate_si = _max_rate(max_rate, scene) if advise else None
+    _check_outputs(out, plot_dir)
+
+    if not quiet:
+        click.echo(f"forecasting {scene_path} ({scene.title}) at {len(times)} time(s), "
+                   f"{len(plan_list)} plan(s), horizon {format_duration(horizon)}")
+    made = _forecasts(scene, drive, start, times, plan_list, horizon, advise, level, max_rate_si)
+    click.echo(_table([f for f, _ in made], scene.injection.control))
+    for line in dict.fromkeys(a.describe() for _, a in made if a is not None):
+        click.echo(line)
+    _write_csv(out, [f for f, _ in made])
+    if not quiet:
+        click.echo(f"forecasts: {out}")
+    if plot_dir is not None:
+        from ..plotting.forecast import plot_forecast
+
+        by_time = {}
+        for f, a in made:
+            by_time.setdefault(f.made_at, ([], a))[0].append(f)
+        for made_at, (fs, a) in by_time.items():
+            name = (f"{scene_path.stem}-forecast.png" if len(by_time) == 1
+                    else f"{scene_path.stem}-forecast-at-{made_at:g}s.png")
+            path = plot_forecast(fs, plot_dir / name, spec=scene.monitor, advice=a, title=scene.title)
+            if not quiet:
+                click.echo(f"figure: {path}")
+
+
+# replay's log options, with the log optional here (without it the scene's own drive runs)
+next(p for p in forecast.params if p.name == "log_path").required = False
+
+
+def _drive(scene, scene_path, log_path, end, t0, quiet, log_kw):
+    """(what drives the run, date-time of model time 0, the scene to run)."""
+    if log_path is None:
+        if end is not None:
+            raise BadInput("--end is for --log: the scene's own run ends at its time.end")
+        if scene.injection.log is not None:
+            return read_scene_log(scene), t0, scene
+        return None, t0, scene
+    from ..io.injection_log import CLI_OPTION_NAMES, read_injection_log
+    from ..io.replay import plan_replay
+
+    if scene.injection.control != "rate":
+        raise BadInput(f"{scene_path}: injection.control = {scene.injection.control!r}: a log "
+                       f"drives the flow rate; use a scene with control = 'rate'")
+    with reading(log_path):
+        log = read_injection_log(log_path, option_names=CLI_OPTION_NAMES,
+                                 flowback=scene.injection.allow_flowback, **log_kw)
+    if not quiet:
+        click.echo(f"log: {log.summary}")
+    for w in log.warnings:
+        click.echo(f"Warning: {w}", err=True)
+    with reading(scene_path):
+        replay = plan_replay(scene, log, end, end_name="--end")
+    for note in replay.notes:
+        click.echo(f"Warning: {note}", err=True)
+    return log, (t0 if t0 is not None else log.start), replay.scene
+
+
+def _every(step, run_end):
+    if not step > 0:
+        raise BadInput("--every must be > 0")
+    n = int(math.floor(run_end / step * (1 + 1e-12)))
+    return [k * step for k in range(1, n + 1)]
+
+
+def _max_rate(text, scene):
+    if text is None:
+        return None
+    from ..units import UnitError, split_value, to_si
+
+    quantity = "flow_rate" if scene.injection.control == "rate" else "pressure"
+    try:
+        value, unit = split_value(text)
+        if unit is None:
+            raise ValueError(f"give the unit (e.g. {'80 L/min' if quantity == 'flow_rate' else '8 MPa'})")
+        si = to_si(value, unit, quantity)
+    except (ValueError, UnitError) as exc:
+        raise BadInput(f"--max-rate {text!r}: {exc}") from None
+    if not (math.isfinite(si) and si > 0):
+        raise BadInput(f"--max-rate {text!r}: must be > 0")
+    return si
+
+
+def _check_outputs(out, plot_dir):
+    if out.parent and not out.parent.exists():
+        raise BadInput(f"--out {out}: the directory {out.parent} does not exist")
+    if plot_dir is not None:
+        plot_dir.mkdir(parents=True, exist_ok=True)
+
+
+def _forecasts(scene, drive, start, times, plans, horizon, advise, level, max_rate):
+    """Run the scene through the forecast times, screened at every row; at each, the look-aheads
+    of every plan (and the advice). Returns [(Forecast, Advice or None)] in order."""
+    from ..screening.stepwise import StepScreening
+    from ..forecast import LookAhead
+    from ..forecast import advise as find_advice
+    from ..stepper import Simulation
+
+    sim = Simulation(scene)
+    fp = sim.disc.fault_points
+    screening = StepScreening(scene, fp.s - sim.disc.injection.s, fp.weight)
+    screening.screen(sim)
+    volume = drive.volume if drive is not None else None
+    made = []
+    for t in times:
+        while sim.advance(t, volume=volume, align=True, max_steps=1):
+            screening.screen(sim)
+        ahead = LookAhead(sim, screening, drive=drive, start=start)
+        advice = find_advice(ahead, horizon, level=level, max_rate=max_rate) if advise else None
+        for plan in plans:
+            f = ahead.run(plan, horizon)
+            if advice is not None:
+                f.advised_rate = advice.rate
+            made.append((f, advice))
+    return made
+
+
+def _fmt_time(v):
+    return "-" if v is None else format_duration(v)
+
+
+def _table(forecasts, control: str) -> str:
+    from ..screening import LEVEL_NAMES
+
+    head = ("made at", "plan", "now", "at horizon", "max", "to yellow", "to red", "peak slip rate",
+            "max util.", "advised")
+    rows = [head]
+    for f in forecasts:
+        advised = "-" if f.advised_rate is None else (
+            f"{f.advised_rate * 60e3:.4g} L/min" if control == "rate" else f"{f.advised_rate / 1e6:.4g} MPa")
+        rows.append((f"{f.made_at:g} s", f.plan, LEVEL_NAMES[f.level_now], LEVEL_NAMES[f.level_at_horizon],
+                     LEVEL_NAMES[f.max_level], _fmt_time(f.time_to_yellow), _fmt_time(f.time_to_red),
+                     f"{f.peak_slip_rate:.3g} m/s", f"{f.max_utilisation:.3f}", advised))
+    widths = [max(len(str(r[i])) for r in rows) for i in range(len(head))]
+    return "\n".join("  ".join(str(c).ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows)
+
+
+def _write_csv(path, forecasts) -> None:
+    from ..forecast import COLUMNS
+
+    def cell(v):
+        if v is None:
+            return ""
+        if isinstance(v, float):
+            return repr(v)
+        return str(v)
+
+    tmp = path.with_name(path.name + ".part")
+    with open(tmp, "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(COLUMNS)
+        for f in forecasts:
+            row = f.row()
+            w.writerow([cell(row[c]) for c in COLUMNS])
+    tmp.replace(path)

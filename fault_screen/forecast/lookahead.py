@@ -1,0 +1,200 @@
+"""Look-ahead: each plan run on a fork of the simulation for a horizon, screened with the scene's
+``[monitor]`` rules as the run itself is screened.
+
+``LookAhead(sim, screening)`` takes the state "now" (a fork of ``sim`` and a copy of the
+screening state: the metrics tracker, the screener's holds and level); :meth:`LookAhead.run`
+then makes one :class:`Forecast` per plan, each on its own fork of that state, so the caller's
+run is never touched and the look-ahead can run in a worker while the caller steps on. By
+default a fork takes the scene's own step sequence, so that the plan ``scene`` reproduces the
+uninterrupted run row for row.
+"""
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+import time as _time
+from dataclasses import dataclass, field
+from datetime import datetime
+from typing import Optional
+
+import numpy as np
+
+from ..screening.stepwise import StepScreening
+from ..screening import LEVEL_NAMES, RED, YELLOW
+from .plans import Plan
+
+__all__ = ["LookAhead", "Forecast", "COLUMNS", "screening_of"]
+
+#: the columns of forecast.csv, in order
+COLUMNS = ("made_at", "plan", "horizon", "level_now", "level_at_horizon", "max_level",
+           "time_to_yellow", "time_to_red", "peak_slip_rate", "max_utilisation",
+           "induced_slip_at_horizon", "advised_rate", "wall_s")
+
+
+@dataclass
+class Forecast:
+    """What one plan does over the horizon from ``made_at`` (s, model time).
+
+    Levels are 0 green, 1 yellow, 2 red; ``time_to_yellow``/``time_to_red``: s after
+    ``made_at`` at which the level is first at least yellow/red (0 when it already is, None
+    when not within the horizon); ``peak_slip_rate`` (m/s) and ``max_utilisation`` (-): the
+    largest over the rows ahead; ``induced_slip_at_horizon`` (m); ``advised_rate`` (m3/s, or Pa
+    under pressure control) when advice was asked; ``wall_s``: the wall time it took.
+    ``time``, ``metrics`` and ``level``: the rows ahead (the "now" row first), for figures."""
+
+    made_at: float
+    plan: str
+    horizon: float
+    level_now: int
+    level_at_horizon: int
+    max_level: int
+    time_to_yellow: Optional[float]
+    time_to_red: Optional[float]
+    peak_slip_rate: float
+    max_utilisation: float
+    induced_slip_at_horizon: float
+    wall_s: float
+    advised_rate: Optional[float] = None
+    time: np.ndarray = field(default=None, repr=False)
+    metrics: dict = field(default_factory=dict, repr=False)
+    level: np.ndarray = field(default=None, repr=False)
+    stopped: Optional[str] = None
+
+    def reaches(self, level: int) -> bool:
+        """Does the level reach ``level`` at a row ahead (the "now" row not counted)?"""
+        return bool(self.level.size > 1 and np.max(self.level[1:]) >= level)
+
+    def row(self) -> dict:
+        """The forecast.csv row (SI; levels by name; None where empty)."""
+        return {"made_at": self.made_at, "plan": self.plan, "horizon": self.horizon,
+                "level_now": LEVEL_NAMES[self.level_now],
+                "level_at_horizon": LEVEL_NAMES[self.level_at_horizon],
+                "max_level": LEVEL_NAMES[self.max_level], "time_to_yellow": self.time_to_yellow,
+                "time_to_red": self.time_to_red, "peak_slip_rate": self.peak_slip_rate,
+                "max_utilisation": self.max_utilisation,
+                "induced_slip_at_horizon": self.induced_slip_at_horizon,
+                "advised_rate": self.advised_rate, "wall_s": self.wall_s}
+
+
+def _screen_row(screening: StepScreening, row: dict, point: int, unstable: bool):
+    """Screen one recorded row (the one place a look-ahead calls the screening): the metrics
+    record and the level after it."""
+    record, _ = screening.update(row, point, unstable=unstable)
+    return record, screening.screener.level
+
+
+def _screen_newest(screening: StepScreening, sim):
+    return _screen_row(screening, sim.last_row, sim.disc.injection.nearest_point,
+                       (sim.stopped or {}).get("reason") == "unstable")
+
+
+def screening_of(sim, events=None) -> StepScreening:
+    """The screening state of a run whose rows are all in memory (e.g. just restored from a
+    checkpoint): every row screened again, in order, as the run screened them."""
+    rows = sim.recorder.rows
+    if not rows or len(rows) != sim.recorder.count:
+        raise ValueError("the rows of this run are not all in memory (streamed to a file, or a "
+                         "fork): keep the screening state of the run itself")
+    fp = sim.disc.fault_points
+    screening = StepScreening(sim.scene, fp.s - sim.disc.injection.s, fp.weight, events)
+    unstable = (sim.stopped or {}).get("reason") == "unstable"
+    for i, row in enumerate(rows):
+        _screen_row(screening, row, sim.disc.injection.nearest_point, unstable and i == len(rows) - 1)
+    return screening
+
+
+class LookAhead:
+    """Look-aheads from the state of ``sim`` now, screened from the state of ``screening`` (a
+    :class:`~fault_screen.screening.stepwise.StepScreening` that has screened every row of ``sim`` so far).
+
+    ``drive``: what drove the run (``volume(t0, t1)``, ``rate_at(t)``; an InjectionLog, a live
+    sample buffer), None for the scene's schedule; ``start``: date-time of model time 0 (for
+    log plans with date-times). Neither ``sim`` nor ``screening`` is changed, now or later.
+
+    ``growth`` and ``dt_max`` (s): a look-ahead whose steps grow from the run's current step by
+    this factor up to ``dt_max`` instead of following the scene's sequence: faster, less exact
+    (``benchmarks/lookahead.py`` measures what it costs); default: the scene's own sequence."""
+
+    def __init__(self, sim, screening: StepScreening, *, drive=None, start: Optional[datetime] = None,
+                 growth: Optional[float] = None, dt_max: Optional[float] = None):
+        self.state = sim.fork()
+        self.screening = _copy_screening(screening)
+        self.drive = drive
+        self.start = start
+        self.made_at = float(sim.time)
+        self.level_now = int(screening.screener.level)
+        self.time_steps = _time_steps(sim.scene, growth, dt_max)
+
+    @property
+    def control(self) -> str:
+        return self.state.scene.injection.control
+
+    def run(self, plan: Plan, horizon: float) -> Forecast:
+        """The forecast of ``plan`` over ``horizon`` (s) from now, on a fork."""
+        wall0 = _time.perf_counter()
+        sim = self.state.fork()
+        if self.time_steps is not None:
+            sim.scene = self.time_steps
+        screening = _copy_screening(self.screening)
+        drive = plan.drive(sim, self.drive, self.start)
+        first = {k.rsplit("/", 1)[1]: v for k, v in _now_record(self.state, screening).items()}
+        times, levels = [self.made_at], [self.level_now]
+        rows = {k: [v] for k, v in first.items()}
+        end = self.made_at + float(horizon)
+        while sim.advance(end, max_steps=1, **drive):
+            record, level = _screen_newest(screening, sim)
+            times.append(float(sim.time))
+            levels.append(int(level))
+            for k, v in record.items():
+                rows.setdefault(k.rsplit("/", 1)[1], []).append(v)
+        return _summarise(self.made_at, plan.name, float(horizon), np.array(times), np.array(levels),
+                          {k: np.asarray(v, dtype=float) for k, v in rows.items()},
+                          _time.perf_counter() - wall0, (sim.stopped or {}).get("message"))
+
+
+def _time_steps(scene, growth, dt_max):
+    """The scene whose step sequence a look-ahead follows, when not the run's own (None)."""
+    if growth is None and dt_max is None:
+        return None
+    ts = scene.time
+    growth = ts.growth if growth is None else float(growth)
+    dt_max = (ts.dt_max if ts.dt_max is not None else ts.dt) if dt_max is None else float(dt_max)
+    if not (growth >= 1.0 and dt_max > 0):
+        raise ValueError(f"look-ahead steps: growth {growth!r} must be >= 1 and dt_max {dt_max!r} > 0")
+    return scene.replace(time=dataclasses.replace(ts, growth=growth, dt_max=dt_max))
+
+
+def _copy_screening(screening: StepScreening) -> StepScreening:
+    """A screening state of its own (tracker, screener), without the rows screened so far."""
+    records, screening.records = screening.records, []
+    try:
+        return copy.deepcopy(screening)
+    finally:
+        screening.records = records
+
+
+def _now_record(sim, screening: StepScreening) -> dict:
+    """The metrics of the "now" row: that row screened again on a copy (its tracker gives the same
+    metrics for the same row: no slip increment, the same reference)."""
+    record, _ = _screen_newest(_copy_screening(screening), sim)
+    return record
+
+
+def _summarise(made_at, name, horizon, times, levels, metrics, wall, stopped) -> Forecast:
+    def first_at(level):
+        hit = np.flatnonzero(levels >= level)
+        return float(times[hit[0]] - made_at) if hit.size else None
+
+    ahead = slice(1, None) if times.size > 1 else slice(0, None)
+    peak = metrics.get("peak_slip_rate", np.zeros(1))[ahead]
+    util = metrics.get("max_utilisation", np.zeros(1))[ahead]
+    slip = metrics.get("induced_slip", np.zeros(1))
+    return Forecast(made_at=made_at, plan=name, horizon=horizon, level_now=int(levels[0]),
+                    level_at_horizon=int(levels[-1]), max_level=int(np.max(levels)),
+                    time_to_yellow=first_at(YELLOW), time_to_red=first_at(RED),
+                    peak_slip_rate=float(np.max(peak)) if peak.size else math.nan,
+                    max_utilisation=float(np.max(util)) if util.size else math.nan,
+                    induced_slip_at_horizon=float(slip[-1]) if slip.size else math.nan,
+                    wall_s=float(wall), time=times, metrics=metrics, level=levels, stopped=stopped)
+
