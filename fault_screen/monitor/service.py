@@ -94,7 +94,8 @@ class MonitorService:
                                   policy=config.policy, **config.log_options,
                                   resume=extra.get("decoder"),
                                   on_warning=lambda m: log.warning("%s", m),
-                                  flowback=scene.injection.allow_flowback)
+                                  flowback=scene.injection.allow_flowback,
+                                  defer_errors=True)
         name = config.source or ("stdin" if config.follow == "-" else "csv")
         self.source = plugins.instantiate("source", name, config.follow, decoder=self.decoder,
                                           poll_interval=config.poll_interval,
@@ -180,13 +181,16 @@ class MonitorService:
                 self.stage.feed_events(dets)
 
     def _feed(self, samples) -> None:
-        if not samples:
-            return
-        self._start_known()
-        self._poll_seismicity()
-        upd = self.stage.feed_samples([s.time for s in samples], [s.flow_rate for s in samples],
-                                      [s.pressure for s in samples])
-        self._handle(upd)
+        if samples:
+            self._start_known()
+            self._poll_seismicity()
+            upd = self.stage.feed_samples([s.time for s in samples],
+                                          [s.flow_rate for s in samples],
+                                          [s.pressure for s in samples])
+            self._handle(upd)
+        if self.decoder.error is not None:
+            # the bad line stops the run after the good samples before it are modelled
+            raise self.decoder.error
 
     def _handle(self, upd, checkpoint: bool = True) -> None:
         for d, alert in zip(upd.transitions, upd.alerts):
@@ -258,6 +262,7 @@ class MonitorService:
                 last_data = time.monotonic()     # idle time counts from the end of the work
             else:
                 self._poll_seismicity()
+                self._feed(samples)              # raises a bad line's error kept meanwhile
             if getattr(self.source, "finished", False):
                 ended = "source ended"
                 break
