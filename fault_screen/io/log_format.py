@@ -204,8 +204,9 @@ class LineSplitter:
         self.reset()
 
     def reset(self) -> None:
-        self.buf = b""
-        self.text = ""
+        self.buf = bytearray()   # bytes of the partial last line (no line end but a final CR)
+        self.parts: List[str] = []   # decoded pieces of the partial last line (UTF-16)
+        self.size = 0                # characters in parts
         self.number = 0
         self.utf16 = None        # incremental decoder once a UTF-16 BOM is seen
         self.started = False
@@ -218,13 +219,10 @@ class LineSplitter:
             if len(self.buf) < 3 and b"\n" not in self.buf and b"\r" not in self.buf:
                 return []
             self._start()
-            data = b""
+            data, self.buf = bytes(self.buf), bytearray()
         if self.utf16 is not None:
-            self.text += self.utf16.decode(self.buf + data)
-            self.buf = b""
-            return self._cut_text(final=False)
-        self.buf += data
-        return self._cut_bytes(final=False)
+            return self._text_piece(self.utf16.decode(data), final=False)
+        return self._byte_piece(data, final=False)
 
     def rest(self):
         """The lines left when no more data comes (a partial last line taken as complete)."""
@@ -232,11 +230,12 @@ class LineSplitter:
             if not self.buf:
                 return []
             self._start()
+            data, self.buf = bytes(self.buf), bytearray()
+        else:
+            data = b""
         if self.utf16 is not None:
-            self.text += self.utf16.decode(self.buf, final=True)
-            self.buf = b""
-            return self._cut_text(final=True)
-        return self._cut_bytes(final=True)
+            return self._text_piece(self.utf16.decode(data, final=True), final=True)
+        return self._byte_piece(data, final=True)
 
     @property
     def encoding(self) -> str:
@@ -252,38 +251,55 @@ class LineSplitter:
         if self.buf.startswith((b"\xff\xfe", b"\xfe\xff")):
             self.utf16 = codecs.getincrementaldecoder("utf-16")(errors="replace")
         elif self.buf.startswith(b"\xef\xbb\xbf"):
-            self.buf = self.buf[3:]
+            del self.buf[:3]
 
-    def _cut_bytes(self, final: bool):
-        parts = _LINE_END_BYTES.split(self.buf)
-        keep = parts.pop()
-        if not final and self.buf.endswith(b"\r") and parts:
-            keep = parts.pop() + b"\r"      # perhaps CR LF split between two reads
-        out = [self._line(self._decode(b)) for b in parts]
-        if final:
-            if keep.strip():
-                out.append(self._line(self._decode(keep.rstrip(b"\r"))))
-            keep = b""
-        while len(keep) > self.max_line:
-            out.append(self._line(self._decode(keep[:self.max_line])))
-            keep = keep[self.max_line:]
-        self.buf = keep
+    def _byte_piece(self, data: bytes, final: bool):
+        # the partial line is scanned again only when a line end arrives: linear in the data
+        # however small the pieces it comes in
+        scan = final or b"\n" in data or b"\r" in data or self.buf.endswith(b"\r")
+        self.buf += data
+        out = []
+        if scan:
+            parts = _LINE_END_BYTES.split(bytes(self.buf))
+            keep = parts.pop()
+            if not final and self.buf.endswith(b"\r") and parts:
+                keep = parts.pop() + b"\r"      # perhaps CR LF split between two reads
+            out = [self._line(self._decode(b)) for b in parts]
+            if final:
+                if keep.strip():
+                    out.append(self._line(self._decode(keep.rstrip(b"\r"))))
+                keep = b""
+            self.buf = bytearray(keep)
+        while len(self.buf) > self.max_line:
+            out.append(self._line(self._decode(bytes(self.buf[:self.max_line]))))
+            del self.buf[:self.max_line]
         return out
 
-    def _cut_text(self, final: bool):
-        parts = _LINE_END.split(self.text)
-        keep = parts.pop()
-        if not final and self.text.endswith("\r") and parts:
-            keep = parts.pop() + "\r"
-        out = [self._line(t) for t in parts]
-        if final:
-            if keep.strip():
-                out.append(self._line(keep.rstrip("\r")))
-            keep = ""
-        while len(keep) > self.max_line:
-            out.append(self._line(keep[:self.max_line]))
-            keep = keep[self.max_line:]
-        self.text = keep
+    def _text_piece(self, text: str, final: bool):
+        scan = final or "\n" in text or "\r" in text or (
+            bool(self.parts) and self.parts[-1].endswith("\r"))
+        self.parts.append(text)
+        self.size += len(text)
+        out = []
+        keep = None
+        if scan:
+            whole = "".join(self.parts)
+            parts = _LINE_END.split(whole)
+            keep = parts.pop()
+            if not final and whole.endswith("\r") and parts:
+                keep = parts.pop() + "\r"
+            out = [self._line(t) for t in parts]
+            if final:
+                if keep.strip():
+                    out.append(self._line(keep.rstrip("\r")))
+                keep = ""
+        if self.size > self.max_line:
+            keep = "".join(self.parts) if keep is None else keep
+            while len(keep) > self.max_line:
+                out.append(self._line(keep[:self.max_line]))
+                keep = keep[self.max_line:]
+        if keep is not None:
+            self.parts, self.size = [keep], len(keep)
         return out
 
     def _decode(self, b: bytes) -> str:
