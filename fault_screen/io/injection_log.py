@@ -376,8 +376,15 @@ def read_injection_log(path, *, flow_unit: Optional[str] = None,
                        pressure_unit=decoder.pname, flowback=flowback)
     dialect, used = decoder.describe()
     summary = (f"{os.path.basename(src)}: {dialect}; {used}; "
-               f"{time.size} samples over {_duration(log.duration)}, {log.total_volume:.6g} m3")
+               f"{_samples(time.size, decoder.rows_kept)} over {_duration(log.duration)}, "
+               f"{log.total_volume:.6g} m3")
     return replace(log, summary=summary)
+
+
+def _samples(samples: int, rows: int) -> str:
+    if samples == rows:
+        return f"{samples} samples"
+    return f"{rows} rows ({samples} samples with the ramps of rate steps and held gaps)"
 
 
 def _duration(seconds: float) -> str:

@@ -64,10 +64,11 @@ PRESSURE_RANGE = (-1.0e6, 1.0e9)
 #: Names the reader's keywords are given in messages; the CLI passes its option names.
 KEYWORD_NAMES = {k: k + "=" for k in ("flow_unit", "pressure_unit", "max_gap", "date", "tz",
                                       "time_unit", "volume_column", "cumulative_volume_column",
-                                      "volume_unit",
+                                      "volume_unit", "accept_implausible",
                                       "time_column", "flow_column", "pressure_column")}
 #: The same names on the command line.
 CLI_OPTION_NAMES = {k: "--" + k.replace("_", "-") for k in KEYWORD_NAMES}
+KEYWORD_NAMES["accept_implausible"] = "accept_implausible=True"
 
 # Column names, compared after norm_name (lower case, accents dropped, non-alphanumerics -> "_").
 _TIME_EXACT = ("time", "elapsed", "timestamp", "datetime", "date_time", "time_of_day", "clock",
@@ -679,6 +680,7 @@ def flow_rate_cell(num, cell: str, q_hi: float, qname: str, flowback: bool):
 _NAME_TIME_UNIT = re.compile(r"(?:t|time|elapsed|elapsed_time)_([a-z]+)(?:_since(?:_|$)|$)")
 _CUMULATIVE = ("cumulative_volume", "volume_cumulative", "v_cumulative", "v_cum", "cum_volume",
                "cumulative", "v_total", "total_volume")
+_CUMULATIVE_PREFIXES = ("cumulative", "v_cum", "cum_vol", "volume_cum", "total_vol")
 _INTERVAL_VOLUME = ("dv", "delta_v", "volume", "interval_volume", "vol", "v")
 
 
@@ -753,7 +755,7 @@ def locate_columns(tab, names, time_column, flow_column, pressure_column,
         found["flow"] = tab.detected("flow-rate", _FLOW_EXACT, _FLOW_PREFIXES,
                                      names["flow_column"], False, (it,))
         if found["flow"] is None:
-            found["cumulative"] = tab.detected("cumulative volume", _CUMULATIVE, ("cumulative",),
+            found["cumulative"] = tab.detected("cumulative volume", _CUMULATIVE, _CUMULATIVE_PREFIXES,
                                                names["cumulative_volume_column"], False, (it,))
         if found["flow"] is None and found["cumulative"] is None:
             found["volume"] = tab.detected("volume", _INTERVAL_VOLUME, ("dv_", "volume_"),

@@ -35,6 +35,7 @@ from typing import Callable, Iterable, List, Optional, Tuple
 import numpy as np
 
 from .. import units as _units
+from .plausibility import FASTEST_SAMPLING, LARGEST_RATE
 from .log_format import (
     DELIMITERS, FLOW_RATE_RANGE, HOLD_EPS, KEYWORD_NAMES, POLICIES, PRESSURE_RANGE, CellError, Clock,
     InjectionLogError, Numbers, Table, arg, as_date, column_units, detect_delimiter,
@@ -83,7 +84,7 @@ class LogDecoder:
                  cumulative_volume_column=None, volume_unit: Optional[str] = None,
                  option_names: Optional[dict] = None, resume: Optional[dict] = None,
                  on_warning: Optional[Callable[[str], None]] = None, flowback: bool = False,
-                 defer_errors: bool = False):
+                 defer_errors: bool = False, accept_implausible: bool = True):
         self.names = dict(KEYWORD_NAMES)
         self.names.update(option_names or {})
         if policy not in POLICIES:
@@ -110,6 +111,11 @@ class LogDecoder:
                         cumulative_volume_column)
         self.on_warning = on_warning
         self.defer_errors = defer_errors
+        # the first rows' spacing and every rate are checked unless accepted (the command line
+        # checks; see fault_screen.io.plausibility)
+        self.accept_implausible = accept_implausible
+        self._first_rows: List[float] = []
+        self.rows_kept = 0
         self.error: Optional[InjectionLogError] = None
         self.warnings: List[str] = []
         self.replayed = 0          # rows dropped because a resumed state already holds them
@@ -466,12 +472,35 @@ class LogDecoder:
             self._start = row_dt
             if row_dt is None and self.origin is not None and self.zone is not None:
                 self._start = self._origin_start(t)
+        if not self.accept_implausible:
+            self._check_plausible(line, t, q)
         out.append(self._keep(t, q, p, line))
+        self.rows_kept += 1
         self.last_q, self.last_p = q, p
         if self.volume_mode == "cumulative":
             v, _ = self.num(cells[self.iq])
             self.last_volume = v * self.qf if v is not None else self.last_volume
         return out
+
+    def _check_plausible(self, line, t: float, q: float) -> None:
+        """Stop at a rate beyond any plausible injection, and after the first 11 rows if they
+        come faster than any logger writes (a time unit mistake)."""
+        option = self.names.get("accept_implausible", "accept_implausible=True")
+        if abs(q) > LARGEST_RATE:
+            raise InjectionLogError(self.source, line, self.qcol, (
+                f"a rate of {q:.6g} m3/s is beyond what one fault interval takes (plausible up "
+                f"to {LARGEST_RATE:g} m3/s); check the unit ({self.names['flow_unit']}), or add "
+                f"{option} to go on"))
+        if len(self._first_rows) <= 10:
+            self._first_rows.append(t)
+            if len(self._first_rows) == 11:
+                median = float(np.median(np.diff(self._first_rows)))
+                if median < FASTEST_SAMPLING:
+                    raise InjectionLogError(self.source, line, self.tcol, (
+                        f"the first 11 rows are {median * 1e3:.3g} ms apart (median): faster "
+                        f"than any injection logger; if the time column is not in seconds give "
+                        f"its unit with {self.names['time_unit']} (e.g. min or d), or add "
+                        f"{option} to go on"))
 
     def _rate_text(self, q: float) -> str:
         """A rate as the log writes it (its unit), or in m3/s for a volume column."""
