@@ -112,3 +112,20 @@ def test_replay_stops_a_misread_with_one_line_naming_the_option(tmp_path):
     assert len(error) == 1 and "--time-unit" in error[0] and "--accept-implausible" in error[0]
     assert "9310 samples over 6.46 s" in error[0]
     assert not (tmp_path / "r.h5").exists()
+
+
+def test_monitor_stops_a_misread_after_eleven_rows(tmp_path, tmp_path_factory):
+    import monitor_env
+    from fault_screen.cli import main
+
+    monitor_env.activate(tmp_path_factory.mktemp("dist"))
+    text = BASEL.read_text().splitlines()
+    bare = tmp_path / "bare.csv"
+    bare.write_text("\n".join(["elapsed,flow,V_cumulative_m3"] + text[1:]) + "\n")
+    scene = ROOT / "configs" / "rustrel-2015-calibrated.toml"
+    res = CliRunner().invoke(main, ["monitor", str(scene), "--follow", str(bare),
+                                    "--flow-column", "2", "--flow-unit", "m3/min",
+                                    "--idle-exit", "1", "-q"])
+    assert res.exit_code == 2, res.output
+    assert "line 12" in res.output and "0.694 ms apart" in res.output
+    assert "--accept-implausible" in res.output
