@@ -129,3 +129,31 @@ def test_monitor_stops_a_misread_after_eleven_rows(tmp_path, tmp_path_factory):
     assert res.exit_code == 2, res.output
     assert "line 12" in res.output and "0.694 ms apart" in res.output
     assert "--accept-implausible" in res.output
+
+
+def test_a_replay_window_of_the_basel_log_gets_the_files_volume(basel_cells):
+    from fault_screen import Scene
+    from fault_screen.io.replay import plan_replay
+
+    days, _, cumulative = basel_cells
+    scene = Scene.from_toml(ROOT / "configs" / "rustrel-2015-calibrated.toml")
+    log = read_injection_log(BASEL)
+    end = days[2000] * 86400.0                          # the first 2000 minutes
+    plan = plan_replay(scene, log, end)
+    assert plan.scene.time.end == end
+    assert plan.meta["log_volume"] == pytest.approx(cumulative[2000], abs=1e-6)
+    # what the steps of the run receive adds up to it: 5 s steps over the window
+    edges = np.append(np.arange(0.0, end, 5.0), end)
+    steps = [plan.injected_volume(a, b) for a, b in zip(edges[:-1], edges[1:])]
+    assert sum(steps) == pytest.approx(cumulative[2000], abs=1e-6)
+
+
+@pytest.mark.parametrize("stamp", ["0001-01-01T00:00:00+05:00", "9999-12-31T23:59:59-05:00"])
+def test_catalogue_stamps_at_the_calendar_edges_are_bad_rows(tmp_path, stamp):
+    from fault_screen.io.events import EventsError, read_events
+
+    cat = tmp_path / "cat.csv"
+    cat.write_text(f"time,mag\n2015-03-12T10:00:00Z,1.5\n{stamp},2\n")
+    with pytest.raises(EventsError, match="row 3"):
+        read_events(cat)
+    assert read_events(cat, bad_rows="skip").magnitude.tolist() == [1.5]
