@@ -61,6 +61,9 @@ FLOW_RATE_RANGE = (0.0, 10.0)
 #: no well or laboratory cell holds 1 GPa.
 PRESSURE_RANGE = (-1.0e6, 1.0e9)
 
+#: Years of the stamps taken as instants of an injection.
+STAMP_YEARS = (1800, 2300)
+
 #: Names the reader's keywords are given in messages; the CLI passes its option names.
 KEYWORD_NAMES = {k: k + "=" for k in ("flow_unit", "pressure_unit", "max_gap", "date", "tz",
                                       "time_unit", "volume_column", "cumulative_volume_column",
@@ -595,6 +598,11 @@ class Clock:
             utc = dt.astimezone(timezone.utc)
         except OverflowError:
             return None, f"date-time {cell!r} at the edge of the calendar (out of range)", None
+        if not STAMP_YEARS[0] <= utc.year <= STAMP_YEARS[1]:
+            # a logger whose clock was never set; and times near the calendar's edges overflow
+            # where they are shifted later (alert times, plots)
+            return None, (f"date-time {cell!r} outside the years {STAMP_YEARS[0]} to "
+                          f"{STAMP_YEARS[1]} (a logger clock not set?)"), None
         if self.t_ref is None:
             self.t_ref = utc
         return (utc - self.t_ref).total_seconds(), None, dt
