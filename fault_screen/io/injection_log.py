@@ -115,7 +115,7 @@ import numpy as np
 
 from .log_format import (
     CLI_OPTION_NAMES, FLOW_RATE_RANGE, HOLD_EPS, POLICIES, PRESSURE_RANGE, InjectionLogError,
-    decode_text, split_lines,
+    LineSplitter, decode_text,
 )
 from .log_stream import STEP_RAMP, LogDecoder, step_ramp
 from .volume import PiecewiseLinearVolume
@@ -356,8 +356,12 @@ def read_injection_log(path, *, flow_unit: Optional[str] = None,
                          cumulative_volume_column=cumulative_volume_column,
                          volume_unit=volume_unit, option_names=option_names, flowback=flowback)
     with open(path, "rb") as fh:
-        text, decoder.encoding = decode_text(fh.read(), src)
-    lines = list(enumerate(split_lines(text), start=1))
+        raw = fh.read()
+    decode_text(raw, src)      # refuses an empty or binary file with its name
+    # the lines as the monitor's sources split and decode them
+    splitter = LineSplitter()
+    lines = splitter.push(raw) + splitter.rest()
+    decoder.encoding = splitter.encoding
     samples = decoder.feed_lines(lines)
     samples += decoder.end()
     content = [n for n, t in lines if t.strip() and not t.strip().startswith("#")]
