@@ -265,23 +265,27 @@ def to_si(value, unit: str, quantity: Optional[str] = None):
     return arr * f
 
 
-_HEADER = re.compile(r"^\s*(?P<name>.*?)\s*(?:\[\s*(?P<u1>[^\]]*?)\s*\]|\(\s*(?P<u2>[^)]*?)\s*\))\s*$")
-
-
 def parse_header(name: str) -> Tuple[str, Optional[str]]:
     """Split a column header into ``(base_name, unit or None)``.
 
     ``"flow_rate[L/min]" -> ("flow_rate", "L/min")``,
     ``"pressure [MPa]" -> ("pressure", "MPa")``,
     ``"depth (m)" -> ("depth", "m")``, ``"time" -> ("time", None)``.
-    The unit is returned as written (stripped), not validated.
+    The unit is returned as written (stripped), not validated.  The unit is what the last
+    bracket pair holds: from the first opening bracket after any earlier closing one.  A scan,
+    not a regular expression: time linear in the header's length whatever it holds.
     """
     s = str(name).strip()
-    m = _HEADER.match(s)
-    if m is None:
+    if not s or s[-1] not in "])":
         return s, None
-    unit = m.group("u1") if m.group("u1") is not None else m.group("u2")
-    return m.group("name"), (unit if unit else None)
+    opening = "[" if s[-1] == "]" else "("
+    body = s[:-1]
+    start = body.rfind(s[-1]) + 1          # after the last closing bracket before the end
+    k = body.find(opening, start)
+    if k < 0 or "\n" in body[:k].rstrip():
+        return s, None
+    unit = body[k + 1:].strip()
+    return body[:k].strip(), (unit if unit else None)
 
 
 _VALUE = re.compile(r"^\s*([+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?)\s*(.*?)\s*$")

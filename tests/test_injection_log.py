@@ -175,8 +175,18 @@ def test_missing_columns(tmp_path):
         read_injection_log(write(tmp_path, "date,flow_rate[L/min]\n0,1\n1,1\n"))
     assert "time" in str(ei.value) and ei.value.line == 1
     with pytest.raises(InjectionLogError) as ei:
-        read_injection_log(write(tmp_path, "time,volume[L]\n0,1\n1,1\n"))
-    assert "flow-rate" in str(ei.value)
+        read_injection_log(write(tmp_path, "time,level[m]\n0,1\n1,1\n"))
+    assert "flow-rate" in str(ei.value) and "--volume-column" not in str(ei.value)
+
+
+def test_a_volume_column_is_read_as_the_volume_of_each_interval(tmp_path):
+    # 1 L in the interval 0-1 s and 3 L in 1-3 s: 4 L in all, 1 L/s then 1.5 L/s; the first
+    # row's litre was injected before the first stamp and is not part of the run
+    log = read_injection_log(write(tmp_path, "time,volume[L]\n0,1\n1,1\n3,3\n"))
+    assert log.total_volume == pytest.approx(4e-3, rel=1e-12)
+    assert log.volume(0.0, 1.0) == pytest.approx(1e-3, rel=1e-8)
+    assert log.rate_at(2.0) == pytest.approx(1.5e-3, rel=1e-12)
+    assert any("before the log's first stamp" in w for w in log.warnings)
 
 
 # ---------------------------------------------------------------------------

@@ -239,6 +239,23 @@ run_options = _compose(
     click.option("--quiet", "-q", is_flag=True, help="No progress display."),
 )
 
+#: how a log's columns are read, for ``replay`` and ``monitor``
+log_reading_options = _compose(
+    click.option("--time-unit", default=None, metavar="U", callback=_unit_callback("time"),
+                 help="Unit of elapsed-time numbers when the header names none (s, min, h, d)."),
+    click.option("--volume-column", default=None, metavar="NAME|N",
+                 help="A column of the volume injected since the previous row, instead of a "
+                      "rate [default: detected when there is no rate column]."),
+    click.option("--cumulative-volume-column", default=None, metavar="NAME|N",
+                 help="A column of the volume injected since the start, instead of a rate."),
+    click.option("--volume-unit", default=None, metavar="U", callback=_unit_callback("volume"),
+                 help="Unit of the volume column when its header names none (m3, L, bbl)."),
+    click.option("--accept-implausible", is_flag=True,
+                 help="Go on with a log that looks like a unit mistake (samples faster than "
+                      "any logger, rates or volumes no injection reaches)."),
+)
+
+
 #: options of ``replay`` that control how the injection log is read
 log_options = _compose(
     click.option("--log", "log_path", type=FILE_OR_URL, required=True, metavar="LOG|URL",
@@ -271,7 +288,21 @@ log_options = _compose(
                  help="The log's flow-rate column, by header or 1-based position."),
     click.option("--pressure-column", default=None, metavar="NAME|N",
                  help="The log's pressure column, by header or 1-based position."),
+    log_reading_options,
 )
+
+def check_log(log, scene, accepted: bool) -> None:
+    """Stop (exit 2, one line) at a log that looks like a unit mistake, unless ``accepted``;
+    warn loudly about what is only unusual."""
+    from ..io.plausibility import check_plausible
+
+    rates = [abs(v) for _, v in scene.injection.schedule] if scene.injection.control == "rate" \
+        else []
+    name = os.path.basename(str(log.source))
+    for finding in check_plausible(log.time, log.flow_rate, scene_rate=max(rates, default=None)):
+        if finding.level == "stop" and not accepted:
+            raise BadInput(f"implausible log {name}: {finding.message}")
+        click.echo(f"Warning: IMPLAUSIBLE log {name}: {finding.message}", err=True)
 
 
 def check_size(scene, label) -> None:

@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from ._options import (DIR, FILE, FILE_OR_URL, BadInput, _positive_callback, _t0_callback,
-                       _unit_callback, check_size, reading, version_option)
+                       _unit_callback, check_size, log_reading_options, reading, version_option)
 from ._common import load_scene
 
 
@@ -99,6 +99,7 @@ def _count_callback(ctx, param, value):
               help="The log's flow-rate column, by header or 1-based position.")
 @click.option("--pressure-column", default=None, metavar="NAME|N",
               help="The log's pressure column, by header or 1-based position.")
+@log_reading_options
 @click.option("--t0", type=str, default=None, metavar="ISO", callback=_t0_callback,
               help="Date-time of model time 0 when the log has elapsed times (places events).")
 @click.option("--sta-lta", "sta_lta", default=None, metavar="STA,LTA,ON,OFF",
@@ -112,8 +113,9 @@ def _count_callback(ctx, param, value):
 @version_option
 def monitor(scene_path, follow, events, waveforms, seedlink, seedlink_streams, state, out, overwrite, idle_exit, alerts, source,
             poll_interval, checkpoint_every, outbox, flow_unit, pressure_unit, max_gap, policy,
-            log_date, log_tz, time_column, flow_column, pressure_column, t0, sta_lta,
-            metrics_port, metrics_address, quiet):
+            log_date, log_tz, time_column, flow_column, pressure_column, time_unit,
+            volume_column, cumulative_volume_column, volume_unit, accept_implausible, t0,
+            sta_lta, metrics_port, metrics_address, quiet):
     """Follow a growing injection log with the model of SCENE, screen every step, and alert.
 
     The model advances only as far as the samples allow (whole steps ending at or before the
@@ -173,6 +175,10 @@ def monitor(scene_path, follow, events, waveforms, seedlink, seedlink_streams, s
                         label=str(scene_path), overwrite=overwrite,
                         log_options=dict(date=log_date, tz=log_tz, time_column=time_column,
                                          flow_column=flow_column, pressure_column=pressure_column,
+                                         time_unit=time_unit, volume_column=volume_column,
+                                         cumulative_volume_column=cumulative_volume_column,
+                                         volume_unit=volume_unit,
+                                         accept_implausible=accept_implausible,
                                          option_names=CLI_OPTION_NAMES))
     exporter = None
     if metrics_port is not None:

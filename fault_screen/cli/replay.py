@@ -5,7 +5,8 @@ from pathlib import Path
 
 import click
 
-from ._options import FILE, BadInput, log_options, reading, run_options, set_option, version_option
+from ._options import (FILE, BadInput, check_log, log_options, reading, run_options, set_option,
+                       version_option)
 from ._common import apply_sets, load_scene
 from ._running import run_scene
 from ._verdict import conclude, fail_on_option
@@ -19,7 +20,9 @@ from ._verdict import conclude, fail_on_option
 @fail_on_option
 @version_option
 def replay(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, end, log_date, log_tz,
-           time_column, flow_column, pressure_column, out, plot_dir, events, t0, quiet, sets, fail_on):
+           time_column, flow_column, pressure_column, time_unit, volume_column,
+           cumulative_volume_column, volume_unit, accept_implausible, out, plot_dir, events, t0,
+           quiet, sets, fail_on):
     """Run SCENE (TOML) with the flow rate of the injection log LOG instead of its schedule.
 
     Model time 0 is the log's first stamp; the run ends at the log's last stamp unless --end
@@ -53,9 +56,13 @@ def replay(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, end,
         log = read(log_path, flow_unit=flow_unit, pressure_unit=pressure_unit,
                    max_gap=max_gap, policy=policy, date=log_date, tz=log_tz,
                    time_column=time_column, flow_column=flow_column,
-                   pressure_column=pressure_column, option_names=CLI_OPTION_NAMES,
+                   pressure_column=pressure_column, time_unit=time_unit,
+                   volume_column=volume_column,
+                   cumulative_volume_column=cumulative_volume_column,
+                   volume_unit=volume_unit, option_names=CLI_OPTION_NAMES,
                    flowback=scene.injection.allow_flowback)
     click.echo(f"log: {log.summary}")
+    check_log(log, scene, accept_implausible)
     for w in log.warnings:
         click.echo(f"Warning: {w}", err=True)
     with reading(scene_path):

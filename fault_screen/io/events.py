@@ -184,43 +184,62 @@ _LAT, _LON = ("latitude", "lat"), ("longitude", "lon", "long", "lng")
 
 
 def _parse_time(cell: str) -> Optional[datetime]:
-    from .injection_log import _parse_stamp
+    from .log_format import parse_stamp
 
-    dt = _parse_stamp(cell) if cell else None
+    dt = parse_stamp(cell) if cell else None
     if dt is None:
         return None
-    return dt.replace(tzinfo=timezone.utc) if dt.utcoffset() is None else dt.astimezone(timezone.utc)
+    try:
+        return dt.replace(tzinfo=timezone.utc) if dt.utcoffset() is None else \
+            dt.astimezone(timezone.utc)
+    except OverflowError:        # an offset pushing the instant past the calendar's edge
+        return None
 
 
 def _read_table(p: Path, src: str):
-    """(header, rows, kind) of a CSV or FDSN text catalogue."""
-    from .injection_log import InjectionLogError, _decode, _delimiter, _split
+    """(header, rows, kind) of a CSV or FDSN text catalogue; rows are (line, cells), with cells
+    None for a line that cannot be split."""
+    from .log_format import (CellError, InjectionLogError, decode_text, detect_delimiter,
+                             split_cells, split_lines)
 
     try:
-        text, _ = _decode(p.read_bytes(), src)
+        text, _ = decode_text(p.read_bytes(), src)
     except InjectionLogError as exc:
         raise EventsError(f"{src}: {exc.problem}") from None
-    lines = [ln for ln in text.splitlines() if ln.strip()]
-    if lines and lines[0].lstrip().lower().startswith("#eventid"):
-        header = [c.strip() for c in lines[0].lstrip()[1:].split("|")]
-        rows = [[c.strip() for c in ln.split("|")] for ln in lines[1:] if not ln.startswith("#")]
+    lines = [(n, ln) for n, ln in enumerate(split_lines(text), start=1) if ln.strip()]
+    if lines and lines[0][1].lstrip().lower().startswith("#eventid"):
+        header = [c.strip() for c in lines[0][1].lstrip()[1:].split("|")]
+        rows = [(n, [c.strip() for c in ln.split("|")]) for n, ln in lines[1:]
+                if not ln.startswith("#")]
         return header, rows, "FDSN text"
-    lines = [ln for ln in lines if not ln.lstrip().startswith("#")]
+    lines = [(n, ln) for n, ln in lines if not ln.lstrip().startswith("#")]
     if not lines:
         raise EventsError(f"{src}: empty catalogue (no header line)")
-    delim = _delimiter(lines[0], lines[1:6])
-    return _split(lines[0], delim), [_split(ln, delim) for ln in lines[1:]], "CSV"
+    delim = detect_delimiter(lines[0][1], [ln for _, ln in lines[1:6]])
+    try:
+        header = split_cells(lines[0][1], delim)
+    except CellError as exc:
+        raise EventsError(f"{src} line {lines[0][0]}: header: {exc}") from None
+    rows = []
+    for n, ln in lines[1:]:
+        try:
+            rows.append((n, split_cells(ln, delim)))
+        except CellError:
+            rows.append((n, None))
+    return header, rows, "CSV"
 
 
-def _read_csv(p: Path, src: str):
-    """Per-event lists from a CSV/FDSN text catalogue (times as aware UTC datetimes)."""
-    from .injection_log import _norm
+def _read_csv(p: Path, src: str, bad_rows: str = "raise"):
+    """Per-event lists from a CSV/FDSN text catalogue (times as aware UTC datetimes).  A bad
+    row raises :class:`EventsError`, or with ``bad_rows="skip"`` is left out with a note naming
+    it."""
+    from .log_format import norm_name
 
     header, rows, kind = _read_table(p, src)
     cols = {}
     for i, h in enumerate(header):
         base, unit = _units.parse_header(h)
-        name = _norm(base)
+        name = norm_name(base)
         if name.startswith("depth_"):        # FDSN "Depth/km"
             name, unit = "depth", unit or h.split("/", 1)[-1].strip()
         cols.setdefault(name, (i, unit, h))
@@ -230,7 +249,7 @@ def _read_csv(p: Path, src: str):
 
     tcol = find(_TIME)
     if tcol is None:
-        raise EventsError(f"{src}: no origin-time column in the header ({', '.join(header)}); "
+        raise EventsError(f"{src}: no origin-time column in the header ({', '.join(header)[:200]}); "
                           f"expected one of: {', '.join(_TIME[:4])}")
     mcol = find(_MAG)
     mtype_fixed = ""
@@ -258,41 +277,56 @@ def _read_csv(p: Path, src: str):
     if geographic and dc is not None and dc[1] is None:
         notes.append(f"depth column '{dc[2]}' without a unit taken in km (USGS/FDSN convention)")
     xyz_f = factor(xc, 1.0)
+    z_f = factor(zc, 1.0)
 
     def num(cells, col, what, line):
         if col is None or col[0] >= len(cells) or cells[col[0]] == "":
             return math.nan
         try:
-            return float(cells[col[0]])
+            v = float(cells[col[0]])
         except ValueError:
             raise EventsError(f"{src} row {line}, column {col[2]}: not a number "
-                              f"{cells[col[0]]!r} ({what})") from None
+                              f"{cells[col[0]][:40]!r} ({what})") from None
+        if not math.isfinite(v):
+            # an infinite magnitude would fire every magnitude rule
+            raise EventsError(f"{src} row {line}, column {col[2]}: not a finite number "
+                              f"{cells[col[0]]!r} ({what})")
+        return v
 
     out = {k: [] for k in ("time", "mag", "mtype", "lat", "lon", "depth", "x", "y", "z")}
     skipped = 0
     naive = False
-    for line, cells in enumerate(rows, start=2):
-        cell = cells[tcol[0]] if tcol[0] < len(cells) else ""
-        when = _parse_time(cell)
-        if when is None:
-            if cell:
-                raise EventsError(f"{src} row {line}, column {tcol[2]}: not an ISO 8601 time "
-                                  f"{cell!r}")
-            skipped += 1
+    for line, cells in rows:
+        try:
+            if cells is None:
+                raise EventsError(f"{src} row {line}: the line cannot be split into cells")
+            cell = cells[tcol[0]] if tcol[0] < len(cells) else ""
+            when = _parse_time(cell)
+            if when is None:
+                if cell:
+                    raise EventsError(f"{src} row {line}, column {tcol[2]}: not an ISO 8601 "
+                                      f"time {cell[:40]!r}")
+                skipped += 1
+                continue
+            event = {"time": when, "mag": num(cells, mcol, "magnitude", line),
+                     "mtype": (cells[tycol[0]] if tycol is not None and tycol[0] < len(cells)
+                               else mtype_fixed)}
+            if geographic:
+                event["lat"] = num(cells, lat, "latitude", line)
+                event["lon"] = num(cells, lon, "longitude", line)
+            if local:
+                event["x"] = num(cells, xc, "x", line) * xyz_f
+                event["y"] = num(cells, yc, "y", line) * xyz_f
+                event["z"] = num(cells, zc, "z", line) * z_f
+            event["depth"] = num(cells, dc, "depth", line) * depth_f
+        except EventsError as exc:
+            if bad_rows != "skip":
+                raise
+            notes.append(f"{exc}: row skipped")
             continue
         naive |= not any(c in cell[10:] for c in "Zz+-")
-        out["time"].append(when)
-        out["mag"].append(num(cells, mcol, "magnitude", line))
-        typ = cells[tycol[0]] if tycol is not None and tycol[0] < len(cells) else mtype_fixed
-        out["mtype"].append(typ)
-        if geographic:
-            out["lat"].append(num(cells, lat, "latitude", line))
-            out["lon"].append(num(cells, lon, "longitude", line))
-        if local:
-            out["x"].append(num(cells, xc, "x", line) * xyz_f)
-            out["y"].append(num(cells, yc, "y", line) * xyz_f)
-            out["z"].append(num(cells, zc, "z", line) * factor(zc, 1.0))
-        out["depth"].append(num(cells, dc, "depth", line) * depth_f)
+        for k, v in event.items():
+            out[k].append(v)
     if naive:
         notes.append("origin times without a zone taken as UTC")
     if mcol is None:
@@ -348,7 +382,7 @@ def _looks_like_xml(p: Path) -> bool:
 
 
 def read_events(path, start: Optional[datetime] = None, *, format: Optional[str] = None,
-                site=None) -> EventCatalog:
+                site=None, bad_rows: str = "raise") -> EventCatalog:
     """Read an event catalogue: QuakeML (and obspy's formats), CSV or FDSN text.
 
     ``start``: timezone-aware datetime of model time 0; event times are seconds after it.
@@ -358,6 +392,9 @@ def read_events(path, start: Optional[datetime] = None, *, format: Optional[str]
     the attributes of the scene's ``[site]`` table (latitude, longitude, depth, x, y, z,
     strike, dip); with it each event gets its distances (see :func:`with_distances`).
     ``format``: "CSV", "FDSN text" or an obspy format name; detected when None.
+    ``bad_rows``: "raise" (a row that cannot be read is an error) or "skip" (CSV and FDSN
+    text: the row is left out and named in ``notes``; what a monitor following a growing
+    catalogue does).
     Raises ``FileNotFoundError`` for a missing file and :class:`EventsError` otherwise.
     """
     p = Path(path)
@@ -369,7 +406,7 @@ def read_events(path, start: Optional[datetime] = None, *, format: Optional[str]
         start = _to_utc(start)
     src = str(path)
     if format in ("CSV", "FDSN text") or (format is None and not _looks_like_xml(p)):
-        times, mags, mtypes, locs, skipped, notes, kind = _read_csv(p, src)
+        times, mags, mtypes, locs, skipped, notes, kind = _read_csv(p, src, bad_rows)
     else:
         times, mags, mtypes, locs, skipped, notes, kind = _read_obspy(p, src, format)
 

@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 
 from ..units import UnitError, parse_header, to_si
-from .injection_log import _Numbers
+from .log_format import Numbers
 
-_is_number = _Numbers(",").ok  # the log reader's own test of a numeric cell (comma-separated files)
+_is_number = Numbers(",").ok  # the log reader's own test of a numeric cell (comma-separated files)
 
 #: group -> (accepted column names, quantity, Result.injection key for each name)
 GROUPS = {

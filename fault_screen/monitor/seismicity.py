@@ -108,12 +108,14 @@ class CatalogFollower:
         self.format = format
         self.log = log or logging.getLogger("fault_screen.monitor.seismicity")
         self.seen: set = set()
+        self.reported: set = set()     # bad rows already named in a warning
         self._sig = None
+        self._failed = None
 
     def poll(self) -> List[SeismicEvent]:
         import tempfile
 
-        from ..io.events import read_events
+        from ..io.events import EventsError, read_events
 
         try:
             st = os.stat(self.path)
@@ -136,13 +138,23 @@ class CatalogFollower:
             tmp.close()
             path = tmp.name
         try:
-            cat = read_events(path, self.start, format=self.format, site=self.site)
-        except Exception as exc:  # noqa: BLE001 - a file being written; try again later
-            self.log.debug("%s: not readable yet (%s)", self.path, exc)
+            cat = read_events(path, self.start, format=self.format, site=self.site,
+                              bad_rows="skip")
+        except (EventsError, OSError) as exc:
+            # not readable as a whole (a header being written, a damaged file): said once per
+            # version of the file, tried again when it changes
+            if sig != self._failed:
+                self.log.warning("%s: cannot read the catalogue (%s); trying again when it "
+                                 "changes", self.path, exc)
+                self._failed = sig
             return []
         finally:
             if tmp is not None:
                 os.unlink(tmp.name)
+        for note in cat.notes:
+            if note.endswith("row skipped") and note not in self.reported:
+                self.reported.add(note)      # a bad row is named once, the rows after it read
+                self.log.warning("%s", note)
         if tmp is None:
             self._sig = sig
         new = [e for e in events_from_catalog(cat, self.site, self.path) if e.id not in self.seen]

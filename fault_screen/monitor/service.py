@@ -106,7 +106,8 @@ class MonitorService:
                                   policy=config.policy, **config.log_options,
                                   resume=extra.get("decoder"),
                                   on_warning=lambda m: log.warning("%s", m),
-                                  flowback=scene.injection.allow_flowback)
+                                  flowback=scene.injection.allow_flowback,
+                                  defer_errors=True)
         self.source = plugins.instantiate("source", name, config.follow, decoder=self.decoder,
                                           poll_interval=config.poll_interval,
                                           log=logging.getLogger(f"fault_screen.sources.{name}"))
@@ -202,20 +203,23 @@ class MonitorService:
                 self.stage.feed_events(dets)
 
     def _feed(self, samples) -> None:
-        if not samples:
-            return
-        if not self._first_sample_logged:
-            first = samples[0]
-            log.info("first sample%s: model time %.6g s, flow rate %.6g m3/s%s (%d in this read)",
-                     " after the restart" if self.stage.samples.count else "", first.time,
-                     first.flow_rate, "" if first.pressure is None else
-                     f", pressure {first.pressure:.6g} Pa", len(samples))
-            self._first_sample_logged = True
-        self._start_known()
-        self._poll_seismicity()
-        upd = self.stage.feed_samples([s.time for s in samples], [s.flow_rate for s in samples],
-                                      [s.pressure for s in samples])
-        self._handle(upd)
+        if samples:
+            if not self._first_sample_logged:
+                first = samples[0]
+                log.info("first sample%s: model time %.6g s, flow rate %.6g m3/s%s (%d in this "
+                         "read)", " after the restart" if self.stage.samples.count else "",
+                         first.time, first.flow_rate, "" if first.pressure is None else
+                         f", pressure {first.pressure:.6g} Pa", len(samples))
+                self._first_sample_logged = True
+            self._start_known()
+            self._poll_seismicity()
+            upd = self.stage.feed_samples([s.time for s in samples],
+                                          [s.flow_rate for s in samples],
+                                          [s.pressure for s in samples])
+            self._handle(upd)
+        if self.decoder.error is not None:
+            # the bad line stops the run after the good samples before it are modelled
+            raise self.decoder.error
 
     def _handle(self, upd, checkpoint: bool = True) -> None:
         for d, alert in zip(upd.transitions, upd.alerts):
@@ -295,6 +299,7 @@ class MonitorService:
                 last_data = time.monotonic()     # idle time counts from the end of the work
             else:
                 self._poll_seismicity()
+                self._feed(samples)              # raises a bad line's error kept meanwhile
             if getattr(self.source, "finished", False):
                 ended = "source ended"
                 break

@@ -34,7 +34,6 @@ origin time in the last ``event_window`` seconds, per hour.
 """
 from __future__ import annotations
 
-import bisect
 import hashlib
 import json
 import math
@@ -48,6 +47,7 @@ from typing import List, Optional, Sequence
 
 import numpy as np
 
+from ..io.volume import PiecewiseLinearVolume
 from ..stepper import Simulation
 from ..screening import Events, StepScreening, event_metrics, screen_result
 from ..screening.metrics import MetricsTracker
@@ -67,76 +67,62 @@ _ROW_KEYS = ("time", "slip_rate", "contact_state", "shear_traction", "effective_
 # samples
 # ---------------------------------------------------------------------------------------------
 class SampleBuffer:
-    """The samples not yet behind the model, with the cumulative volume at each.
-
-    ``volume(t0, t1)`` is the exact integral of the piecewise-linear rate (0 before the first
-    sample), evaluated with the same operations as ``InjectionLog.volume`` so that results
-    agree bit for bit with a replay.  Samples wholly behind the model are dropped (memory stays
-    bounded); the cumulative volume is kept absolute.
+    """The samples not yet behind the model: their volume (the replay's
+    :class:`~fault_screen.io.volume.PiecewiseLinearVolume`, so that every step gets the volume a
+    replay gives it, bit for bit) and their pressures.  Samples wholly behind the model are
+    dropped (memory stays bounded); the cumulative volume is kept absolute.
     """
 
     def __init__(self):
-        self.t: List[float] = []
-        self.q: List[float] = []
+        self.flow = PiecewiseLinearVolume()
         self.p: List[Optional[float]] = []
-        self.cum: List[float] = []
         self.count = 0            # samples accepted since the start of the run
 
     @property
+    def t(self) -> List[float]:
+        return self.flow.time.tolist()
+
+    @property
+    def q(self) -> List[float]:
+        return self.flow.flow_rate.tolist()
+
+    @property
     def last_time(self) -> Optional[float]:
-        return self.t[-1] if self.t else None
+        return float(self.flow.time[-1]) if len(self.flow) else None
 
     def append(self, t: float, q: float, p: Optional[float]) -> None:
-        if self.t:
-            # same operations as np.cumsum(0.5 * (q[1:] + q[:-1]) * np.diff(t))
-            self.cum.append(self.cum[-1] + 0.5 * (q + self.q[-1]) * (t - self.t[-1]))
-        else:
-            self.cum.append(0.0)
-        self.t.append(t)
-        self.q.append(q)
+        self.flow.append(t, q)
         self.p.append(p)
         self.count += 1
 
-    def _cumulative(self, ta: float) -> float:
-        tt, qq, cum = self.t, self.q, self.cum
-        if ta >= tt[-1]:
-            return cum[-1]
-        if len(tt) < 2:
-            return cum[0]
-        i = min(max(bisect.bisect_right(tt, ta) - 1, 0), len(tt) - 2)
-        tc = min(max(ta, tt[0]), tt[-1])
-        dt = tc - tt[i]
-        slope = (qq[i + 1] - qq[i]) / (tt[i + 1] - tt[i])
-        return cum[i] + dt * (qq[i] + 0.5 * slope * dt)
-
     def volume(self, t0: float, t1: float) -> float:
         """m3 injected between t0 and t1 (s); t1 must not pass the last sample."""
-        if not self.t:
+        if not len(self.flow):
             raise ValueError("no samples yet")
-        if t1 > self.t[-1] * (1 + 1e-12) + 1e-9:
+        last = float(self.flow.time[-1])
+        if t1 > last * (1 + 1e-12) + 1e-9:
             raise ValueError(f"volume asked up to {t1!r} s, beyond the last sample "
-                             f"{self.t[-1]!r} s: the model may not run ahead of the data")
-        return self._cumulative(t1) - self._cumulative(t0)
+                             f"{last!r} s: the model may not run ahead of the data")
+        return self.flow.volume(t0, t1)
 
     def rate_at(self, t: float) -> float:
-        if not self.t or t < self.t[0] or t > self.t[-1]:
-            return 0.0
-        return float(np.interp(t, self.t, self.q))
+        return self.flow.rate_at(t) if len(self.flow) else 0.0
 
     def drop_before(self, t: float) -> None:
         """Forget samples wholly before ``t`` (keep the one at or just before it)."""
-        k = bisect.bisect_right(self.t, t) - 1
-        if k > 0:
-            for a in (self.t, self.q, self.p, self.cum):
-                del a[:k]
+        before = len(self.flow)
+        self.flow.drop_before(t)
+        del self.p[:before - len(self.flow)]
 
     def state(self) -> dict:
-        return {"t": self.t, "q": self.q, "p": self.p, "cum": self.cum, "count": self.count}
+        return {"t": self.flow.time.tolist(), "q": self.flow.flow_rate.tolist(), "p": self.p,
+                "cum": self.flow.cumulative.tolist(), "count": self.count}
 
     @classmethod
     def from_state(cls, s: dict) -> "SampleBuffer":
         b = cls()
-        b.t, b.q, b.p, b.cum = list(s["t"]), list(s["q"]), list(s["p"]), list(s["cum"])
+        b.flow = PiecewiseLinearVolume(s["t"], s["q"], s["cum"])
+        b.p = list(s["p"])
         b.count = int(s["count"])
         return b
 

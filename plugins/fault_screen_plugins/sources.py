@@ -1,7 +1,9 @@
 """Built-in sample sources: ``csv`` (follow a growing log file) and ``stdin``.
 
 Both read the replay format line by line through the decoder the monitor hands them
-(:class:`fault_screen.io.log_stream.LogDecoder`: header, units, the stop/skip/hold policies).
+(:class:`fault_screen.io.log_stream.LogDecoder`: header, units, the stop/skip/hold policies),
+split into lines and decoded as the file reader does (:class:`fault_screen.io.log_format.
+LineSplitter`: UTF-8, Latin-1 or UTF-16; LF, CR LF or old-Mac CR line ends).
 """
 from __future__ import annotations
 
@@ -12,34 +14,9 @@ import sys
 import threading
 import time
 
+from fault_screen.io.log_format import LineSplitter
+
 __all__ = ["CsvFollower", "StdinSource"]
-
-
-class _Lines:
-    """Split a byte stream into complete lines; the partial last line waits for its end."""
-
-    def __init__(self):
-        self.buf = b""
-        self.number = 0          # line number in the current file (1-based once read)
-
-    def reset(self):
-        self.buf, self.number = b"", 0
-
-    def push(self, data: bytes):
-        self.buf += data
-        *done, self.buf = self.buf.split(b"\n")
-        return [self._text(b) for b in done]
-
-    def rest(self):
-        """The partial last line, taken as complete (the writer has gone quiet)."""
-        b, self.buf = self.buf, b""
-        return [self._text(b)] if b.strip() else []
-
-    def _text(self, b: bytes):
-        self.number += 1
-        if self.number == 1 and b.startswith(b"\xef\xbb\xbf"):
-            b = b[3:]
-        return self.number, b.rstrip(b"\r").decode("utf-8", errors="replace")
 
 
 class CsvFollower:
@@ -62,7 +39,7 @@ class CsvFollower:
         self.log = log or logging.getLogger("fault_screen.sources.csv")
         self.fh = None
         self.ident = None
-        self.lines = _Lines()
+        self.lines = LineSplitter()
         self.finished = False          # a file can always grow
         self._waiting_logged = False
         self.rotations = 0
@@ -87,8 +64,7 @@ class CsvFollower:
         while True:
             data = self.fh.read(READ_BYTES)
             if data:
-                for n, text in self.lines.push(data):
-                    out.extend(self.decoder.feed_line(text, n))
+                out.extend(self.decoder.feed_lines(self.lines.push(data)))
             if not everything or len(data) < READ_BYTES:
                 return
 
@@ -123,10 +99,7 @@ class CsvFollower:
         return out
 
     def _finish_partial(self):
-        out = []
-        for n, text in self.lines.rest():
-            out.extend(self.decoder.feed_line(text, n))
-        return out
+        return self.decoder.feed_lines(self.lines.rest())
 
     def flush(self):
         """Samples of a partial last line (call when no more data is expected)."""
@@ -165,13 +138,15 @@ class StdinSource:
         self.queue: queue.Queue = queue.Queue()
         self.finished = False
         self._eof = False
-        self.lines = _Lines()
+        self.lines = LineSplitter()
         # a thread, because a pipe cannot be polled portably with a timeout
         threading.Thread(target=self._pump, name="stdin-source", daemon=True).start()
 
     def _pump(self):
+        # read1 returns what the pipe holds: lines ended by a lone CR arrive as they come
+        read = getattr(self.stream, "read1", None)
         while True:
-            data = self.stream.readline()
+            data = read(65536) if read is not None else self.stream.readline()
             if not data:
                 self.queue.put(None)
                 return
@@ -187,13 +162,11 @@ class StdinSource:
                 break
             if item is None:
                 self._eof = True
-                for n, text in self.lines.rest():
-                    out.extend(self.decoder.feed_line(text, n))
+                out.extend(self.decoder.feed_lines(self.lines.rest()))
                 self.finished = True
                 self.log.info("standard input closed")
                 break
-            for n, text in self.lines.push(item):
-                out.extend(self.decoder.feed_line(text, n))
+            out.extend(self.decoder.feed_lines(self.lines.push(item)))
             if out and self.queue.empty():
                 break
         return out
