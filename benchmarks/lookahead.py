@@ -30,7 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from fault_screen import Scene, Simulation  # noqa: E402
-from fault_screen.api import StepScreening  # noqa: E402
+from fault_screen.screening.stepwise import StepScreening  # noqa: E402
 from fault_screen.forecast import LookAhead, advise, parse_plan  # noqa: E402
 
 CALIBRATED = ROOT / "configs" / "rustrel-2015-calibrated.toml"
@@ -42,10 +42,10 @@ GROWTH, DT_MAX = 1.2, 60.0
 def run_to(scene, t):
     sim = Simulation(scene)
     fp = sim.disc.fault_points
-    screening = StepScreening(scene, fp.s - sim.disc.injection.s, fp.weight)
-    screening.screen(sim)
+    screening = StepScreening.for_scene(scene, fp.s - sim.disc.injection.s, fp.weight)
+    screening.screen_simulation(sim)
     while sim.advance(t, align=True, max_steps=1):
-        screening.screen(sim)
+        screening.screen_simulation(sim)
     return sim, screening
 
 

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 import fault_screen
 from conftest import CONFIGS, VERIFICATION
 from fault_screen import Scene, Simulation
-from fault_screen.api import StepScreening
+from fault_screen.screening.stepwise import StepScreening
 from fault_screen.forecast import LookAhead, Plan, PlanError, advise, parse_duration, parse_plan
 from fault_screen.forecast.lookahead import screening_of
 from fault_screen.screening import GREEN, YELLOW
@@ -29,10 +29,10 @@ def run_to(scene, t, volume=None):
     """A run advanced to ``t`` on its step sequence, screened at every row."""
     sim = Simulation(scene)
     fp = sim.disc.fault_points
-    screening = StepScreening(scene, fp.s - sim.disc.injection.s, fp.weight)
-    screening.screen(sim)
+    screening = StepScreening.for_scene(scene, fp.s - sim.disc.injection.s, fp.weight)
+    screening.screen_simulation(sim)
     while sim.advance(t, volume=volume, align=True, max_steps=1):
-        screening.screen(sim)
+        screening.screen_simulation(sim)
     return sim, screening
 
 

@@ -209,13 +209,13 @@ def _forecasts(scene, drive, start, times, plans, horizon, advise, level, max_ra
 
     sim = Simulation(scene)
     fp = sim.disc.fault_points
-    screening = StepScreening(scene, fp.s - sim.disc.injection.s, fp.weight)
-    screening.screen(sim)
+    screening = StepScreening.for_scene(scene, fp.s - sim.disc.injection.s, fp.weight)
+    screening.screen_simulation(sim)
     volume = drive.volume if drive is not None else None
     made = []
     for t in times:
         while sim.advance(t, volume=volume, align=True, max_steps=1):
-            screening.screen(sim)
+            screening.screen_simulation(sim)
         ahead = LookAhead(sim, screening, drive=drive, start=start)
         advice = find_advice(ahead, horizon, level=level, max_rate=max_rate) if advise else None
         for plan in plans:

@@ -14,10 +14,10 @@ the largest constant rate that stays below a level; :mod:`~fault_screen.plotting
     scene = Scene.from_toml("configs/rustrel-2015-impermeable.toml")
     sim = Simulation(scene)
     fp = sim.disc.fault_points
-    screening = StepScreening(scene, fp.s - sim.disc.injection.s, fp.weight)
-    screening.screen(sim)
+    screening = StepScreening.for_scene(scene, fp.s - sim.disc.injection.s, fp.weight)
+    screening.screen_simulation(sim)
     while sim.advance(300.0, align=True, max_steps=1):
-        screening.screen(sim)
+        screening.screen_simulation(sim)
     ahead = LookAhead(sim, screening)
     print(ahead.run(parse_plan("hold"), 600.0).row())
 """

@@ -77,16 +77,15 @@ class Forecast:
                 "advised_rate": self.advised_rate, "wall_s": self.wall_s}
 
 
-def _screen_row(screening: StepScreening, row: dict, point: int, unstable: bool):
+def _screen_row(screening: StepScreening, row: dict, unstable: bool):
     """Screen one recorded row (the one place a look-ahead calls the screening): the metrics
     record and the level after it."""
-    record, _ = screening.update(row, point, unstable=unstable)
-    return record, screening.screener.level
+    metrics, _ = screening.update(row, unstable=unstable)
+    return screening.record(metrics), screening.screener.level
 
 
 def _screen_newest(screening: StepScreening, sim):
-    return _screen_row(screening, sim.last_row, sim.disc.injection.nearest_point,
-                       (sim.stopped or {}).get("reason") == "unstable")
+    return _screen_row(screening, sim.last_row, (sim.stopped or {}).get("reason") == "unstable")
 
 
 def screening_of(sim, events=None) -> StepScreening:
@@ -97,10 +96,10 @@ def screening_of(sim, events=None) -> StepScreening:
         raise ValueError("the rows of this run are not all in memory (streamed to a file, or a "
                          "fork): keep the screening state of the run itself")
     fp = sim.disc.fault_points
-    screening = StepScreening(sim.scene, fp.s - sim.disc.injection.s, fp.weight, events)
+    screening = StepScreening.for_scene(sim.scene, fp.s - sim.disc.injection.s, fp.weight, events)
     unstable = (sim.stopped or {}).get("reason") == "unstable"
     for i, row in enumerate(rows):
-        _screen_row(screening, row, sim.disc.injection.nearest_point, unstable and i == len(rows) - 1)
+        _screen_row(screening, row, unstable and i == len(rows) - 1)
     return screening
 
 
