@@ -1,5 +1,5 @@
 """Command-line interface: ``fault-screen run | replay | monitor | plot | screen | scene |
-accuracy | calibrate | sensitivity | ensemble | plugins`` (one module per command).
+forecast | accuracy | calibrate | sensitivity | ensemble | plugins`` (one module per command).
 
 Exit codes: see :mod:`fault_screen.cli._options` (the one place they are decided) and
 ``fault-screen --help``.
@@ -39,6 +39,7 @@ def main():
     fault-screen scene check SCENE.toml   (scene show SCENE.toml: resolved, in SI)
     fault-screen screen result.h5 --scene new-thresholds.toml
     fault-screen monitor SCENE.toml --follow live.csv --state state.h5 --alert jsonl:alerts.jsonl
+    fault-screen forecast SCENE.toml --at 300 --horizon 30min --plan hold --plan stop --advise
     fault-screen accuracy SCENE.toml --target 5%
     fault-screen calibrate SCENE.toml --observations obs.csv --parameters params.toml
     fault-screen sensitivity SCENE.toml --parameters params.toml

@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ._options import BadInput, reading
+from ._options import BadInput, check_log, reading
 
 #: the scene ``fault-screen run`` runs without SCENE
 BUNDLED_SCENE = "rustrel-2015-calibrated-paper-units.toml"
@@ -141,3 +141,34 @@ def apply_sets(scene, sets):
         return scene
     with reading("--set"):
         return scene_with(scene, changes)
+
+
+def read_driving_log(scene, scene_path: Path, log_path, end, *, accept_implausible: bool = False,
+                     quiet: bool = False, what: str = "a log replay", **log_options):
+    """The injection log ``log_path`` (a file, or a HYDWS section's URL read by the ``hydws``
+    source plugin) that drives ``scene`` instead of its schedule, checked for plausibility, and
+    the replay planned from it (:func:`fault_screen.io.replay.plan_replay`): ``(log, plan)``."""
+    from ..io.injection_log import CLI_OPTION_NAMES, read_injection_log
+    from ..io.replay import plan_replay
+
+    if scene.injection.control != "rate":
+        raise BadInput(f"{scene_path}: injection.control = {scene.injection.control!r}: "
+                       f"{what} drives the flow rate; use a scene with control = 'rate'")
+    read = read_injection_log
+    if isinstance(log_path, str):    # a HYDWS section's URL: read by the hydws source plugin
+        from ..monitor.plugins import load
+
+        read = load("source", "hydws").read_log
+    with reading(log_path):
+        log = read(log_path, option_names=CLI_OPTION_NAMES,
+                   flowback=scene.injection.allow_flowback, **log_options)
+    if not quiet:
+        click.echo(f"log: {log.summary}")
+    check_log(log, scene, accept_implausible)
+    for w in log.warnings:
+        click.echo(f"Warning: {w}", err=True)
+    with reading(scene_path):
+        plan = plan_replay(scene, log, end, end_name="--end")
+    for note in plan.notes:
+        click.echo(f"Warning: {note}", err=True)
+    return log, plan

@@ -10,9 +10,9 @@ from pathlib import Path
 import click
 
 # the command line's shared pieces, in one place per file
-from ._options import DIR, FILE, BadInput, check_size, log_options, reading, t0_option, version_option
+from ._options import DIR, FILE, BadInput, check_size, log_options, t0_option, version_option
 from ._progress import format_duration
-from ._common import default_scene_path, load_scene, read_scene_log
+from ._common import default_scene_path, load_scene, read_driving_log, read_scene_log
 
 DEFAULT_PLANS = ("scene", "hold", "stop")
 
@@ -62,8 +62,9 @@ def _duration(what):
 @click.option("--quiet", "-q", is_flag=True, help="Only the table.")
 @version_option
 def forecast(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, end, log_date, log_tz,
-             time_column, flow_column, pressure_column, at, every, horizon, plans, advise, advise_level,
-             max_rate, out, plot_dir, t0, quiet):
+             time_column, flow_column, pressure_column, time_unit, volume_column,
+             cumulative_volume_column, volume_unit, accept_implausible, at, every, horizon, plans,
+             advise, advise_level, max_rate, out, plot_dir, t0, quiet):
     """Forecast what the fault of SCENE does over the next H under injection plans, from one or
     more times of its run (or of the replay of --log LOG, with replay's log options).
 
@@ -91,7 +92,10 @@ def forecast(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, en
     drive, start, scene = _drive(scene, scene_path, log_path, end, t0, quiet,
                                  dict(flow_unit=flow_unit, pressure_unit=pressure_unit, max_gap=max_gap,
                                       policy=policy, date=log_date, tz=log_tz, time_column=time_column,
-                                      flow_column=flow_column, pressure_column=pressure_column))
+                                      flow_column=flow_column, pressure_column=pressure_column,
+                                      time_unit=time_unit, volume_column=volume_column,
+                                      cumulative_volume_column=cumulative_volume_column,
+                                      volume_unit=volume_unit, accept_implausible=accept_implausible))
     plan_log_options = dict(flow_unit=flow_unit, pressure_unit=pressure_unit, max_gap=max_gap,
                             policy=policy, date=log_date, tz=log_tz)
     try:
@@ -147,23 +151,8 @@ def _drive(scene, scene_path, log_path, end, t0, quiet, log_kw):
         if scene.injection.log is not None:
             return read_scene_log(scene), t0, scene
         return None, t0, scene
-    from ..io.injection_log import CLI_OPTION_NAMES, read_injection_log
-    from ..io.replay import plan_replay
-
-    if scene.injection.control != "rate":
-        raise BadInput(f"{scene_path}: injection.control = {scene.injection.control!r}: a log "
-                       f"drives the flow rate; use a scene with control = 'rate'")
-    with reading(log_path):
-        log = read_injection_log(log_path, option_names=CLI_OPTION_NAMES,
-                                 flowback=scene.injection.allow_flowback, **log_kw)
-    if not quiet:
-        click.echo(f"log: {log.summary}")
-    for w in log.warnings:
-        click.echo(f"Warning: {w}", err=True)
-    with reading(scene_path):
-        replay = plan_replay(scene, log, end, end_name="--end")
-    for note in replay.notes:
-        click.echo(f"Warning: {note}", err=True)
+    log, replay = read_driving_log(scene, scene_path, log_path, end, quiet=quiet,
+                                   what="a log", **log_kw)
     return log, (t0 if t0 is not None else log.start), replay.scene
 
 

@@ -5,9 +5,8 @@ from pathlib import Path
 
 import click
 
-from ._options import (FILE, BadInput, check_log, log_options, reading, run_options, set_option,
-                       version_option)
-from ._common import apply_sets, load_scene
+from ._options import FILE, log_options, run_options, set_option, version_option
+from ._common import apply_sets, load_scene, read_driving_log
 from ._running import run_scene
 from ._verdict import conclude, fail_on_option
 
@@ -39,36 +38,16 @@ def replay(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, end,
     of units, separate date and time columns, elapsed seconds or hh:mm:ss, local times (--tz),
     times of day (--date, --tz).  The line 'log: ...' says what was detected.
     """
-    from ..io.injection_log import CLI_OPTION_NAMES, read_injection_log
-    from ..io.replay import plan_replay
-
     scene_path = Path(scene_path)
     scene = apply_sets(load_scene(scene_path), sets)
-    if scene.injection.control != "rate":
-        raise BadInput(f"{scene_path}: injection.control = {scene.injection.control!r}: a log "
-                       f"replay drives the flow rate; use a scene with control = 'rate'")
-    read = read_injection_log
-    if isinstance(log_path, str):    # a HYDWS section's URL: read by the hydws source plugin
-        from ..monitor.plugins import load
-
-        read = load("source", "hydws").read_log
-    with reading(log_path):
-        log = read(log_path, flow_unit=flow_unit, pressure_unit=pressure_unit,
-                   max_gap=max_gap, policy=policy, date=log_date, tz=log_tz,
-                   time_column=time_column, flow_column=flow_column,
-                   pressure_column=pressure_column, time_unit=time_unit,
-                   volume_column=volume_column,
-                   cumulative_volume_column=cumulative_volume_column,
-                   volume_unit=volume_unit, option_names=CLI_OPTION_NAMES,
-                   flowback=scene.injection.allow_flowback)
-    click.echo(f"log: {log.summary}")
-    check_log(log, scene, accept_implausible)
-    for w in log.warnings:
-        click.echo(f"Warning: {w}", err=True)
-    with reading(scene_path):
-        plan = plan_replay(scene, log, end, end_name="--end")
-    for note in plan.notes:
-        click.echo(f"Warning: {note}", err=True)
+    log, plan = read_driving_log(scene, scene_path, log_path, end,
+                                 accept_implausible=accept_implausible, flow_unit=flow_unit,
+                                 pressure_unit=pressure_unit, max_gap=max_gap, policy=policy,
+                                 date=log_date, tz=log_tz, time_column=time_column,
+                                 flow_column=flow_column, pressure_column=pressure_column,
+                                 time_unit=time_unit, volume_column=volume_column,
+                                 cumulative_volume_column=cumulative_volume_column,
+                                 volume_unit=volume_unit)
 
     meta = {"command": "replay", "log_policy": policy, "log_max_gap": max_gap, **plan.meta,
             "log_file": str(log_path)}
