@@ -781,181 +781,6 @@ def _in_range(key: str, value, where: str | None = None, sink: list | None = Non
                 break
 
 
-#: Memory of a run ~ BASE_MEMORY + BYTES_PER_UNKNOWN_LOG * N log2 N bytes (N unknowns; the
-#: sparse factor's fill grows like N log N).  Fitted to the peak resident memory of one step of
-#: the Rustrel scene on uniform meshes: 244 MB at 20 x 21, 507 MB at 100 x 101 (N = 31k), 1.62 GB
-#: at 200 x 201 (N = 122k); the fit is within 10 % at both larger sizes.
-BYTES_PER_UNKNOWN_LOG = 650.0
-BASE_MEMORY = 250e6
-
-
-class _Axis:
-    """Node lines of one mesh axis, counted without building them (``mesh.build_mesh`` and the
-    leak-off grading build them; this follows their rules): ``n`` elements, and the lines near
-    ``focus`` at ``spacing`` (uniform: every line; graded: the refined core)."""
-
-    def __init__(self, start: float, length: float, n_uniform: int, refinement=None, axis: int = 0):
-        self.start, self.end = start, start + length
-        if refinement is None:
-            self.n, self.spacing, self.focus, self.growth = n_uniform, length / n_uniform, start, 1.0
-            self.core = (start, self.end)
-            return
-        focus, half, size = refinement.center[axis], refinement.half_width[axis], refinement.size
-        # whole elements of ``size`` on each side of the focus, then geometric growth outwards
-        n_lo = int(math.floor(min(half, focus - start) / size + 1e-9))
-        n_hi = int(math.floor(min(half, self.end - focus) / size + 1e-9))
-        self.core = (focus - n_lo * size, focus + n_hi * size)
-        self.spacing, self.focus, self.growth = size, focus, refinement.growth
-        self.n = n_lo + n_hi + sum(_outward_count(e, size, self.growth, length)
-                                   for e in (self.core[0] - start, self.end - self.core[1]))
-
-    def lines_within(self, lo: float, hi: float) -> int:
-        """Interior node lines in [lo, hi] (m): exact on the uniform part, the graded tails
-        counted as if their elements grew from the core size without the final rescaling."""
-        lo, hi = max(lo, self.start), min(hi, self.end)
-        if hi <= lo:
-            return 0
-        c0, c1 = max(lo, self.core[0]), min(hi, self.core[1])
-        n = 0
-        if c1 >= c0:
-            n += (math.floor((c1 - self.focus) / self.spacing + 1e-9)
-                  - math.ceil((c0 - self.focus) / self.spacing - 1e-9) + 1)
-        if self.core != (self.start, self.end):
-            length = self.end - self.start
-            n += _outward_count(self.core[0] - lo, self.spacing, self.growth, length, whole=True)
-            n += _outward_count(hi - self.core[1], self.spacing, self.growth, length, whole=True)
-        n -= (lo <= self.start) + (hi >= self.end)  # the domain's edges are not interior lines
-        return max(n, 0)
-
-
-def _outward_count(extent: float, size: float, growth: float, length: float, whole: bool = False) -> int:
-    """Elements growing by ``growth`` from ``size`` that fill ``extent`` (m), a short last one
-    folded into the others as ``mesh.graded_line`` does; ``whole``: how many fit entirely."""
-    if extent <= 1e-12 * length:
-        return 0
-    if growth <= 1.0:
-        k = extent / size
-    else:  # size (g + g^2 + ... + g^k) = extent
-        k = math.log1p(extent * (growth - 1.0) / (size * growth)) / math.log(growth)
-    if whole:
-        return int(math.floor(k + 1e-9))
-    n = max(1, math.ceil(k - 1e-9))
-    last = size * growth ** n
-    total = size * n if growth <= 1.0 else size * growth * (growth ** n - 1.0) / (growth - 1.0)
-    return n - 1 if n > 1 and total - extent > 0.5 * last else n
-
-
-def _leak_off_length(scene: "Scene") -> float:
-    """sqrt(c dt) of the first step in the most slowly diffusing permeable rock along the fault
-    (m), as the leak-off grading (``physics/leak_off_mesh.py``) reads it; 0 if none is permeable.
-    c = mobility / (1/M + alpha^2 / (K + 4G/3)), 1/M alone without mechanics."""
-    rocks = [scene.rock]
-    zones = ((Zone(band=scene.damage_zone.width, rock=scene.damage_zone.rock_overrides()),)
-             if scene.effects.damage_zone else ()) + tuple(scene.zones)
-    a = math.radians(scene.fault.angle)
-    px, py = scene.fault_point
-    for z in zones:  # in the order they apply: a band holds the whole fault
-        if z.band is not None:
-            rocks = [scene.rock.with_overrides(z.rock)]
-        elif z.box is not None:
-            x0, x1, y0, y1 = z.box
-            phi = [-(x - px) * math.sin(a) + (y - py) * math.cos(a)
-                   for x, y in ((x0, y0), (x1, y0), (x1, y1), (x0, y1))]
-            if min(phi) <= 0 <= max(phi):
-                rocks.append(scene.rock.with_overrides(z.rock))
-    c = []
-    for r in rocks:
-        mobility = r.mobility_at(scene.fluid.viscosity)
-        if mobility <= 0:
-            continue
-        E, nu, alpha, n = r.youngs_modulus, r.poissons_ratio, r.biot_coefficient, r.porosity
-        K = E / (3.0 * (1.0 - 2.0 * nu))
-        Ks = r.solid_bulk_modulus or (K / (1.0 - alpha) if alpha < 1.0 else math.inf)
-        storage = (alpha - n) / Ks + n / scene.fluid.bulk_modulus
-        if scene.effects.mechanics:
-            storage += alpha ** 2 / (E * (1.0 - nu) / ((1.0 + nu) * (1.0 - 2.0 * nu)))
-        c.append(mobility / storage)
-    return math.sqrt(min(c) * scene.time.dt) if c else 0.0
-
-
-def graded_cut_height(scene: "Scene") -> float:
-    """Height across the fault of the element the leak-off grading makes the fault cut (m):
-    ``mesh.fault_grading_size``, else half the first step's leak-off length (the SIZE_FRACTION of
-    ``physics/leak_off_mesh.py``); 0 when the mesh is not graded (no leak-off, grading off, a
-    fault at an angle, impermeable rock)."""
-    m, ef = scene.mesh, scene.effects
-    a = scene.fault.angle % 90.0
-    if not (ef.fault and ef.leak_off and m.fault_grading == "auto") or min(a, 90.0 - a) >= 1e-9:
-        return 0.0
-    return m.fault_grading_size if m.fault_grading_size is not None else 0.5 * _leak_off_length(scene)
-
-
-def _graded_lines_added(axis: _Axis, at: float, size: float, growth: float) -> int:
-    """Node lines the leak-off grading adds across a fault at ``at`` (m), as
-    ``mesh.grade_across`` does: lines from ``size`` growing to the mesh spacing on each side,
-    less the mesh's own lines they replace."""
-    if axis.spacing <= size:
-        return 0
-    added = 0
-    for sign in (1.0, -1.0):
-        z, h = 0.5 * size, size
-        while axis.start < at + sign * z < axis.end:
-            added += 1
-            if h * growth >= axis.spacing:
-                break
-            h *= growth
-            z += h
-        reach = z + 0.5 * h * growth
-        added -= axis.lines_within(at, at + reach) if sign > 0 else axis.lines_within(at - reach, at)
-    return added
-
-
-def estimate_size(scene: "Scene") -> tuple[int, int, float]:
-    """(elements, unknowns, bytes): a run's size from the mesh and the effects alone, before
-    anything is built (refusing an absurd mesh must not itself exhaust the memory). Counts the
-    node lines of the graded mesh and of the leak-off grading across the fault, and the nodes the
-    fault enriches (tests/test_accuracy.py states how close it comes to the built model)."""
-    m, ef = scene.mesh, scene.effects
-    ax = [_Axis(m.origin[0], m.lx, m.nx, m.refinement, 0), _Axis(m.origin[1], m.ly, m.ny, m.refinement, 1)]
-    nx, ny = ax[0].n, ax[1].n
-    angle = scene.fault.angle % 180.0
-    along = 0 if min(angle, 180.0 - angle) < 1e-9 else (1 if abs(angle - 90.0) < 1e-9 else None)
-    size = graded_cut_height(scene)
-    if size > 0:
-        across = 1 - along
-        added = _graded_lines_added(ax[across], scene.fault_point[across], size, m.fault_grading_growth)
-        nx, ny = (nx + added, ny) if across == 0 else (nx, ny + added)
-    nodes = (nx + 1) * (ny + 1)
-    unknowns = 2 * ef.mechanics * nodes + ef.poroelastic * nodes
-    if ef.fault:
-        # the stretch of fault line in the model: along s from the fault point, within the box
-        # and, for a finite fault, within its length (each tip ends on an element edge)
-        a = math.radians(angle)
-        ca, sa = math.cos(a), math.sin(a)
-        px, py = scene.fault_point
-        x0, y0 = m.origin
-        s0, s1 = -math.inf, math.inf
-        for c, p, lo, hi in ((ca, px, x0, x0 + m.lx), (sa, py, y0, y0 + m.ly)):
-            if abs(c) > 1e-12:
-                s0, s1 = max(s0, min((lo - p) / c, (hi - p) / c)), min(s1, max((lo - p) / c, (hi - p) / c))
-        finite = scene.fault.length is not None
-        if finite:
-            s0, s1 = max(s0, -0.5 * scene.fault.length), min(s1, 0.5 * scene.fault.length)
-        if along is not None and not finite:
-            cut = (nx, ny)[along]
-        else:  # a straight line crosses one more element at each node line it passes
-            xs = sorted((px + s0 * ca, px + s1 * ca))
-            ys = sorted((py + s0 * sa, py + s1 * sa))
-            cut = 1 + ax[0].lines_within(*xs) + ax[1].lines_within(*ys)
-        enriched = 2 * (cut + 1)  # a staircase of cut elements: two more nodes per element
-        # a finite fault's jump closes at its tips: the nodes of the edge through each tip carry none
-        unknowns += (enriched - 4 * finite) * 2 * ef.mechanics + enriched * ef.leak_off
-        if ef.fault_flow and not ef.leak_off:
-            unknowns += cut + 1  # the fault's own pressure line
-        unknowns += scene.injection.control == "pressure"
-    return nx * ny, unknowns, BASE_MEMORY + BYTES_PER_UNKNOWN_LOG * unknowns * math.log2(max(unknowns, 2))
-
-
 def _check(ok, key, value, why):
     if not ok:
         raise SceneError(f"{key} = {value!r}: {why}")
@@ -1000,7 +825,30 @@ def _validate_site(site: SiteSpec):
 
 
 def _validate(s: Scene, sink: list | None = None):
-    """Refuse what cannot be simulated; append plausibility warnings to ``sink``."""
+    """Refuse what cannot be simulated; append plausibility warnings to ``sink``. One validator
+    per section, then those of the switch combinations, in a fixed order (the first error wins)."""
+    _validate_ranges(s, sink)
+    _validate_site(s.site)
+    _validate_mesh(s.mesh)
+    _validate_fault(s)
+    _validate_rock(s.rock, "rock", sink)
+    _validate_zones(s, sink)
+    _validate_fluid(s.fluid)
+    _validate_boundary(s.boundary)
+    _validate_injection(s.injection)
+    _validate_time(s.time)
+    _validate_solver(s.solver)
+    _validate_friction(s.fault, s.effects)
+    _validate_initial(s)
+    _validate_damage_zone(s, sink)
+    _validate_effects(s.effects, s.injection)
+    _validate_monitor(s.monitor)
+    _validate_output(s.output)
+
+
+def _validate_ranges(s: Scene, sink: list | None):
+    """Every value with an entry in ``RANGES``: refused outside its physical range, a warning in
+    ``sink`` outside its plausible one."""
     for section in ("mesh", "fault", "fluid", "initial", "injection", "time", "solver",
                     "damage_zone", "site"):
         spec = getattr(s, section)
@@ -1013,11 +861,12 @@ def _validate(s: Scene, sink: list | None = None):
                   f"boundary.{edge}.traction", sink)
     which = "rate" if s.injection.control == "rate" else "pressure"
     if which == "rate" and any(v < 0 for _, v in s.injection.schedule):
-        which = "flowback_rate"  # the sign is checked with injection.allow_flowback below
+        which = "flowback_rate"  # the sign is checked with injection.allow_flowback
     _in_range(f"injection.schedule.{which}", tuple(v for _, v in s.injection.schedule),
               "injection.schedule", sink)
-    _validate_site(s.site)
-    m = s.mesh
+
+
+def _validate_mesh(m: MeshSpec):
     _check(m.nx >= 1, "mesh.nx", m.nx, "must be >= 1")
     _check(m.ny >= 1, "mesh.ny", m.ny, "must be >= 1")
     _check(m.lx > 0, "mesh.lx", m.lx, "must be > 0 m")
@@ -1032,10 +881,17 @@ def _validate(s: Scene, sink: list | None = None):
            m.fault_grading_size, "must be > 0 m")
     _check(1.0 < m.fault_grading_growth <= 2.0, "mesh.fault_grading_growth", m.fault_grading_growth,
            "must be in (1, 2]")
-    f = s.fault
+
+
+def _in_domain(m: MeshSpec, point) -> bool:
     x0, y0 = m.origin
-    px, py = s.fault_point
-    _check(x0 <= px <= x0 + m.lx and y0 <= py <= y0 + m.ly, "fault.point", f.point,
+    return x0 <= point[0] <= x0 + m.lx and y0 <= point[1] <= y0 + m.ly
+
+
+def _validate_fault(s: Scene):
+    f, m = s.fault, s.mesh
+    x0, y0 = m.origin
+    _check(_in_domain(m, s.fault_point), "fault.point", f.point,
            f"must lie in the domain [{x0}, {x0 + m.lx}] x [{y0}, {y0 + m.ly}] m")
     for key in ("normal_stiffness", "shear_stiffness", "hydraulic_aperture", "kappa"):
         _check(getattr(f, key) > 0, f"fault.{key}", getattr(f, key), "must be > 0")
@@ -1047,7 +903,9 @@ def _validate(s: Scene, sink: list | None = None):
                "line; the leak-off enrichment has no tip treatment)")
     if f.storativity is not None:
         _check(f.storativity >= 0, "fault.storativity", f.storativity, "must be >= 0 m/Pa")
-    _validate_rock(s.rock, "rock", sink)
+
+
+def _validate_zones(s: Scene, sink: list | None):
     rock_keys = {fl.name for fl in fields(RockSpec)}
     for i, z in enumerate(s.zones):
         where = f"zones[{i}]"
@@ -1060,18 +918,25 @@ def _validate(s: Scene, sink: list | None = None):
         for k, v in z.rock.items():
             _number(v, f"{where}.rock.{k}")
         _validate_rock(s.rock.with_overrides(z.rock), f"{where}.rock", sink, z.rock)
-    fl = s.fluid
+
+
+def _validate_fluid(fl: FluidSpec):
     for key in ("viscosity", "bulk_modulus"):
         _check(getattr(fl, key) > 0, f"fluid.{key}", getattr(fl, key), "must be > 0")
+
+
+def _validate_boundary(b: BoundarySpec):
     for edge in EDGES:
-        e = getattr(s.boundary, edge)
+        e = getattr(b, edge)
         _check(e.mechanical in ("pinned", "roller", "free"), f"boundary.{edge}.mechanical",
                e.mechanical, "must be 'pinned', 'roller' or 'free'")
         _check(e.hydraulic in ("drained", "no_flow"), f"boundary.{edge}.hydraulic", e.hydraulic,
                "must be 'drained' or 'no_flow'")
         _check(e.mechanical != "pinned" or e.traction == (0.0, 0.0), f"boundary.{edge}.traction",
                e.traction, "a pinned edge cannot carry an applied traction")
-    inj = s.injection
+
+
+def _validate_injection(inj: InjectionSpec):
     _check(inj.control in ("rate", "pressure"), "injection.control", inj.control,
            "must be 'rate' or 'pressure'")
     _check(inj.number_of_fractures >= 1, "injection.number_of_fractures", inj.number_of_fractures,
@@ -1087,20 +952,27 @@ def _validate(s: Scene, sink: list | None = None):
     _check(inj.log_max_gap > 0, "injection.log_max_gap", inj.log_max_gap, "must be > 0 s")
     if inj.log is not None:
         _check(inj.control == "rate", "injection.log", inj.log, "a flow-rate log needs control = 'rate'")
-        _check(Path(inj.log).is_file(), "injection.log", inj.log, "no such file")
-    t = s.time
+        _check(_is_file(inj.log), "injection.log", inj.log, "no such file")
+
+
+def _validate_time(t: TimeSpec):
     _check(t.end > 0, "time.end", t.end, "must be > 0 s")
     _check(0 < t.dt <= t.end, "time.dt", t.dt, f"must be in (0, end = {t.end}] s")
     _check(t.growth >= 1.0, "time.growth", t.growth, "must be >= 1")
     if t.dt_max is not None:
         _check(t.dt_max >= t.dt, "time.dt_max", t.dt_max, f"must be >= dt = {t.dt} s")
     _check(0.5 <= t.theta <= 1.0, "time.theta", t.theta, "must be in [0.5, 1] (unconditionally stable)")
-    sv = s.solver
+
+
+def _validate_solver(sv: SolverSpec):
     _check(0 < sv.tolerance < 1, "solver.tolerance", sv.tolerance, "must be in (0, 1)")
     _check(sv.max_iterations >= 1, "solver.max_iterations", sv.max_iterations, "must be >= 1")
     _check(sv.max_step_cuts >= 0, "solver.max_step_cuts", sv.max_step_cuts, "must be >= 0")
     _check(sv.unstable_slip_rate > 0, "solver.unstable_slip_rate", sv.unstable_slip_rate, "must be > 0 m/s")
-    ef = s.effects
+
+
+def _validate_friction(f: FaultSpec, ef: EffectsSpec):
+    """Friction, dilation and aperture parameters, and the switches that need them."""
     for key in ("rate_parameter", "state_parameter", "dilation_angle", "asperity_height_std"):
         _check(getattr(f, key) >= 0, f"fault.{key}", getattr(f, key), "must be >= 0")
     for key in ("reference_velocity", "critical_slip_distance"):
@@ -1127,6 +999,9 @@ def _validate(s: Scene, sink: list | None = None):
                "the mechanical opening)")
     if ef.rate_friction:
         _check(ef.mechanics, "effects.rate_friction", ef.rate_friction, "needs effects.mechanics = true")
+
+
+def _validate_initial(s: Scene):
     ini = s.initial
     d = ini.gravity_direction
     _check(abs(math.hypot(d[0], d[1]) - 1.0) < 1e-6, "initial.gravity_direction", d, "must be a unit vector")
@@ -1140,37 +1015,52 @@ def _validate(s: Scene, sink: list | None = None):
            ini.effective_stress, "give either initial.stress with initial.stress_kind or the older "
            "initial.effective_stress (Biot-effective), not both")
     if ini.reference_point is not None:
-        rx, ry = ini.reference_point
-        _check(x0 <= rx <= x0 + m.lx and y0 <= ry <= y0 + m.ly, "initial.reference_point",
+        _check(_in_domain(s.mesh, ini.reference_point), "initial.reference_point",
                ini.reference_point, "must lie in the domain")
-    dz = s.damage_zone
+
+
+def _validate_damage_zone(s: Scene, sink: list | None):
+    dz, ef = s.damage_zone, s.effects
     _check(dz.width > 0, "damage_zone.width", dz.width, "must be > 0 m")
     if ef.damage_zone:
         _check(ef.fault, "effects.damage_zone", ef.damage_zone, "a damage zone needs a fault")
         over = dz.rock_overrides()
         _validate_rock(s.rock.with_overrides(over), "damage_zone", sink, over)
+
+
+def _validate_effects(ef: EffectsSpec, inj: InjectionSpec):
+    """Switch combinations that leave nothing to simulate or nowhere to inject."""
     if not ef.fault:
         for key in ("fault_flow", "leak_off"):
             _check(not getattr(ef, key), f"effects.{key}", getattr(ef, key),
                    "needs a fault: set effects.fault = true or this switch to false")
-        _check(all(v == 0 for _, v in s.injection.schedule), "injection.schedule", s.injection.schedule,
+        _check(all(v == 0 for _, v in inj.schedule), "injection.schedule", inj.schedule,
                "injection happens on the fault; without a fault the schedule must be zero")
     _check(not (ef.leak_off and not ef.poroelastic), "effects.leak_off", ef.leak_off,
            "leak-off needs a permeable rock: set effects.poroelastic = true or leak_off = false")
     if ef.fault and not (ef.fault_flow or ef.leak_off):
         # a dry fault: contact only, no fluid of its own
-        _check(all(v == 0 for _, v in s.injection.schedule), "injection.schedule", s.injection.schedule,
+        _check(all(v == 0 for _, v in inj.schedule), "injection.schedule", inj.schedule,
                "a fault without fault_flow or leak_off holds no fluid, so nothing can be injected")
     _check(ef.mechanics or ef.poroelastic or ef.fault_flow, "effects", "all off", "nothing to simulate")
     if not ef.mechanics:
         _check(not ef.poroelastic, "effects.poroelastic", ef.poroelastic,
                "Biot rock needs mechanics = true (rigid rock has no pore volume change)")
-    _validate_monitor(s.monitor)
-    out = s.output
+
+
+def _validate_output(out: OutputSpec):
     if out.profile_every is not None:
         _check(out.profile_every >= 1, "output.profile_every", out.profile_every, "must be >= 1 step")
     if out.profile_interval is not None:
         _check(out.profile_interval > 0, "output.profile_interval", out.profile_interval, "must be > 0 s")
+
+
+def _is_file(path: str) -> bool:
+    """Does ``path`` name a file (False for a path the system cannot take, e.g. with a NUL)?"""
+    try:
+        return Path(path).is_file()
+    except (OSError, ValueError):
+        return False
 
 
 def _validate_monitor(mon: MonitorSpec):

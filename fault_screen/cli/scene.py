@@ -69,8 +69,10 @@ def _unit(section: str, name: str, value, scene) -> str:
 
 def _derived(scene) -> dict:
     """Values the scene computes when a key is left unset: key -> (value, how)."""
+    from ..physics.materials import drained_bulk_modulus
+
     f, r, fl, ini, t = scene.fault, scene.rock, scene.fluid, scene.initial, scene.time
-    k_drained = r.youngs_modulus / (3 * (1 - 2 * r.poissons_ratio))
+    k_drained = drained_bulk_modulus(r.youngs_modulus, r.poissons_ratio)
     a = math.radians(f.angle)
     px, py = scene.fault_point
     pos = scene.injection.position
@@ -181,8 +183,7 @@ def check(path):
     """Validate a scene: keys, values and their physical ranges, units, switch combinations,
     the memory it needs, its injection log (if any) and the geometry (fault in the domain,
     injection point on the fault, in-situ equilibrium). Prints what it would simulate."""
-    from ..scene import estimate_size
-    from ..discretisation import discretise
+    from ..discretisation import discretise, estimate_size
 
     sc = load_scene(path)
     check_size(sc, str(path))
