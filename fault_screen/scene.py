@@ -7,6 +7,7 @@ key and the offending value (``SceneError``). ``Scene.to_toml()`` writes the ful
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import re
 import tomllib
@@ -145,6 +146,7 @@ class RockSpec:
 class Zone:
     """A region with its own rock properties: a band around the fault or a box."""
     name: str = "zone"
+    """Name of the zone in messages and in ``scene show``."""
     band: float | None = None
     """Half width of a band on both sides of the fault (m)."""
     box: tuple[float, float, float, float] | None = None
@@ -286,8 +288,9 @@ class SolverSpec:
     """Newton converges when every field's scaled residual is below this fraction of its
     reference (-)."""
     max_iterations: int = 30
+    """Newton iterations of a step before it counts as failed (-)."""
     max_step_cuts: int = 8
-    """A step whose Newton iteration fails is halved and retried at most this often."""
+    """A step whose Newton iteration fails is halved and retried at most this often (-)."""
     unstable_slip_rate: float = 1e-3
     """Slip rate beyond which the fault counts as unstable (m/s): the quasi-static model cannot
     follow dynamic slip, so the run stops there, keeps every result up to that moment and says
@@ -426,6 +429,7 @@ class OutputSpec:
 @_spec
 class Scene:
     title: str = "untitled"
+    """What the scene models, shown in summaries and stored with results."""
     mesh: MeshSpec = MeshSpec()
     fault: FaultSpec = FaultSpec()
     rock: RockSpec = RockSpec()
@@ -508,6 +512,54 @@ class Scene:
             return self.fault.point
         m = self.mesh
         return (m.origin[0] + 0.5 * m.lx, m.origin[1] + 0.5 * m.ly)
+
+
+#: the units a field's docstring may give, in parentheses: SI (angles in degrees, magnitudes in
+#: their own scale); "-" is dimensionless
+DOC_UNITS = frozenset({"-", "m", "m^2", "m/s", "m/s^2", "s", "Pa", "Pa/m", "Pa s", "m/Pa", "m^2/(Pa s)",
+                       "kg/m^3", "degrees", "degrees north", "degrees east", "ML"})
+
+
+def _paren_groups(text: str) -> list[str]:
+    """The contents of the outermost parentheses of ``text``, in order."""
+    groups, depth, start = [], 0, 0
+    for i, ch in enumerate(text):
+        if ch == "(":
+            depth += 1
+            if depth == 1:
+                start = i + 1
+        elif ch == ")" and depth:
+            depth -= 1
+            if depth == 0:
+                groups.append(text[start:i])
+    return groups
+
+
+@functools.cache
+def field_docs() -> dict:
+    """(section class name, field name) -> the field's docstring (the string literal after it
+    in this module's source)."""
+    import ast
+
+    docs = {}
+    for node in ast.parse(Path(__file__).read_text(encoding="utf-8")).body:
+        if not isinstance(node, ast.ClassDef):
+            continue
+        for field_node, after in zip(node.body, node.body[1:]):
+            if (isinstance(field_node, ast.AnnAssign) and isinstance(after, ast.Expr)
+                    and isinstance(after.value, ast.Constant) and isinstance(after.value.value, str)):
+                docs[(node.name, field_node.target.id)] = " ".join(after.value.value.split())
+    return docs
+
+
+def field_unit(cls, name: str) -> str | None:
+    """The SI unit a field's docstring gives: the first parenthesised group (before a comma)
+    that is one of ``DOC_UNITS``; None when it gives none (text and switches)."""
+    for group in _paren_groups(field_docs().get((cls.__name__, name), "")):
+        head = group.split(",")[0].strip()
+        if head in DOC_UNITS:
+            return head
+    return None
 
 
 def _to_plain(obj):

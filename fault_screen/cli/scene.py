@@ -46,25 +46,23 @@ def fault_state_lines(disc) -> list[str]:
 
 
 # ---- show ----------------------------------------------------------------------------------
-def _unit(section: str, name: str, value, scene) -> str:
-    from ..scene import QUANTITY, RANGES
-    from ..units import SI_UNIT
+def _unit(cls, name: str, value, scene) -> str:
+    """What the value of ``cls.name`` is measured in, as its docstring gives it (SI; angles in
+    degrees): "- (dimensionless)" for a pure number, "text" and "true/false" for the others."""
+    from ..scene import Zone, field_unit
 
     if name == "schedule":
-        return "[s, m3/s]" if scene.injection.control == "rate" else "[s, Pa]"
-    key = f"{section.split('.')[0].split('[')[0]}.{name}"
-    if section.startswith(("zones", "damage_zone")) and name in {f.name for f in dataclasses.fields(type(scene.rock))}:
-        key = f"rock.{name}"
-    if key in RANGES:
-        return RANGES[key][0]
-    q = QUANTITY.get(name)
-    if q == "angle":
-        return "deg"
-    if q is not None:
-        return SI_UNIT[q]
-    if isinstance(value, (bool, str, dict)):
-        return ""
-    return "-"
+        return "[s, m^3/s]" if scene.injection.control == "rate" else "[s, Pa]"
+    if cls is Zone and name == "rock":
+        return "units of [rock]"
+    unit = field_unit(cls, name)
+    if unit == "-":
+        return "- (dimensionless)"
+    if unit is not None:
+        return unit
+    if isinstance(value, bool):
+        return "true/false"
+    return "text"
 
 
 def _derived(scene) -> dict:
@@ -122,7 +120,7 @@ def _show_table(obj, section: str, raw, scene, derived, lines: list) -> None:
         if name == "zones":
             continue
         key = f"{section}.{name}" if section else name
-        unit = _unit(section, name, value, scene)
+        unit = _unit(type(obj), name, value, scene)
         written = _written(raw, name)
         if written is not None:
             k, v = written
@@ -134,12 +132,12 @@ def _show_table(obj, section: str, raw, scene, derived, lines: list) -> None:
         if value is None:
             if key in derived and derived[key][0] is not None:  # (a mobility leaves permeability unset)
                 dv, how = derived[key]
-                lines.append(f"# {name} = {_toml_value(dv)}".ljust(44)
-                             + f"# {unit}, derived: {how}")
+                lines.append(f"# {name} = {_toml_value(dv)}".ljust(43)
+                             + f" # {unit}, derived: {how}")
             else:
-                lines.append(f"# {name}: not set".ljust(44) + f"# {unit + ', ' if unit else ''}default")
+                lines.append(f"# {name}: not set".ljust(43) + f" # {unit}, default")
             continue
-        lines.append(f"{name} = {_toml_value(value)}".ljust(44) + f"# {unit + ', ' if unit else ''}{src}")
+        lines.append(f"{name} = {_toml_value(value)}".ljust(43) + f" # {unit}, {src}")
     for name, value in tables:
         sub = f"{section}.{name}" if section else name
         lines.append("")
