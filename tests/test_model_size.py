@@ -155,3 +155,14 @@ def test_no_import_cycle_through_scene_physics_and_discretisation():
     assert cycles == []
     assert "fault_screen.discretisation" not in set().union(
         *(graph[m] for m in files if m.startswith("fault_screen.physics")))
+
+
+def test_graded_line_without_growth_is_uniform():
+    """growth = 1 on 100 km at 2.5 m: 40,000 elements of 2.5 m (the size estimate builds such lines;
+    graded_line summed its list at every element, 10 s here, and now keeps a running sum)."""
+    from fault_screen.mesh import graded_line
+
+    lines = graded_line(0.0, 1e5, 5e4, 10.0, 2.5, 1.0)
+    assert len(lines) == 40001
+    assert lines[0] == 0.0 and lines[-1] == 1e5
+    assert abs(lines[1:] - lines[:-1] - 2.5).max() < 1e-9
