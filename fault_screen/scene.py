@@ -10,6 +10,7 @@ import dataclasses
 import functools
 import math
 import re
+import reprlib
 import tomllib
 import warnings
 from dataclasses import dataclass, field, fields
@@ -451,12 +452,17 @@ class Scene:
     def from_toml(cls, path) -> "Scene":
         path = Path(path)
         try:
-            data = tomllib.loads(path.read_text())
+            data = loads_toml(path.read_bytes(), str(path))
         except FileNotFoundError:
             raise SceneError(f"scene file not found: {path}") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise SceneError(f"{path}: not valid TOML: {exc}") from None
+        except (IsADirectoryError, PermissionError) as exc:
+            raise SceneError(f"{path}: cannot read the scene file: {exc.strerror}") from None
         return cls.from_dict(data, base_dir=path.resolve().parent)
+
+    @classmethod
+    def from_toml_text(cls, text: str | bytes, base_dir=None, name: str = "scene") -> "Scene":
+        """A scene from TOML text (``name`` names it in errors)."""
+        return cls.from_dict(loads_toml(text, name), base_dir=base_dir)
 
     @classmethod
     def from_dict(cls, data: dict, base_dir=None) -> "Scene":
@@ -512,6 +518,35 @@ class Scene:
             return self.fault.point
         m = self.mesh
         return (m.origin[0] + 0.5 * m.lx, m.origin[1] + 0.5 * m.ly)
+
+
+def loads_toml(text: str | bytes, name: str = "scene") -> dict:
+    """The table of TOML ``text`` (bytes must be UTF-8); SceneError naming ``name`` otherwise."""
+    if isinstance(text, bytes):
+        try:
+            text = text.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise SceneError(f"{name}: not UTF-8 text (byte {exc.start}: {text[exc.start:exc.start + 1]!r}); "
+                             f"save the scene as UTF-8") from None
+    try:
+        return tomllib.loads(text)
+    except ValueError as exc:  # TOMLDecodeError, or an integer of more digits than Python converts
+        raise SceneError(f"{name}: not valid TOML: {exc}") from None
+    except RecursionError:
+        raise SceneError(f"{name}: arrays or tables nested too deeply to read") from None
+
+
+def _shown(value) -> str:
+    """``repr(value)`` cut short: a bad value in a message stays one readable line whatever its
+    size or nesting."""
+    return _SHORT_REPR.repr(value)
+
+
+_SHORT_REPR = reprlib.Repr()
+_SHORT_REPR.maxlevel, _SHORT_REPR.maxstring, _SHORT_REPR.maxother = 3, 120, 120
+_SHORT_REPR.maxlist = _SHORT_REPR.maxtuple = _SHORT_REPR.maxdict = 12
+#: the largest integer a scene takes (|n|); every int is used as a float somewhere
+LARGEST_INT = 2 ** 53
 
 
 #: the units a field's docstring may give, in parentheses: SI (angles in degrees, magnitudes in
@@ -609,7 +644,7 @@ MOVED_KEYS = {
 
 def _build(cls, data, where):
     if not isinstance(data, dict):
-        raise SceneError(f"[{where or 'scene'}] must be a table, got {data!r}")
+        raise SceneError(f"[{where or 'scene'}] must be a table, got {_shown(data)}")
     known = {f.name: f for f in fields(cls)}
     hints = {f.name: f.type for f in fields(cls)}
     kwargs = {}
@@ -617,7 +652,7 @@ def _build(cls, data, where):
         m = _UNIT_KEY.match(raw)
         name, unit = (m.group(1), m.group(2).strip()) if m else (raw, None)
         if _key(where, name) in MOVED_KEYS:
-            raise SceneError(f"{_key(where, raw)} = {value!r} is no longer read: "
+            raise SceneError(f"{_key(where, raw)} = {_shown(value)} is no longer read: "
                              f"{MOVED_KEYS[_key(where, name)]}")
         if name not in known and isinstance(value, dict):
             tables = sorted(k for k, f in known.items() if str(f.type).replace(" | None", "") in _SECTIONS
@@ -625,7 +660,7 @@ def _build(cls, data, where):
             raise SceneError(f"unknown section [{_key(where, raw)}]; known sections"
                              f"{' in [' + where + ']' if where else ''}: {', '.join(tables)}")
         if name not in known:
-            raise SceneError(f"unknown key {_key(where, raw)!s} = {value!r}; "
+            raise SceneError(f"unknown key {_key(where, raw)!s} = {_shown(value)}; "
                              f"known keys in [{where or 'scene'}]: {', '.join(sorted(known))}")
         if name in kwargs:
             raise SceneError(f"{_key(where, name)} is given twice (with and without a unit)")
@@ -638,6 +673,11 @@ def _build(cls, data, where):
     _one_flow_property(kwargs, where)
     if cls is RockSpec and "mobility" in kwargs:
         kwargs.setdefault("permeability", None)
+    missing = [f.name for f in fields(cls) if f.name not in kwargs
+               and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+    if missing:
+        raise SceneError(f"{_key(where, missing[0])} is missing: [{where or 'scene'}] needs "
+                         f"{', '.join(missing)}")
     return cls(**kwargs)
 
 
@@ -645,12 +685,14 @@ def _one_flow_property(table: dict, where: str):
     """Permeability (m^2, divided by the viscosity) and mobility (m^2/(Pa s)) say the same thing
     two ways: a table may give one of them only."""
     if "permeability" in table and "mobility" in table:
-        raise SceneError(f"[{where or 'scene'}] gives both permeability = {table['permeability']!r} "
-                         f"and mobility = {table['mobility']!r}; give one (mobility = "
+        raise SceneError(f"[{where or 'scene'}] gives both permeability = {_shown(table['permeability'])} "
+                         f"and mobility = {_shown(table['mobility'])}; give one (mobility = "
                          f"permeability / fluid viscosity)")
 
 
 def _key(where, name):
+    if len(name) > 64 or not name.isprintable():
+        name = _shown(name)  # a key as TOML quotes it may hold anything: one line in messages
     return f"{where}.{name}" if where else name
 
 
@@ -664,29 +706,31 @@ def _coerce(hint, value, key, quantity=None, unit=None):
         return _build(_SECTIONS[base], value, key)
     if base == "tuple[Zone, ...]":
         if not isinstance(value, list):
-            raise SceneError(f"{key} must be an array of tables ([[zones]]), got {value!r}")
+            raise SceneError(f"{key} must be an array of tables ([[zones]]), got {_shown(value)}")
         return tuple(_build(Zone, v, f"{key}[{i}]") for i, v in enumerate(value))
     if base == "tuple[MonitorRule, ...]":
         if not isinstance(value, list):
-            raise SceneError(f"{key} must be an array of tables ([[monitor.rules]]), got {value!r}")
+            raise SceneError(f"{key} must be an array of tables ([[monitor.rules]]), got {_shown(value)}")
         return tuple(_build(MonitorRule, v, f"{key}[{i}]") for i, v in enumerate(value))
     if base == "bool":
         if not isinstance(value, bool):
-            raise SceneError(f"{key} = {value!r} must be true or false")
+            raise SceneError(f"{key} = {_shown(value)} must be true or false")
         return value
     if base == "int":
         if isinstance(value, bool) or not isinstance(value, int):
-            raise SceneError(f"{key} = {value!r} must be an integer")
+            raise SceneError(f"{key} = {_shown(value)} must be an integer")
+        if abs(value) > LARGEST_INT:
+            raise SceneError(f"{key} = {_shown(value)} must be an integer of at most {LARGEST_INT}")
         return value
     if base == "float":
         return _number(value, key, quantity, unit)
     if base == "str":
         if not isinstance(value, str):
-            raise SceneError(f"{key} = {value!r} must be a string")
+            raise SceneError(f"{key} = {_shown(value)} must be a string")
         return value
     if base == "dict":  # rock overrides of a zone: same keys (and units) as [rock]
         if not isinstance(value, dict):
-            raise SceneError(f"{key} = {value!r} must be a table")
+            raise SceneError(f"{key} = {_shown(value)} must be a table")
         out = {}
         for raw, v in value.items():
             m = _UNIT_KEY.match(raw)
@@ -696,20 +740,20 @@ def _coerce(hint, value, key, quantity=None, unit=None):
         return out
     if base.startswith("tuple[tuple[float, float]"):
         if not isinstance(value, list) or not value:
-            raise SceneError(f"{key} = {value!r} must be a non-empty array of [time, value] pairs")
+            raise SceneError(f"{key} = {_shown(value)} must be a non-empty array of [time, value] pairs")
         out = []
         for i, pair in enumerate(value):
             if not isinstance(pair, list) or len(pair) != 2:
-                raise SceneError(f"{key}[{i}] = {pair!r} must be a [time, value] pair")
+                raise SceneError(f"{key}[{i}] = {_shown(pair)} must be a [time, value] pair")
             out.append((_number(pair[0], f"{key}[{i}][0]", "time"),
                         _number(pair[1], f"{key}[{i}][1]", quantity, unit)))
         return tuple(out)
     if base.startswith("tuple[float"):
         n = base.count("float")
         if not isinstance(value, list) or len(value) != n:
-            raise SceneError(f"{key} = {value!r} must be an array of {n} numbers")
+            raise SceneError(f"{key} = {_shown(value)} must be an array of {n} numbers")
         return tuple(_number(v, f"{key}[{i}]", quantity, unit) for i, v in enumerate(value))
-    raise SceneError(f"{key}: cannot read {value!r}")  # pragma: no cover - schema error
+    raise SceneError(f"{key}: cannot read {_shown(value)}")  # pragma: no cover - schema error
 
 
 def _number(value, key, quantity=None, unit=None):
@@ -719,24 +763,29 @@ def _number(value, key, quantity=None, unit=None):
         try:
             value, written = units.split_value(value)   # "100 mD" and "100mD" alike
         except ValueError:
-            raise SceneError(f"{key} = {text!r} must be a number, optionally with a unit "
+            raise SceneError(f"{key} = {_shown(text)} must be a number, optionally with a unit "
                              f"(\"29.2 GPa\")") from None
         if written is not None:
             if unit is not None:
-                raise SceneError(f"{key} = {text!r}: the unit is already given in the key")
+                raise SceneError(f"{key} = {_shown(text)}: the unit is already given in the key")
             if quantity is None:
-                raise SceneError(f"{key} = {text!r}: this value takes no unit")
+                raise SceneError(f"{key} = {_shown(text)}: this value takes no unit")
             unit = written
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise SceneError(f"{key} = {text!r} must be a number (SI units unless a unit is given)")
+        raise SceneError(f"{key} = {_shown(text)} must be a number (SI units unless a unit is given)")
+    if isinstance(value, int) and abs(value) > LARGEST_INT:
+        raise SceneError(f"{key} = {_shown(text)} is beyond the range of numbers a scene takes "
+                         f"(write it as a float, e.g. 1e20)")
     if not math.isfinite(value):
-        raise SceneError(f"{key} = {text!r} must be finite")
+        raise SceneError(f"{key} = {_shown(text)} must be finite")
     if unit is None:
         return float(value)
     try:
         si = float(units.to_si(float(value), unit, quantity))
     except units.UnitError as exc:
-        raise SceneError(f"{key} = {text!r}: {exc}") from None
+        raise SceneError(f"{key} = {_shown(text)}: {exc}") from None
+    if not math.isfinite(si):
+        raise SceneError(f"{key} = {_shown(text)} is beyond the float range in SI units")
     return math.degrees(si) if quantity == "angle" else si
 
 
@@ -823,19 +872,19 @@ def _in_range(key: str, value, where: str | None = None, sink: list | None = Non
         if v is None:
             continue
         if not plo <= v <= phi:
-            raise SceneError(f"{name} = {value!r}: outside the physical range {_fmt(plo)} to "
+            raise SceneError(f"{name} = {_shown(value)}: outside the physical range {_fmt(plo)} to "
                              f"{_fmt(phi)}{u} (plausible: {_fmt(qlo)} to {_fmt(qhi)}{u})")
     if sink is not None:
         for v in values:
             if v is not None and not qlo <= v <= qhi:
-                sink.append(f"{name} = {value!r} is outside the plausible range {_fmt(qlo)} to "
+                sink.append(f"{name} = {_shown(value)} is outside the plausible range {_fmt(qlo)} to "
                             f"{_fmt(qhi)}{u}: accepted, but check the value and its unit")
                 break
 
 
 def _check(ok, key, value, why):
     if not ok:
-        raise SceneError(f"{key} = {value!r}: {why}")
+        raise SceneError(f"{key} = {_shown(value)}: {why}")
 
 
 def _validate_rock(rock: RockSpec, where: str, sink: list | None = None, keys=None):
@@ -928,6 +977,9 @@ def _validate_mesh(m: MeshSpec):
         _check(r.size > 0, "mesh.refinement.size", r.size, "must be > 0 m")
         _check(1.0 <= r.growth <= 2.0, "mesh.refinement.growth", r.growth, "must be in [1, 2]")
         _check(min(r.half_width) >= 0, "mesh.refinement.half_width", r.half_width, "must be >= 0 m")
+        x0, y0 = m.origin
+        _check(_in_domain(m, r.center), "mesh.refinement.center", r.center,
+               f"must lie in the domain [{x0}, {x0 + m.lx}] x [{y0}, {y0 + m.ly}] m")
     _check(m.fault_grading in ("auto", "off"), "mesh.fault_grading", m.fault_grading, "must be 'auto' or 'off'")
     _check(m.fault_grading_size is None or m.fault_grading_size > 0, "mesh.fault_grading_size",
            m.fault_grading_size, "must be > 0 m")
@@ -1115,6 +1167,11 @@ def _is_file(path: str) -> bool:
         return False
 
 
+#: longest rule condition (characters): far beyond any written by hand (a 100-term ``or`` chain
+#: of thresholds is ~3,000), and short enough that parsing it stays well below a second
+MAX_CONDITION = 10_000
+
+
 def _validate_monitor(mon: MonitorSpec):
     from .rules import METRICS, RuleError, parse_condition
 
@@ -1124,13 +1181,17 @@ def _validate_monitor(mon: MonitorSpec):
     known = set(METRICS) | {f.name for f in fields(MonitorSpec) if f.name != "rules"}
     names = set()
     for i, rule in enumerate(mon.rules):
-        where = f"monitor.rules[{i}]" + (f" ({rule.name!r})" if rule.name else "")
+        where = f"monitor.rules[{i}]" + (f" ({_shown(rule.name)})" if rule.name else "")
         _check(rule.level in ("yellow", "red"), f"{where}.level", rule.level, "must be 'yellow' or 'red'")
         _check(rule.hold >= 0, f"{where}.hold", rule.hold, "must be >= 0 s")
+        _check(len(rule.when) <= MAX_CONDITION, f"{where}.when", rule.when,
+               f"a condition of {len(rule.when)} characters; at most {MAX_CONDITION} (split it into rules)")
         try:
             parse_condition(rule.when, known)
         except RuleError as exc:
-            raise SceneError(f"{where}.when = {rule.when!r}: {exc}") from None
+            raise SceneError(f"{where}.when = {_shown(rule.when)}: {exc}") from None
+        except RecursionError:  # the parser recurses on parentheses
+            raise SceneError(f"{where}.when = {_shown(rule.when)}: nested too deeply") from None
         name = rule.name or f"rules[{i}]"
         _check(name not in names, f"{where}.name", name, "two rules have this name")
         _check(0 < len(name.encode()) <= 64, f"{where}.name", name,
@@ -1139,17 +1200,41 @@ def _validate_monitor(mon: MonitorSpec):
 
 
 # ---- a small TOML writer for resolved scenes (tables, arrays of tables, scalars, arrays) ----
+#: TOML basic-string escapes; every other control character is written as \uXXXX
+_TOML_ESCAPES = {'"': '\\"', "\\": "\\\\", "\b": "\\b", "\t": "\\t", "\n": "\\n", "\f": "\\f",
+                 "\r": "\\r"}
+_BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
+
+
+def _toml_string(text: str) -> str:
+    """A TOML basic string that reads back as ``text`` (control characters escaped, so a
+    multi-line value stays on one line)."""
+    out = []
+    for ch in text:
+        if ch in _TOML_ESCAPES:
+            out.append(_TOML_ESCAPES[ch])
+        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
+            out.append(f"\\u{ord(ch):04X}")
+        else:
+            out.append(ch)
+    return '"' + "".join(out) + '"'
+
+
+def _toml_key(key: str) -> str:
+    return key if _BARE_KEY.match(key) else _toml_string(key)
+
+
 def _toml_value(v: Any) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, (int, float)):
         return repr(v)
     if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+        return _toml_string(v)
     if isinstance(v, (list, tuple)):
         return "[" + ", ".join(_toml_value(x) for x in v) + "]"
     if isinstance(v, dict):
-        return "{" + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + "}"
+        return "{" + ", ".join(f"{_toml_key(k)} = {_toml_value(x)}" for k, x in v.items()) + "}"
     raise TypeError(f"cannot write {v!r} as TOML")
 
 
@@ -1161,7 +1246,7 @@ def dumps_toml(data: dict, prefix: str = "") -> str:
         elif isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
             tables.append((k, v))
         else:
-            lines.append(f"{k} = {_toml_value(v)}")
+            lines.append(f"{_toml_key(k)} = {_toml_value(v)}")
     out = "\n".join(lines)
     for k, v in tables:
         name = f"{prefix}.{k}" if prefix else k
