@@ -123,10 +123,14 @@ MUTATIONS = {f.__name__.replace("_", " "): f for f in (
 
 # ---- the worker -------------------------------------------------------------------------------------
 def _load(path: str) -> tuple[str, str]:
+    import tomllib
     import warnings
 
-    from fault_screen.discretisation import estimate_size
     from fault_screen.scene import Scene, SceneError
+    try:
+        from fault_screen.discretisation import estimate_size
+    except ImportError:  # a tree from before the estimate moved (to measure the old loader)
+        from fault_screen.scene import estimate_size
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -140,7 +144,7 @@ def _load(path: str) -> tuple[str, str]:
         except Exception as exc:  # noqa: BLE001 - counting what escapes is the point
             return "crash", f"{type(exc).__name__}: {str(exc)[:200]}"
         try:
-            again = Scene.from_toml_text(scene.to_toml(), base_dir=Path(path).parent)
+            again = Scene.from_dict(tomllib.loads(scene.to_toml()), base_dir=Path(path).parent)
         except Exception as exc:  # noqa: BLE001
             return "crash", f"written back, does not read back: {type(exc).__name__}: {str(exc)[:200]}"
         if again != scene:
