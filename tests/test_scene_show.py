@@ -17,10 +17,10 @@ from fault_screen.units import SI_UNIT
 from conftest import CONFIGS
 
 #: what a value line of `scene show` may give after its "#": a unit, or what the value is
-SHOWN = ({u for u in DOC_UNITS if u != "-"}
-         | {"- (dimensionless)", "text", "true/false", "[s, m^3/s]", "[s, Pa]", "units of [rock]"})
-#: the range table and the unit parser write units without ^ and angles as deg
+#: the range table, the unit parser and `scene show` write units without ^ and angles as deg
 COMPACT = {"degrees": "deg", "degrees north": "deg", "degrees east": "deg"}
+SHOWN = ({COMPACT.get(u, u.replace("^", "")) for u in DOC_UNITS if u != "-"}
+         | {"- (dimensionless)", "text", "true/false", "[s, m3/s]", "[s, Pa]", "units of [rock]"})
 
 
 def _sections():

@@ -47,19 +47,20 @@ def fault_state_lines(disc) -> list[str]:
 
 # ---- show ----------------------------------------------------------------------------------
 def _unit(cls, name: str, value, scene) -> str:
-    """What the value of ``cls.name`` is measured in, as its docstring gives it (SI; angles in
-    degrees): "- (dimensionless)" for a pure number, "text" and "true/false" for the others."""
+    """What the value of ``cls.name`` is measured in, as its docstring gives it (SI, e.g. m2 for
+    m^2; angles in deg): "- (dimensionless)" for a pure number, "text" and "true/false" for the
+    others."""
     from ..scene import Zone, field_unit
 
     if name == "schedule":
-        return "[s, m^3/s]" if scene.injection.control == "rate" else "[s, Pa]"
+        return "[s, m3/s]" if scene.injection.control == "rate" else "[s, Pa]"
     if cls is Zone and name == "rock":
         return "units of [rock]"
     unit = field_unit(cls, name)
     if unit == "-":
         return "- (dimensionless)"
-    if unit is not None:
-        return unit
+    if unit is not None:  # written as the unit parser and the range table write it
+        return "deg" if unit.startswith("degrees") else unit.replace("^", "")
     if isinstance(value, bool):
         return "true/false"
     return "text"
