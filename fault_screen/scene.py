@@ -455,8 +455,9 @@ class Scene:
             data = loads_toml(path.read_bytes(), str(path))
         except FileNotFoundError:
             raise SceneError(f"scene file not found: {path}") from None
-        except (IsADirectoryError, PermissionError) as exc:
-            raise SceneError(f"{path}: cannot read the scene file: {exc.strerror}") from None
+        except (OSError, ValueError) as exc:  # a folder, no permission, a NUL in the path
+            raise SceneError(f"{_shown(str(path))}: cannot read the scene file: "
+                             f"{getattr(exc, 'strerror', None) or exc}") from None
         return cls.from_dict(data, base_dir=path.resolve().parent)
 
     @classmethod

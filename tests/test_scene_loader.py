@@ -152,3 +152,10 @@ def test_written_scenes_read_back_equal(title, actions, names, zone):
     text = scene.to_toml()
     assert Scene.from_toml_text(text) == scene
     assert tomllib.loads(text)["title"] == title
+
+
+@pytest.mark.parametrize("where", ["folder", "nul"])
+def test_a_path_that_is_no_readable_file_is_a_scene_error(tmp_path, where):
+    path = tmp_path if where == "folder" else tmp_path / "a\x00b.toml"
+    text = _outcome(Scene.from_toml, path)
+    assert "cannot read the scene file" in text
