@@ -20,7 +20,8 @@ import numpy as np
 
 from .ensemble import Runner, Variant, default_summary
 from .exact import fault_diffusion_pressure, fluid_driven_slip, slip_front_lambda
-from .scene import Scene, SceneError, graded_cut_height
+from .physics import SWITCHABLE, effects_on, terms_for
+from .scene import Scene, SceneError
 
 #: screened quantities (default_summary keys) and what they are
 QUANTITIES = {
@@ -49,8 +50,6 @@ FAMILY_QUANTITIES = {
 }
 #: quantities that only mean something on a fault that slips somewhere
 SLIP_QUANTITIES = ("injection_slip", "slipping_length", "peak_slip_rate")
-SWITCHABLE = ("fault_flow", "leak_off", "rate_friction", "state_evolution", "dilation",
-              "aperture_evolution", "gravity", "damage_zone", "poroelastic")
 
 
 # ---- the exact families ----------------------------------------------------------------------------
@@ -68,15 +67,15 @@ def exact_family(scene: Scene) -> str | None:
       crack of Bhattacharya & Viesca (2019) / Viesca (2021), slip front a = lambda(T) sqrt(4 alpha t),
       alpha = T / (S + 1/kN) (a closed penalty fault also stores dp/kN by opening its springs).
     """
-    e, inj, f = scene.effects, scene.injection, scene.fault
-    if (not e.fault or e.poroelastic or e.leak_off or not e.fault_flow or e.aperture_evolution
+    on, inj, f = effects_on(scene), scene.injection, scene.fault
+    if ("fault" not in on or on & {"poroelastic", "leak_off", "aperture_evolution"} or "fault_flow" not in on
             or inj.control != "pressure" or len(inj.schedule) != 1 or inj.schedule[0][0] != 0.0
             or inj.schedule[0][1] <= 0 or f.storativity is None or f.storativity <= 0 or inj.log is not None
             or f.length is not None):  # both solutions are for a fault through the whole model
         return None
-    if not e.mechanics:
+    if "mechanics" not in on:
         family = "fault_diffusion"
-    elif (e.rate_friction or e.state_evolution or e.dilation or e.gravity or e.damage_zone or scene.zones
+    elif (on & {"rate_friction", "state_evolution", "dilation", "gravity", "damage_zone"} or scene.zones
           or scene.initial.pore_pressure != 0.0 or inj.position != 0.0
           or not 0.0 < _stress_injection_parameter(scene) < 1.0):
         return None
@@ -225,7 +224,7 @@ def ladder(scene: Scene, levels: int = 3, effects: bool = True,
         rungs.append(Rung(f"h x{_fmt(f)}", "space", over, f))
     # the leak-off grading follows the first step (0.5 sqrt(c dt)): the time rungs keep the base's
     # grading, so that they change the time step only, on the base mesh
-    graded = graded_cut_height(scene)
+    graded = terms_for(scene).graded_cut_height(scene)
     for f in factors if "time" in kinds else ():
         if f == 1.0:
             continue
@@ -239,8 +238,9 @@ def ladder(scene: Scene, levels: int = 3, effects: bool = True,
     if effects:
         from .ensemble import scene_with
 
+        on = effects_on(scene)
         for name in SWITCHABLE:
-            if not getattr(scene.effects, name):
+            if name not in on:
                 continue
             over = {f"effects.{name}": False}
             try:

@@ -13,6 +13,7 @@ in-situ state, which is in equilibrium on its own.
 from __future__ import annotations
 
 import functools
+import math
 import warnings
 from dataclasses import dataclass
 
@@ -20,10 +21,11 @@ import numpy as np
 
 from . import xfem
 from .kernels import basis, contact, rock
-from .mesh import build_mesh
-from .physics import Physics
+from .mesh import StructuredMesh, build_mesh
+from .physics import Physics, effects_on, terms_for
 from .physics.base import BLOCK_ORDER
-from .scene import EDGES, RockSpec, Scene, SceneError
+from .physics.materials import effective_rock
+from .scene import EDGES, Scene, SceneError
 
 
 class FaultShiftWarning(UserWarning):
@@ -88,26 +90,13 @@ class InjectionPoint:
     nearest_point: int       # index of the nearest fault Gauss point (contact quantities)
 
 
-def effective_rock(spec: RockSpec, fluid_bulk_modulus: float, viscosity: float) -> dict:
-    """Derived rock constants in SI: E, nu, alpha, mobility k/mu, 1/M (Biot modulus), Ks."""
-    E, nu, alpha, n = spec.youngs_modulus, spec.poissons_ratio, spec.biot_coefficient, spec.porosity
-    K = E / (3.0 * (1.0 - 2.0 * nu))
-    Ks = spec.solid_bulk_modulus
-    if Ks is None:
-        Ks = K / (1.0 - alpha) if alpha < 1.0 else np.inf
-    inv_M = (alpha - n) / Ks + n / fluid_bulk_modulus
-    return {"E": E, "nu": nu, "alpha": alpha, "mobility": spec.mobility_at(viscosity),
-            "inv_M": inv_M, "Ks": Ks}
-
-
 class Discretisation:
     """Everything about a scene that is fixed for the whole run (read-only once built)."""
 
     def __init__(self, scene: Scene, physics: Physics):
         self.scene = scene
         self.physics = physics
-        m = scene.mesh
-        self.mesh = physics.refine_mesh(scene, build_mesh(m.nx, m.ny, m.lx, m.ly, m.origin, m.refinement))
+        self.mesh = model_mesh(scene, physics)
         self.coords = self.mesh.coordinates
         self.elements = self.mesh.elements
         self.has_fault = physics.has_fault
@@ -498,10 +487,104 @@ class Discretisation:
 
 def discretise(scene: Scene) -> Discretisation:
     """The terms a scene calls for and their discretisation (the in-situ state checked)."""
-    from .physics import terms_for
-
     physics = terms_for(scene)
     disc = Discretisation(scene, physics)
     for term in physics.terms:
         term.check(disc)
     return disc
+
+
+# ---- the model's size before it is built ------------------------------------------------------
+#: Memory of a run ~ BASE_MEMORY + BYTES_PER_UNKNOWN_LOG * N log2 N bytes (N unknowns; the
+#: sparse factor's fill grows like N log N).  Fitted to the peak resident memory of one step of
+#: the Rustrel scene on uniform meshes: 244 MB at 20 x 21, 507 MB at 100 x 101 (N = 31k), 1.62 GB
+#: at 200 x 201 (N = 122k); the fit is within 10 % at both larger sizes.
+BYTES_PER_UNKNOWN_LOG = 650.0
+BASE_MEMORY = 250e6
+#: node lines per axis up to which the estimate builds the mesh's lines (1-D arrays, 8 bytes a
+#: line) rather than bounding their number
+LINES_BUILT = 200_000
+
+
+def model_mesh(scene: Scene, physics: Physics) -> StructuredMesh:
+    """The mesh a scene is discretised on: ``[mesh]`` (uniform or graded), then refined as the
+    physics terms need it (the leak-off grading across the fault)."""
+    m = scene.mesh
+    return physics.refine_mesh(scene, build_mesh(m.nx, m.ny, m.lx, m.ly, m.origin, m.refinement))
+
+
+def _line_bound(length: float, n_uniform: int, refinement) -> int:
+    """Elements along one axis, or an upper bound for a graded mesh: ``mesh.graded_line`` keeps
+    every element but the two end ones at least half the fine size."""
+    if refinement is None:
+        return n_uniform
+    return int(min(2.0 * length / refinement.size + 2.0, 1e18))
+
+
+def mesh_shape(scene: Scene) -> tuple[int, int]:
+    """(nx, ny): the elements along x and y of the mesh the run builds (``model_mesh``), the one
+    mesh size that ``run`` and ``scene check`` print."""
+    mesh = model_mesh(scene, terms_for(scene))
+    return mesh.nx, mesh.ny
+
+
+def estimate_size(scene: Scene) -> tuple[int, int, float]:
+    """(elements, unknowns, bytes): a run's size before anything heavy is built. The node lines
+    are built (``model_mesh``: the graded mesh and the leak-off grading, so ``elements`` is the
+    built mesh's) unless an axis would have more than ``LINES_BUILT`` of them; then the counts
+    are upper bounds (refusing an absurd mesh must not itself exhaust the memory). Unknowns:
+    the nodes' and those of the nodes the fault enriches (tests/test_accuracy.py states how
+    close they come to the built model)."""
+    m, switched_on = scene.mesh, effects_on(scene)
+    on = {name: name in switched_on for name in ("mechanics", "poroelastic", "fault", "leak_off", "fault_flow")}
+    bound = (_line_bound(m.lx, m.nx, m.refinement), _line_bound(m.ly, m.ny, m.refinement))
+    lines = None
+    if max(bound) <= LINES_BUILT:
+        mesh = model_mesh(scene, terms_for(scene))
+        nx, ny, lines = mesh.nx, mesh.ny, (mesh.x_lines, mesh.y_lines)
+    else:
+        nx, ny = bound
+    nodes = (nx + 1) * (ny + 1)
+    unknowns = 2 * on["mechanics"] * nodes + on["poroelastic"] * nodes
+    if on["fault"]:
+        unknowns += _fault_unknowns(scene, on, nx, ny, lines)
+    return nx * ny, unknowns, BASE_MEMORY + BYTES_PER_UNKNOWN_LOG * unknowns * math.log2(max(unknowns, 2))
+
+
+def _fault_unknowns(scene: Scene, on: dict, nx: int, ny: int, lines) -> int:
+    """Unknowns of the nodes the fault enriches, its own pressure line and the pressure-control
+    multiplier: the stretch of fault line in the model (along s from the fault point, within the
+    box and, for a finite fault, within its length) crosses one more element at each node line
+    it passes, a staircase of cut elements with two more nodes each."""
+    m = scene.mesh
+    angle = scene.fault.angle % 180.0
+    along = 0 if min(angle, 180.0 - angle) < 1e-9 else (1 if abs(angle - 90.0) < 1e-9 else None)
+    a = math.radians(angle)
+    ca, sa = math.cos(a), math.sin(a)
+    px, py = scene.fault_point
+    x0, y0 = m.origin
+    s0, s1 = -math.inf, math.inf
+    for c, p, lo, hi in ((ca, px, x0, x0 + m.lx), (sa, py, y0, y0 + m.ly)):
+        if abs(c) > 1e-12:
+            s0, s1 = max(s0, min((lo - p) / c, (hi - p) / c)), min(s1, max((lo - p) / c, (hi - p) / c))
+    finite = scene.fault.length is not None
+    if finite:
+        s0, s1 = max(s0, -0.5 * scene.fault.length), min(s1, 0.5 * scene.fault.length)
+    if along is not None and not finite:
+        cut = (nx, ny)[along]
+    elif lines is None:
+        cut = nx + ny
+    else:
+        def crossed(axis_lines, a_, b_):
+            lo, hi = sorted((a_, b_))
+            tol = 1e-9 * (axis_lines[-1] - axis_lines[0])
+            inner = axis_lines[1:-1]  # the domain's edges are not crossed
+            return int(np.count_nonzero((inner >= lo - tol) & (inner <= hi + tol)))
+
+        cut = 1 + crossed(lines[0], px + s0 * ca, px + s1 * ca) + crossed(lines[1], py + s0 * sa, py + s1 * sa)
+    enriched = 2 * (cut + 1)
+    # a finite fault's jump closes at its tips: the nodes of the edge through each tip carry none
+    unknowns = (enriched - 4 * finite) * 2 * on["mechanics"] + enriched * on["leak_off"]
+    if on["fault_flow"] and not on["leak_off"]:
+        unknowns += cut + 1  # the fault's own pressure line
+    return unknowns + (scene.injection.control == "pressure")

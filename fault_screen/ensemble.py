@@ -24,6 +24,7 @@ from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
+from .physics import switches_implied_by
 from .scene import Scene, SceneError
 
 #: environment of every local worker: one BLAS / OpenMP thread, so N workers use N cores
@@ -57,12 +58,7 @@ def scene_with(scene: Scene, overrides: dict) -> Scene:
             else:
                 cls = _section_class(names[part].type, key)
                 node = node.setdefault(part, {})
-    fault, effects = data.get("fault", {}), data.setdefault("effects", {})
-    if fault.get("rate_parameter", 1.0) == 0.0:
-        effects["rate_friction"] = False
-        effects["state_evolution"] = False
-    if fault.get("dilation_angle", 1.0) == 0.0:
-        effects["dilation"] = False
+    data.setdefault("effects", {}).update(switches_implied_by(data.get("fault", {})))
     return Scene.from_dict(data)
 
 

@@ -29,9 +29,11 @@ def graded_line(start: float, length: float, focus: float, half_width: float, si
             return np.zeros(0)
         sizes = []
         h = size
-        while sum(sizes) < extent:
+        running = 0.0  # sum(sizes) to round-off: the exact sum is taken only near the end
+        while running < extent * (1.0 - 1e-6) or sum(sizes) < extent:
             h *= growth
             sizes.append(h)
+            running += h
         if len(sizes) > 1 and sum(sizes) - extent > 0.5 * sizes[-1]:
             sizes.pop()  # fold a short last element into the others rather than keep a sliver
         sizes = np.asarray(sizes) * (extent / np.sum(sizes))

@@ -7,8 +7,10 @@ key and the offending value (``SceneError``). ``Scene.to_toml()`` writes the ful
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import re
+import reprlib
 import tomllib
 import warnings
 from dataclasses import dataclass, field, fields
@@ -145,6 +147,7 @@ class RockSpec:
 class Zone:
     """A region with its own rock properties: a band around the fault or a box."""
     name: str = "zone"
+    """Name of the zone in messages and in ``scene show``."""
     band: float | None = None
     """Half width of a band on both sides of the fault (m)."""
     box: tuple[float, float, float, float] | None = None
@@ -286,8 +289,9 @@ class SolverSpec:
     """Newton converges when every field's scaled residual is below this fraction of its
     reference (-)."""
     max_iterations: int = 30
+    """Newton iterations of a step before it counts as failed (-)."""
     max_step_cuts: int = 8
-    """A step whose Newton iteration fails is halved and retried at most this often."""
+    """A step whose Newton iteration fails is halved and retried at most this often (-)."""
     unstable_slip_rate: float = 1e-3
     """Slip rate beyond which the fault counts as unstable (m/s): the quasi-static model cannot
     follow dynamic slip, so the run stops there, keeps every result up to that moment and says
@@ -426,6 +430,7 @@ class OutputSpec:
 @_spec
 class Scene:
     title: str = "untitled"
+    """What the scene models, shown in summaries and stored with results."""
     mesh: MeshSpec = MeshSpec()
     fault: FaultSpec = FaultSpec()
     rock: RockSpec = RockSpec()
@@ -447,12 +452,18 @@ class Scene:
     def from_toml(cls, path) -> "Scene":
         path = Path(path)
         try:
-            data = tomllib.loads(path.read_text())
+            data = loads_toml(path.read_bytes(), str(path))
         except FileNotFoundError:
             raise SceneError(f"scene file not found: {path}") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise SceneError(f"{path}: not valid TOML: {exc}") from None
+        except (OSError, ValueError) as exc:  # a folder, no permission, a NUL in the path
+            raise SceneError(f"{_shown(str(path))}: cannot read the scene file: "
+                             f"{getattr(exc, 'strerror', None) or exc}") from None
         return cls.from_dict(data, base_dir=path.resolve().parent)
+
+    @classmethod
+    def from_toml_text(cls, text: str | bytes, base_dir=None, name: str = "scene") -> "Scene":
+        """A scene from TOML text (``name`` names it in errors)."""
+        return cls.from_dict(loads_toml(text, name), base_dir=base_dir)
 
     @classmethod
     def from_dict(cls, data: dict, base_dir=None) -> "Scene":
@@ -510,6 +521,83 @@ class Scene:
         return (m.origin[0] + 0.5 * m.lx, m.origin[1] + 0.5 * m.ly)
 
 
+def loads_toml(text: str | bytes, name: str = "scene") -> dict:
+    """The table of TOML ``text`` (bytes must be UTF-8); SceneError naming ``name`` otherwise."""
+    if isinstance(text, bytes):
+        try:
+            text = text.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise SceneError(f"{name}: not UTF-8 text (byte {exc.start}: {text[exc.start:exc.start + 1]!r}); "
+                             f"save the scene as UTF-8") from None
+    try:
+        return tomllib.loads(text)
+    except ValueError as exc:  # TOMLDecodeError, or an integer of more digits than Python converts
+        raise SceneError(f"{name}: not valid TOML: {exc}") from None
+    except RecursionError:
+        raise SceneError(f"{name}: arrays or tables nested too deeply to read") from None
+
+
+def _shown(value) -> str:
+    """``repr(value)`` cut short: a bad value in a message stays one readable line whatever its
+    size or nesting."""
+    return _SHORT_REPR.repr(value)
+
+
+_SHORT_REPR = reprlib.Repr()
+_SHORT_REPR.maxlevel, _SHORT_REPR.maxstring, _SHORT_REPR.maxother = 3, 120, 120
+_SHORT_REPR.maxlist = _SHORT_REPR.maxtuple = _SHORT_REPR.maxdict = 12
+#: the largest integer a scene takes (|n|); every int is used as a float somewhere
+LARGEST_INT = 2 ** 53
+
+
+#: the units a field's docstring may give, in parentheses: SI (angles in degrees, magnitudes in
+#: their own scale); "-" is dimensionless
+DOC_UNITS = frozenset({"-", "m", "m^2", "m/s", "m/s^2", "s", "Pa", "Pa/m", "Pa s", "m/Pa", "m^2/(Pa s)",
+                       "kg/m^3", "degrees", "degrees north", "degrees east", "ML"})
+
+
+def _paren_groups(text: str) -> list[str]:
+    """The contents of the outermost parentheses of ``text``, in order."""
+    groups, depth, start = [], 0, 0
+    for i, ch in enumerate(text):
+        if ch == "(":
+            depth += 1
+            if depth == 1:
+                start = i + 1
+        elif ch == ")" and depth:
+            depth -= 1
+            if depth == 0:
+                groups.append(text[start:i])
+    return groups
+
+
+@functools.cache
+def field_docs() -> dict:
+    """(section class name, field name) -> the field's docstring (the string literal after it
+    in this module's source)."""
+    import ast
+
+    docs = {}
+    for node in ast.parse(Path(__file__).read_text(encoding="utf-8")).body:
+        if not isinstance(node, ast.ClassDef):
+            continue
+        for field_node, after in zip(node.body, node.body[1:]):
+            if (isinstance(field_node, ast.AnnAssign) and isinstance(after, ast.Expr)
+                    and isinstance(after.value, ast.Constant) and isinstance(after.value.value, str)):
+                docs[(node.name, field_node.target.id)] = " ".join(after.value.value.split())
+    return docs
+
+
+def field_unit(cls, name: str) -> str | None:
+    """The SI unit a field's docstring gives: the first parenthesised group (before a comma)
+    that is one of ``DOC_UNITS``; None when it gives none (text and switches)."""
+    for group in _paren_groups(field_docs().get((cls.__name__, name), "")):
+        head = group.split(",")[0].strip()
+        if head in DOC_UNITS:
+            return head
+    return None
+
+
 def _to_plain(obj):
     if dataclasses.is_dataclass(obj):
         out = {}
@@ -557,7 +645,7 @@ MOVED_KEYS = {
 
 def _build(cls, data, where):
     if not isinstance(data, dict):
-        raise SceneError(f"[{where or 'scene'}] must be a table, got {data!r}")
+        raise SceneError(f"[{where or 'scene'}] must be a table, got {_shown(data)}")
     known = {f.name: f for f in fields(cls)}
     hints = {f.name: f.type for f in fields(cls)}
     kwargs = {}
@@ -565,7 +653,7 @@ def _build(cls, data, where):
         m = _UNIT_KEY.match(raw)
         name, unit = (m.group(1), m.group(2).strip()) if m else (raw, None)
         if _key(where, name) in MOVED_KEYS:
-            raise SceneError(f"{_key(where, raw)} = {value!r} is no longer read: "
+            raise SceneError(f"{_key(where, raw)} = {_shown(value)} is no longer read: "
                              f"{MOVED_KEYS[_key(where, name)]}")
         if name not in known and isinstance(value, dict):
             tables = sorted(k for k, f in known.items() if str(f.type).replace(" | None", "") in _SECTIONS
@@ -573,7 +661,7 @@ def _build(cls, data, where):
             raise SceneError(f"unknown section [{_key(where, raw)}]; known sections"
                              f"{' in [' + where + ']' if where else ''}: {', '.join(tables)}")
         if name not in known:
-            raise SceneError(f"unknown key {_key(where, raw)!s} = {value!r}; "
+            raise SceneError(f"unknown key {_key(where, raw)!s} = {_shown(value)}; "
                              f"known keys in [{where or 'scene'}]: {', '.join(sorted(known))}")
         if name in kwargs:
             raise SceneError(f"{_key(where, name)} is given twice (with and without a unit)")
@@ -586,6 +674,11 @@ def _build(cls, data, where):
     _one_flow_property(kwargs, where)
     if cls is RockSpec and "mobility" in kwargs:
         kwargs.setdefault("permeability", None)
+    missing = [f.name for f in fields(cls) if f.name not in kwargs
+               and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+    if missing:
+        raise SceneError(f"{_key(where, missing[0])} is missing: [{where or 'scene'}] needs "
+                         f"{', '.join(missing)}")
     return cls(**kwargs)
 
 
@@ -593,12 +686,14 @@ def _one_flow_property(table: dict, where: str):
     """Permeability (m^2, divided by the viscosity) and mobility (m^2/(Pa s)) say the same thing
     two ways: a table may give one of them only."""
     if "permeability" in table and "mobility" in table:
-        raise SceneError(f"[{where or 'scene'}] gives both permeability = {table['permeability']!r} "
-                         f"and mobility = {table['mobility']!r}; give one (mobility = "
+        raise SceneError(f"[{where or 'scene'}] gives both permeability = {_shown(table['permeability'])} "
+                         f"and mobility = {_shown(table['mobility'])}; give one (mobility = "
                          f"permeability / fluid viscosity)")
 
 
 def _key(where, name):
+    if len(name) > 64 or not name.isprintable():
+        name = _shown(name)  # a key as TOML quotes it may hold anything: one line in messages
     return f"{where}.{name}" if where else name
 
 
@@ -612,29 +707,31 @@ def _coerce(hint, value, key, quantity=None, unit=None):
         return _build(_SECTIONS[base], value, key)
     if base == "tuple[Zone, ...]":
         if not isinstance(value, list):
-            raise SceneError(f"{key} must be an array of tables ([[zones]]), got {value!r}")
+            raise SceneError(f"{key} must be an array of tables ([[zones]]), got {_shown(value)}")
         return tuple(_build(Zone, v, f"{key}[{i}]") for i, v in enumerate(value))
     if base == "tuple[MonitorRule, ...]":
         if not isinstance(value, list):
-            raise SceneError(f"{key} must be an array of tables ([[monitor.rules]]), got {value!r}")
+            raise SceneError(f"{key} must be an array of tables ([[monitor.rules]]), got {_shown(value)}")
         return tuple(_build(MonitorRule, v, f"{key}[{i}]") for i, v in enumerate(value))
     if base == "bool":
         if not isinstance(value, bool):
-            raise SceneError(f"{key} = {value!r} must be true or false")
+            raise SceneError(f"{key} = {_shown(value)} must be true or false")
         return value
     if base == "int":
         if isinstance(value, bool) or not isinstance(value, int):
-            raise SceneError(f"{key} = {value!r} must be an integer")
+            raise SceneError(f"{key} = {_shown(value)} must be an integer")
+        if abs(value) > LARGEST_INT:
+            raise SceneError(f"{key} = {_shown(value)} must be an integer of at most {LARGEST_INT}")
         return value
     if base == "float":
         return _number(value, key, quantity, unit)
     if base == "str":
         if not isinstance(value, str):
-            raise SceneError(f"{key} = {value!r} must be a string")
+            raise SceneError(f"{key} = {_shown(value)} must be a string")
         return value
     if base == "dict":  # rock overrides of a zone: same keys (and units) as [rock]
         if not isinstance(value, dict):
-            raise SceneError(f"{key} = {value!r} must be a table")
+            raise SceneError(f"{key} = {_shown(value)} must be a table")
         out = {}
         for raw, v in value.items():
             m = _UNIT_KEY.match(raw)
@@ -644,20 +741,20 @@ def _coerce(hint, value, key, quantity=None, unit=None):
         return out
     if base.startswith("tuple[tuple[float, float]"):
         if not isinstance(value, list) or not value:
-            raise SceneError(f"{key} = {value!r} must be a non-empty array of [time, value] pairs")
+            raise SceneError(f"{key} = {_shown(value)} must be a non-empty array of [time, value] pairs")
         out = []
         for i, pair in enumerate(value):
             if not isinstance(pair, list) or len(pair) != 2:
-                raise SceneError(f"{key}[{i}] = {pair!r} must be a [time, value] pair")
+                raise SceneError(f"{key}[{i}] = {_shown(pair)} must be a [time, value] pair")
             out.append((_number(pair[0], f"{key}[{i}][0]", "time"),
                         _number(pair[1], f"{key}[{i}][1]", quantity, unit)))
         return tuple(out)
     if base.startswith("tuple[float"):
         n = base.count("float")
         if not isinstance(value, list) or len(value) != n:
-            raise SceneError(f"{key} = {value!r} must be an array of {n} numbers")
+            raise SceneError(f"{key} = {_shown(value)} must be an array of {n} numbers")
         return tuple(_number(v, f"{key}[{i}]", quantity, unit) for i, v in enumerate(value))
-    raise SceneError(f"{key}: cannot read {value!r}")  # pragma: no cover - schema error
+    raise SceneError(f"{key}: cannot read {_shown(value)}")  # pragma: no cover - schema error
 
 
 def _number(value, key, quantity=None, unit=None):
@@ -667,24 +764,29 @@ def _number(value, key, quantity=None, unit=None):
         try:
             value, written = units.split_value(value)   # "100 mD" and "100mD" alike
         except ValueError:
-            raise SceneError(f"{key} = {text!r} must be a number, optionally with a unit "
+            raise SceneError(f"{key} = {_shown(text)} must be a number, optionally with a unit "
                              f"(\"29.2 GPa\")") from None
         if written is not None:
             if unit is not None:
-                raise SceneError(f"{key} = {text!r}: the unit is already given in the key")
+                raise SceneError(f"{key} = {_shown(text)}: the unit is already given in the key")
             if quantity is None:
-                raise SceneError(f"{key} = {text!r}: this value takes no unit")
+                raise SceneError(f"{key} = {_shown(text)}: this value takes no unit")
             unit = written
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise SceneError(f"{key} = {text!r} must be a number (SI units unless a unit is given)")
+        raise SceneError(f"{key} = {_shown(text)} must be a number (SI units unless a unit is given)")
+    if isinstance(value, int) and abs(value) > LARGEST_INT:
+        raise SceneError(f"{key} = {_shown(text)} is beyond the range of numbers a scene takes "
+                         f"(write it as a float, e.g. 1e20)")
     if not math.isfinite(value):
-        raise SceneError(f"{key} = {text!r} must be finite")
+        raise SceneError(f"{key} = {_shown(text)} must be finite")
     if unit is None:
         return float(value)
     try:
         si = float(units.to_si(float(value), unit, quantity))
     except units.UnitError as exc:
-        raise SceneError(f"{key} = {text!r}: {exc}") from None
+        raise SceneError(f"{key} = {_shown(text)}: {exc}") from None
+    if not math.isfinite(si):
+        raise SceneError(f"{key} = {_shown(text)} is beyond the float range in SI units")
     return math.degrees(si) if quantity == "angle" else si
 
 
@@ -771,194 +873,19 @@ def _in_range(key: str, value, where: str | None = None, sink: list | None = Non
         if v is None:
             continue
         if not plo <= v <= phi:
-            raise SceneError(f"{name} = {value!r}: outside the physical range {_fmt(plo)} to "
+            raise SceneError(f"{name} = {_shown(value)}: outside the physical range {_fmt(plo)} to "
                              f"{_fmt(phi)}{u} (plausible: {_fmt(qlo)} to {_fmt(qhi)}{u})")
     if sink is not None:
         for v in values:
             if v is not None and not qlo <= v <= qhi:
-                sink.append(f"{name} = {value!r} is outside the plausible range {_fmt(qlo)} to "
+                sink.append(f"{name} = {_shown(value)} is outside the plausible range {_fmt(qlo)} to "
                             f"{_fmt(qhi)}{u}: accepted, but check the value and its unit")
                 break
 
 
-#: Memory of a run ~ BASE_MEMORY + BYTES_PER_UNKNOWN_LOG * N log2 N bytes (N unknowns; the
-#: sparse factor's fill grows like N log N).  Fitted to the peak resident memory of one step of
-#: the Rustrel scene on uniform meshes: 244 MB at 20 x 21, 507 MB at 100 x 101 (N = 31k), 1.62 GB
-#: at 200 x 201 (N = 122k); the fit is within 10 % at both larger sizes.
-BYTES_PER_UNKNOWN_LOG = 650.0
-BASE_MEMORY = 250e6
-
-
-class _Axis:
-    """Node lines of one mesh axis, counted without building them (``mesh.build_mesh`` and the
-    leak-off grading build them; this follows their rules): ``n`` elements, and the lines near
-    ``focus`` at ``spacing`` (uniform: every line; graded: the refined core)."""
-
-    def __init__(self, start: float, length: float, n_uniform: int, refinement=None, axis: int = 0):
-        self.start, self.end = start, start + length
-        if refinement is None:
-            self.n, self.spacing, self.focus, self.growth = n_uniform, length / n_uniform, start, 1.0
-            self.core = (start, self.end)
-            return
-        focus, half, size = refinement.center[axis], refinement.half_width[axis], refinement.size
-        # whole elements of ``size`` on each side of the focus, then geometric growth outwards
-        n_lo = int(math.floor(min(half, focus - start) / size + 1e-9))
-        n_hi = int(math.floor(min(half, self.end - focus) / size + 1e-9))
-        self.core = (focus - n_lo * size, focus + n_hi * size)
-        self.spacing, self.focus, self.growth = size, focus, refinement.growth
-        self.n = n_lo + n_hi + sum(_outward_count(e, size, self.growth, length)
-                                   for e in (self.core[0] - start, self.end - self.core[1]))
-
-    def lines_within(self, lo: float, hi: float) -> int:
-        """Interior node lines in [lo, hi] (m): exact on the uniform part, the graded tails
-        counted as if their elements grew from the core size without the final rescaling."""
-        lo, hi = max(lo, self.start), min(hi, self.end)
-        if hi <= lo:
-            return 0
-        c0, c1 = max(lo, self.core[0]), min(hi, self.core[1])
-        n = 0
-        if c1 >= c0:
-            n += (math.floor((c1 - self.focus) / self.spacing + 1e-9)
-                  - math.ceil((c0 - self.focus) / self.spacing - 1e-9) + 1)
-        if self.core != (self.start, self.end):
-            length = self.end - self.start
-            n += _outward_count(self.core[0] - lo, self.spacing, self.growth, length, whole=True)
-            n += _outward_count(hi - self.core[1], self.spacing, self.growth, length, whole=True)
-        n -= (lo <= self.start) + (hi >= self.end)  # the domain's edges are not interior lines
-        return max(n, 0)
-
-
-def _outward_count(extent: float, size: float, growth: float, length: float, whole: bool = False) -> int:
-    """Elements growing by ``growth`` from ``size`` that fill ``extent`` (m), a short last one
-    folded into the others as ``mesh.graded_line`` does; ``whole``: how many fit entirely."""
-    if extent <= 1e-12 * length:
-        return 0
-    if growth <= 1.0:
-        k = extent / size
-    else:  # size (g + g^2 + ... + g^k) = extent
-        k = math.log1p(extent * (growth - 1.0) / (size * growth)) / math.log(growth)
-    if whole:
-        return int(math.floor(k + 1e-9))
-    n = max(1, math.ceil(k - 1e-9))
-    last = size * growth ** n
-    total = size * n if growth <= 1.0 else size * growth * (growth ** n - 1.0) / (growth - 1.0)
-    return n - 1 if n > 1 and total - extent > 0.5 * last else n
-
-
-def _leak_off_length(scene: "Scene") -> float:
-    """sqrt(c dt) of the first step in the most slowly diffusing permeable rock along the fault
-    (m), as the leak-off grading (``physics/leak_off_mesh.py``) reads it; 0 if none is permeable.
-    c = mobility / (1/M + alpha^2 / (K + 4G/3)), 1/M alone without mechanics."""
-    rocks = [scene.rock]
-    zones = ((Zone(band=scene.damage_zone.width, rock=scene.damage_zone.rock_overrides()),)
-             if scene.effects.damage_zone else ()) + tuple(scene.zones)
-    a = math.radians(scene.fault.angle)
-    px, py = scene.fault_point
-    for z in zones:  # in the order they apply: a band holds the whole fault
-        if z.band is not None:
-            rocks = [scene.rock.with_overrides(z.rock)]
-        elif z.box is not None:
-            x0, x1, y0, y1 = z.box
-            phi = [-(x - px) * math.sin(a) + (y - py) * math.cos(a)
-                   for x, y in ((x0, y0), (x1, y0), (x1, y1), (x0, y1))]
-            if min(phi) <= 0 <= max(phi):
-                rocks.append(scene.rock.with_overrides(z.rock))
-    c = []
-    for r in rocks:
-        mobility = r.mobility_at(scene.fluid.viscosity)
-        if mobility <= 0:
-            continue
-        E, nu, alpha, n = r.youngs_modulus, r.poissons_ratio, r.biot_coefficient, r.porosity
-        K = E / (3.0 * (1.0 - 2.0 * nu))
-        Ks = r.solid_bulk_modulus or (K / (1.0 - alpha) if alpha < 1.0 else math.inf)
-        storage = (alpha - n) / Ks + n / scene.fluid.bulk_modulus
-        if scene.effects.mechanics:
-            storage += alpha ** 2 / (E * (1.0 - nu) / ((1.0 + nu) * (1.0 - 2.0 * nu)))
-        c.append(mobility / storage)
-    return math.sqrt(min(c) * scene.time.dt) if c else 0.0
-
-
-def graded_cut_height(scene: "Scene") -> float:
-    """Height across the fault of the element the leak-off grading makes the fault cut (m):
-    ``mesh.fault_grading_size``, else half the first step's leak-off length (the SIZE_FRACTION of
-    ``physics/leak_off_mesh.py``); 0 when the mesh is not graded (no leak-off, grading off, a
-    fault at an angle, impermeable rock)."""
-    m, ef = scene.mesh, scene.effects
-    a = scene.fault.angle % 90.0
-    if not (ef.fault and ef.leak_off and m.fault_grading == "auto") or min(a, 90.0 - a) >= 1e-9:
-        return 0.0
-    return m.fault_grading_size if m.fault_grading_size is not None else 0.5 * _leak_off_length(scene)
-
-
-def _graded_lines_added(axis: _Axis, at: float, size: float, growth: float) -> int:
-    """Node lines the leak-off grading adds across a fault at ``at`` (m), as
-    ``mesh.grade_across`` does: lines from ``size`` growing to the mesh spacing on each side,
-    less the mesh's own lines they replace."""
-    if axis.spacing <= size:
-        return 0
-    added = 0
-    for sign in (1.0, -1.0):
-        z, h = 0.5 * size, size
-        while axis.start < at + sign * z < axis.end:
-            added += 1
-            if h * growth >= axis.spacing:
-                break
-            h *= growth
-            z += h
-        reach = z + 0.5 * h * growth
-        added -= axis.lines_within(at, at + reach) if sign > 0 else axis.lines_within(at - reach, at)
-    return added
-
-
-def estimate_size(scene: "Scene") -> tuple[int, int, float]:
-    """(elements, unknowns, bytes): a run's size from the mesh and the effects alone, before
-    anything is built (refusing an absurd mesh must not itself exhaust the memory). Counts the
-    node lines of the graded mesh and of the leak-off grading across the fault, and the nodes the
-    fault enriches (tests/test_accuracy.py states how close it comes to the built model)."""
-    m, ef = scene.mesh, scene.effects
-    ax = [_Axis(m.origin[0], m.lx, m.nx, m.refinement, 0), _Axis(m.origin[1], m.ly, m.ny, m.refinement, 1)]
-    nx, ny = ax[0].n, ax[1].n
-    angle = scene.fault.angle % 180.0
-    along = 0 if min(angle, 180.0 - angle) < 1e-9 else (1 if abs(angle - 90.0) < 1e-9 else None)
-    size = graded_cut_height(scene)
-    if size > 0:
-        across = 1 - along
-        added = _graded_lines_added(ax[across], scene.fault_point[across], size, m.fault_grading_growth)
-        nx, ny = (nx + added, ny) if across == 0 else (nx, ny + added)
-    nodes = (nx + 1) * (ny + 1)
-    unknowns = 2 * ef.mechanics * nodes + ef.poroelastic * nodes
-    if ef.fault:
-        # the stretch of fault line in the model: along s from the fault point, within the box
-        # and, for a finite fault, within its length (each tip ends on an element edge)
-        a = math.radians(angle)
-        ca, sa = math.cos(a), math.sin(a)
-        px, py = scene.fault_point
-        x0, y0 = m.origin
-        s0, s1 = -math.inf, math.inf
-        for c, p, lo, hi in ((ca, px, x0, x0 + m.lx), (sa, py, y0, y0 + m.ly)):
-            if abs(c) > 1e-12:
-                s0, s1 = max(s0, min((lo - p) / c, (hi - p) / c)), min(s1, max((lo - p) / c, (hi - p) / c))
-        finite = scene.fault.length is not None
-        if finite:
-            s0, s1 = max(s0, -0.5 * scene.fault.length), min(s1, 0.5 * scene.fault.length)
-        if along is not None and not finite:
-            cut = (nx, ny)[along]
-        else:  # a straight line crosses one more element at each node line it passes
-            xs = sorted((px + s0 * ca, px + s1 * ca))
-            ys = sorted((py + s0 * sa, py + s1 * sa))
-            cut = 1 + ax[0].lines_within(*xs) + ax[1].lines_within(*ys)
-        enriched = 2 * (cut + 1)  # a staircase of cut elements: two more nodes per element
-        # a finite fault's jump closes at its tips: the nodes of the edge through each tip carry none
-        unknowns += (enriched - 4 * finite) * 2 * ef.mechanics + enriched * ef.leak_off
-        if ef.fault_flow and not ef.leak_off:
-            unknowns += cut + 1  # the fault's own pressure line
-        unknowns += scene.injection.control == "pressure"
-    return nx * ny, unknowns, BASE_MEMORY + BYTES_PER_UNKNOWN_LOG * unknowns * math.log2(max(unknowns, 2))
-
-
 def _check(ok, key, value, why):
     if not ok:
-        raise SceneError(f"{key} = {value!r}: {why}")
+        raise SceneError(f"{key} = {_shown(value)}: {why}")
 
 
 def _validate_rock(rock: RockSpec, where: str, sink: list | None = None, keys=None):
@@ -1000,7 +927,30 @@ def _validate_site(site: SiteSpec):
 
 
 def _validate(s: Scene, sink: list | None = None):
-    """Refuse what cannot be simulated; append plausibility warnings to ``sink``."""
+    """Refuse what cannot be simulated; append plausibility warnings to ``sink``. One validator
+    per section, then those of the switch combinations, in a fixed order (the first error wins)."""
+    _validate_ranges(s, sink)
+    _validate_site(s.site)
+    _validate_mesh(s.mesh)
+    _validate_fault(s)
+    _validate_rock(s.rock, "rock", sink)
+    _validate_zones(s, sink)
+    _validate_fluid(s.fluid)
+    _validate_boundary(s.boundary)
+    _validate_injection(s.injection)
+    _validate_time(s.time)
+    _validate_solver(s.solver)
+    _validate_friction(s.fault, s.effects)
+    _validate_initial(s)
+    _validate_damage_zone(s, sink)
+    _validate_effects(s.effects, s.injection)
+    _validate_monitor(s.monitor)
+    _validate_output(s.output)
+
+
+def _validate_ranges(s: Scene, sink: list | None):
+    """Every value with an entry in ``RANGES``: refused outside its physical range, a warning in
+    ``sink`` outside its plausible one."""
     for section in ("mesh", "fault", "fluid", "initial", "injection", "time", "solver",
                     "damage_zone", "site"):
         spec = getattr(s, section)
@@ -1013,11 +963,12 @@ def _validate(s: Scene, sink: list | None = None):
                   f"boundary.{edge}.traction", sink)
     which = "rate" if s.injection.control == "rate" else "pressure"
     if which == "rate" and any(v < 0 for _, v in s.injection.schedule):
-        which = "flowback_rate"  # the sign is checked with injection.allow_flowback below
+        which = "flowback_rate"  # the sign is checked with injection.allow_flowback
     _in_range(f"injection.schedule.{which}", tuple(v for _, v in s.injection.schedule),
               "injection.schedule", sink)
-    _validate_site(s.site)
-    m = s.mesh
+
+
+def _validate_mesh(m: MeshSpec):
     _check(m.nx >= 1, "mesh.nx", m.nx, "must be >= 1")
     _check(m.ny >= 1, "mesh.ny", m.ny, "must be >= 1")
     _check(m.lx > 0, "mesh.lx", m.lx, "must be > 0 m")
@@ -1027,15 +978,25 @@ def _validate(s: Scene, sink: list | None = None):
         _check(r.size > 0, "mesh.refinement.size", r.size, "must be > 0 m")
         _check(1.0 <= r.growth <= 2.0, "mesh.refinement.growth", r.growth, "must be in [1, 2]")
         _check(min(r.half_width) >= 0, "mesh.refinement.half_width", r.half_width, "must be >= 0 m")
+        x0, y0 = m.origin
+        _check(_in_domain(m, r.center), "mesh.refinement.center", r.center,
+               f"must lie in the domain [{x0}, {x0 + m.lx}] x [{y0}, {y0 + m.ly}] m")
     _check(m.fault_grading in ("auto", "off"), "mesh.fault_grading", m.fault_grading, "must be 'auto' or 'off'")
     _check(m.fault_grading_size is None or m.fault_grading_size > 0, "mesh.fault_grading_size",
            m.fault_grading_size, "must be > 0 m")
     _check(1.0 < m.fault_grading_growth <= 2.0, "mesh.fault_grading_growth", m.fault_grading_growth,
            "must be in (1, 2]")
-    f = s.fault
+
+
+def _in_domain(m: MeshSpec, point) -> bool:
     x0, y0 = m.origin
-    px, py = s.fault_point
-    _check(x0 <= px <= x0 + m.lx and y0 <= py <= y0 + m.ly, "fault.point", f.point,
+    return x0 <= point[0] <= x0 + m.lx and y0 <= point[1] <= y0 + m.ly
+
+
+def _validate_fault(s: Scene):
+    f, m = s.fault, s.mesh
+    x0, y0 = m.origin
+    _check(_in_domain(m, s.fault_point), "fault.point", f.point,
            f"must lie in the domain [{x0}, {x0 + m.lx}] x [{y0}, {y0 + m.ly}] m")
     for key in ("normal_stiffness", "shear_stiffness", "hydraulic_aperture", "kappa"):
         _check(getattr(f, key) > 0, f"fault.{key}", getattr(f, key), "must be > 0")
@@ -1047,7 +1008,9 @@ def _validate(s: Scene, sink: list | None = None):
                "line; the leak-off enrichment has no tip treatment)")
     if f.storativity is not None:
         _check(f.storativity >= 0, "fault.storativity", f.storativity, "must be >= 0 m/Pa")
-    _validate_rock(s.rock, "rock", sink)
+
+
+def _validate_zones(s: Scene, sink: list | None):
     rock_keys = {fl.name for fl in fields(RockSpec)}
     for i, z in enumerate(s.zones):
         where = f"zones[{i}]"
@@ -1060,18 +1023,25 @@ def _validate(s: Scene, sink: list | None = None):
         for k, v in z.rock.items():
             _number(v, f"{where}.rock.{k}")
         _validate_rock(s.rock.with_overrides(z.rock), f"{where}.rock", sink, z.rock)
-    fl = s.fluid
+
+
+def _validate_fluid(fl: FluidSpec):
     for key in ("viscosity", "bulk_modulus"):
         _check(getattr(fl, key) > 0, f"fluid.{key}", getattr(fl, key), "must be > 0")
+
+
+def _validate_boundary(b: BoundarySpec):
     for edge in EDGES:
-        e = getattr(s.boundary, edge)
+        e = getattr(b, edge)
         _check(e.mechanical in ("pinned", "roller", "free"), f"boundary.{edge}.mechanical",
                e.mechanical, "must be 'pinned', 'roller' or 'free'")
         _check(e.hydraulic in ("drained", "no_flow"), f"boundary.{edge}.hydraulic", e.hydraulic,
                "must be 'drained' or 'no_flow'")
         _check(e.mechanical != "pinned" or e.traction == (0.0, 0.0), f"boundary.{edge}.traction",
                e.traction, "a pinned edge cannot carry an applied traction")
-    inj = s.injection
+
+
+def _validate_injection(inj: InjectionSpec):
     _check(inj.control in ("rate", "pressure"), "injection.control", inj.control,
            "must be 'rate' or 'pressure'")
     _check(inj.number_of_fractures >= 1, "injection.number_of_fractures", inj.number_of_fractures,
@@ -1087,20 +1057,27 @@ def _validate(s: Scene, sink: list | None = None):
     _check(inj.log_max_gap > 0, "injection.log_max_gap", inj.log_max_gap, "must be > 0 s")
     if inj.log is not None:
         _check(inj.control == "rate", "injection.log", inj.log, "a flow-rate log needs control = 'rate'")
-        _check(Path(inj.log).is_file(), "injection.log", inj.log, "no such file")
-    t = s.time
+        _check(_is_file(inj.log), "injection.log", inj.log, "no such file")
+
+
+def _validate_time(t: TimeSpec):
     _check(t.end > 0, "time.end", t.end, "must be > 0 s")
     _check(0 < t.dt <= t.end, "time.dt", t.dt, f"must be in (0, end = {t.end}] s")
     _check(t.growth >= 1.0, "time.growth", t.growth, "must be >= 1")
     if t.dt_max is not None:
         _check(t.dt_max >= t.dt, "time.dt_max", t.dt_max, f"must be >= dt = {t.dt} s")
     _check(0.5 <= t.theta <= 1.0, "time.theta", t.theta, "must be in [0.5, 1] (unconditionally stable)")
-    sv = s.solver
+
+
+def _validate_solver(sv: SolverSpec):
     _check(0 < sv.tolerance < 1, "solver.tolerance", sv.tolerance, "must be in (0, 1)")
     _check(sv.max_iterations >= 1, "solver.max_iterations", sv.max_iterations, "must be >= 1")
     _check(sv.max_step_cuts >= 0, "solver.max_step_cuts", sv.max_step_cuts, "must be >= 0")
     _check(sv.unstable_slip_rate > 0, "solver.unstable_slip_rate", sv.unstable_slip_rate, "must be > 0 m/s")
-    ef = s.effects
+
+
+def _validate_friction(f: FaultSpec, ef: EffectsSpec):
+    """Friction, dilation and aperture parameters, and the switches that need them."""
     for key in ("rate_parameter", "state_parameter", "dilation_angle", "asperity_height_std"):
         _check(getattr(f, key) >= 0, f"fault.{key}", getattr(f, key), "must be >= 0")
     for key in ("reference_velocity", "critical_slip_distance"):
@@ -1127,6 +1104,9 @@ def _validate(s: Scene, sink: list | None = None):
                "the mechanical opening)")
     if ef.rate_friction:
         _check(ef.mechanics, "effects.rate_friction", ef.rate_friction, "needs effects.mechanics = true")
+
+
+def _validate_initial(s: Scene):
     ini = s.initial
     d = ini.gravity_direction
     _check(abs(math.hypot(d[0], d[1]) - 1.0) < 1e-6, "initial.gravity_direction", d, "must be a unit vector")
@@ -1140,37 +1120,57 @@ def _validate(s: Scene, sink: list | None = None):
            ini.effective_stress, "give either initial.stress with initial.stress_kind or the older "
            "initial.effective_stress (Biot-effective), not both")
     if ini.reference_point is not None:
-        rx, ry = ini.reference_point
-        _check(x0 <= rx <= x0 + m.lx and y0 <= ry <= y0 + m.ly, "initial.reference_point",
+        _check(_in_domain(s.mesh, ini.reference_point), "initial.reference_point",
                ini.reference_point, "must lie in the domain")
-    dz = s.damage_zone
+
+
+def _validate_damage_zone(s: Scene, sink: list | None):
+    dz, ef = s.damage_zone, s.effects
     _check(dz.width > 0, "damage_zone.width", dz.width, "must be > 0 m")
     if ef.damage_zone:
         _check(ef.fault, "effects.damage_zone", ef.damage_zone, "a damage zone needs a fault")
         over = dz.rock_overrides()
         _validate_rock(s.rock.with_overrides(over), "damage_zone", sink, over)
+
+
+def _validate_effects(ef: EffectsSpec, inj: InjectionSpec):
+    """Switch combinations that leave nothing to simulate or nowhere to inject."""
     if not ef.fault:
         for key in ("fault_flow", "leak_off"):
             _check(not getattr(ef, key), f"effects.{key}", getattr(ef, key),
                    "needs a fault: set effects.fault = true or this switch to false")
-        _check(all(v == 0 for _, v in s.injection.schedule), "injection.schedule", s.injection.schedule,
+        _check(all(v == 0 for _, v in inj.schedule), "injection.schedule", inj.schedule,
                "injection happens on the fault; without a fault the schedule must be zero")
     _check(not (ef.leak_off and not ef.poroelastic), "effects.leak_off", ef.leak_off,
            "leak-off needs a permeable rock: set effects.poroelastic = true or leak_off = false")
     if ef.fault and not (ef.fault_flow or ef.leak_off):
         # a dry fault: contact only, no fluid of its own
-        _check(all(v == 0 for _, v in s.injection.schedule), "injection.schedule", s.injection.schedule,
+        _check(all(v == 0 for _, v in inj.schedule), "injection.schedule", inj.schedule,
                "a fault without fault_flow or leak_off holds no fluid, so nothing can be injected")
     _check(ef.mechanics or ef.poroelastic or ef.fault_flow, "effects", "all off", "nothing to simulate")
     if not ef.mechanics:
         _check(not ef.poroelastic, "effects.poroelastic", ef.poroelastic,
                "Biot rock needs mechanics = true (rigid rock has no pore volume change)")
-    _validate_monitor(s.monitor)
-    out = s.output
+
+
+def _validate_output(out: OutputSpec):
     if out.profile_every is not None:
         _check(out.profile_every >= 1, "output.profile_every", out.profile_every, "must be >= 1 step")
     if out.profile_interval is not None:
         _check(out.profile_interval > 0, "output.profile_interval", out.profile_interval, "must be > 0 s")
+
+
+def _is_file(path: str) -> bool:
+    """Does ``path`` name a file (False for a path the system cannot take, e.g. with a NUL)?"""
+    try:
+        return Path(path).is_file()
+    except (OSError, ValueError):
+        return False
+
+
+#: longest rule condition (characters): far beyond any written by hand (a 100-term ``or`` chain
+#: of thresholds is ~3,000), and short enough that parsing it stays well below a second
+MAX_CONDITION = 10_000
 
 
 def _validate_monitor(mon: MonitorSpec):
@@ -1182,13 +1182,17 @@ def _validate_monitor(mon: MonitorSpec):
     known = set(METRICS) | {f.name for f in fields(MonitorSpec) if f.name != "rules"}
     names = set()
     for i, rule in enumerate(mon.rules):
-        where = f"monitor.rules[{i}]" + (f" ({rule.name!r})" if rule.name else "")
+        where = f"monitor.rules[{i}]" + (f" ({_shown(rule.name)})" if rule.name else "")
         _check(rule.level in ("yellow", "red"), f"{where}.level", rule.level, "must be 'yellow' or 'red'")
         _check(rule.hold >= 0, f"{where}.hold", rule.hold, "must be >= 0 s")
+        _check(len(rule.when) <= MAX_CONDITION, f"{where}.when", rule.when,
+               f"a condition of {len(rule.when)} characters; at most {MAX_CONDITION} (split it into rules)")
         try:
             parse_condition(rule.when, known)
         except RuleError as exc:
-            raise SceneError(f"{where}.when = {rule.when!r}: {exc}") from None
+            raise SceneError(f"{where}.when = {_shown(rule.when)}: {exc}") from None
+        except RecursionError:  # the parser recurses on parentheses
+            raise SceneError(f"{where}.when = {_shown(rule.when)}: nested too deeply") from None
         name = rule.name or f"rules[{i}]"
         _check(name not in names, f"{where}.name", name, "two rules have this name")
         _check(0 < len(name.encode()) <= 64, f"{where}.name", name,
@@ -1197,17 +1201,41 @@ def _validate_monitor(mon: MonitorSpec):
 
 
 # ---- a small TOML writer for resolved scenes (tables, arrays of tables, scalars, arrays) ----
+#: TOML basic-string escapes; every other control character is written as \uXXXX
+_TOML_ESCAPES = {'"': '\\"', "\\": "\\\\", "\b": "\\b", "\t": "\\t", "\n": "\\n", "\f": "\\f",
+                 "\r": "\\r"}
+_BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
+
+
+def _toml_string(text: str) -> str:
+    """A TOML basic string that reads back as ``text`` (control characters escaped, so a
+    multi-line value stays on one line)."""
+    out = []
+    for ch in text:
+        if ch in _TOML_ESCAPES:
+            out.append(_TOML_ESCAPES[ch])
+        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
+            out.append(f"\\u{ord(ch):04X}")
+        else:
+            out.append(ch)
+    return '"' + "".join(out) + '"'
+
+
+def _toml_key(key: str) -> str:
+    return key if _BARE_KEY.match(key) else _toml_string(key)
+
+
 def _toml_value(v: Any) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, (int, float)):
         return repr(v)
     if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+        return _toml_string(v)
     if isinstance(v, (list, tuple)):
         return "[" + ", ".join(_toml_value(x) for x in v) + "]"
     if isinstance(v, dict):
-        return "{" + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + "}"
+        return "{" + ", ".join(f"{_toml_key(k)} = {_toml_value(x)}" for k, x in v.items()) + "}"
     raise TypeError(f"cannot write {v!r} as TOML")
 
 
@@ -1219,7 +1247,7 @@ def dumps_toml(data: dict, prefix: str = "") -> str:
         elif isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
             tables.append((k, v))
         else:
-            lines.append(f"{k} = {_toml_value(v)}")
+            lines.append(f"{_toml_key(k)} = {_toml_value(v)}")
     out = "\n".join(lines)
     for k, v in tables:
         name = f"{prefix}.{k}" if prefix else k

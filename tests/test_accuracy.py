@@ -70,7 +70,7 @@ def test_estimate_size_counts_the_unknowns_of_the_built_model(path, overrides, t
     nodes: exact for a fault along x or y; a fault at an angle through the mesh is counted as a
     staircase of cut elements, two nodes each (the sliver rule drops a few)."""
     from fault_screen.discretisation import discretise
-    from fault_screen.scene import estimate_size
+    from fault_screen.discretisation import estimate_size
 
     scene = scene_with(Scene.from_toml(VERIFICATION.parent / path), overrides)
     elements, unknowns, _ = estimate_size(scene)

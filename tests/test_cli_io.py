@@ -274,11 +274,11 @@ def test_scene_show_units_every_key_and_sources(tmp_path):
     def line(start):
         return next(ln for ln in lines if ln.startswith(start))
     assert line("permeability = 9.869233e-14").endswith('# m2, file: permeability = "100mD"')
-    assert line("friction = 0.7").endswith("# -, file")
-    assert line("kappa = 1.2").endswith("# -, default")
+    assert line("friction = 0.7").endswith("# - (dimensionless), file")
+    assert line("kappa = 1.2").endswith("# - (dimensionless), default")
     assert line("# storativity = 2.59069767441").endswith("# m/Pa, derived: 2h0 / fluid.bulk_modulus")
     assert line("# dt_max = 5.0").endswith("# s, derived: time.dt")
-    assert line("rock = {permeability = 4.93461").endswith("# file")
+    assert line("rock = {permeability = 4.93461").endswith("# units of [rock], file")
     shown = tomllib.loads(r.output)
     assert Scene.from_dict(shown) == Scene.from_toml(p)
     # every field of every section appears, set or not

@@ -14,9 +14,10 @@ import numpy as np
 import pytest
 
 from fault_screen import Scene, simulate
-from fault_screen.discretisation import discretise, effective_rock
+from fault_screen.discretisation import discretise
 from fault_screen.mesh import grade_across
-from fault_screen.physics.leak_off_mesh import SIZE_FRACTION, storage_coefficient
+from fault_screen.physics.leak_off_mesh import SIZE_FRACTION
+from fault_screen.physics.materials import effective_rock, storage_coefficient
 from fault_screen.scene import SceneWarning
 
 from conftest import CONFIGS

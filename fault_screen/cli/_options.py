@@ -308,7 +308,7 @@ def check_log(log, scene, accepted: bool) -> None:
 def check_size(scene, label) -> None:
     """Refuse a mesh whose run would not fit in this machine's memory, with the estimate, before
     anything is built (exit 2)."""
-    from ..scene import estimate_size
+    from ..discretisation import estimate_size
 
     elements, unknowns, need = estimate_size(scene)
     try:

@@ -45,8 +45,10 @@ def run_scene(scene, *, scene_label: str, out: Path | None, plot_dir: Path | Non
                if events_path is not None else None)
 
     if not quiet:
-        m = scene.mesh
-        size = "graded mesh" if m.refinement is not None else f"{m.nx} x {m.ny} elements"
+        from ..discretisation import mesh_shape
+
+        nx, ny = mesh_shape(scene)  # as built: with the leak-off grading, as `scene check` prints
+        size = f"{'graded mesh, ' if scene.mesh.refinement is not None else ''}{nx} x {ny} elements"
         click.echo(f"running {scene_label} ({scene.title}; {size}; "
                    f"0 to {scene.time.end:g} s, dt {scene.time.dt:g} s)")
     progress = None if quiet else Progress(sys.stdout)

@@ -46,31 +46,32 @@ def fault_state_lines(disc) -> list[str]:
 
 
 # ---- show ----------------------------------------------------------------------------------
-def _unit(section: str, name: str, value, scene) -> str:
-    from ..scene import QUANTITY, RANGES
-    from ..units import SI_UNIT
+def _unit(cls, name: str, value, scene) -> str:
+    """What the value of ``cls.name`` is measured in, as its docstring gives it (SI, e.g. m2 for
+    m^2; angles in deg): "- (dimensionless)" for a pure number, "text" and "true/false" for the
+    others."""
+    from ..scene import Zone, field_unit
 
     if name == "schedule":
         return "[s, m3/s]" if scene.injection.control == "rate" else "[s, Pa]"
-    key = f"{section.split('.')[0].split('[')[0]}.{name}"
-    if section.startswith(("zones", "damage_zone")) and name in {f.name for f in dataclasses.fields(type(scene.rock))}:
-        key = f"rock.{name}"
-    if key in RANGES:
-        return RANGES[key][0]
-    q = QUANTITY.get(name)
-    if q == "angle":
-        return "deg"
-    if q is not None:
-        return SI_UNIT[q]
-    if isinstance(value, (bool, str, dict)):
-        return ""
-    return "-"
+    if cls is Zone and name == "rock":
+        return "units of [rock]"
+    unit = field_unit(cls, name)
+    if unit == "-":
+        return "- (dimensionless)"
+    if unit is not None:  # written as the unit parser and the range table write it
+        return "deg" if unit.startswith("degrees") else unit.replace("^", "")
+    if isinstance(value, bool):
+        return "true/false"
+    return "text"
 
 
 def _derived(scene) -> dict:
     """Values the scene computes when a key is left unset: key -> (value, how)."""
+    from ..physics.materials import drained_bulk_modulus
+
     f, r, fl, ini, t = scene.fault, scene.rock, scene.fluid, scene.initial, scene.time
-    k_drained = r.youngs_modulus / (3 * (1 - 2 * r.poissons_ratio))
+    k_drained = drained_bulk_modulus(r.youngs_modulus, r.poissons_ratio)
     a = math.radians(f.angle)
     px, py = scene.fault_point
     pos = scene.injection.position
@@ -120,7 +121,7 @@ def _show_table(obj, section: str, raw, scene, derived, lines: list) -> None:
         if name == "zones":
             continue
         key = f"{section}.{name}" if section else name
-        unit = _unit(section, name, value, scene)
+        unit = _unit(type(obj), name, value, scene)
         written = _written(raw, name)
         if written is not None:
             k, v = written
@@ -132,12 +133,12 @@ def _show_table(obj, section: str, raw, scene, derived, lines: list) -> None:
         if value is None:
             if key in derived and derived[key][0] is not None:  # (a mobility leaves permeability unset)
                 dv, how = derived[key]
-                lines.append(f"# {name} = {_toml_value(dv)}".ljust(44)
-                             + f"# {unit}, derived: {how}")
+                lines.append(f"# {name} = {_toml_value(dv)}".ljust(43)
+                             + f" # {unit}, derived: {how}")
             else:
-                lines.append(f"# {name}: not set".ljust(44) + f"# {unit + ', ' if unit else ''}default")
+                lines.append(f"# {name}: not set".ljust(43) + f" # {unit}, default")
             continue
-        lines.append(f"{name} = {_toml_value(value)}".ljust(44) + f"# {unit + ', ' if unit else ''}{src}")
+        lines.append(f"{name} = {_toml_value(value)}".ljust(43) + f" # {unit}, {src}")
     for name, value in tables:
         sub = f"{section}.{name}" if section else name
         lines.append("")
@@ -181,8 +182,7 @@ def check(path):
     """Validate a scene: keys, values and their physical ranges, units, switch combinations,
     the memory it needs, its injection log (if any) and the geometry (fault in the domain,
     injection point on the fault, in-situ equilibrium). Prints what it would simulate."""
-    from ..scene import estimate_size
-    from ..discretisation import discretise
+    from ..discretisation import discretise, estimate_size
 
     sc = load_scene(path)
     check_size(sc, str(path))

@@ -2,7 +2,8 @@
 
 ``terms_for(scene)`` is the one place that reads ``scene.effects`` (besides the scene's own
 validation of effect combinations): it returns the terms the scene calls for, and nothing
-else exists. Numbering, assembly, the solver's nonlinear set, the fluid-volume balance and the
+else exists. Studies that switch effects (accuracy ladders, ensembles) ask ``effects_on``,
+``SWITCHABLE`` and ``switches_implied_by`` here instead of reading the switches themselves. Numbering, assembly, the solver's nonlinear set, the fluid-volume balance and the
 recorded fault state all loop over these terms, so an effect that is off costs nothing.
 
 Which file holds which equation (Schwartzkopff et al. 2020):
@@ -17,11 +18,13 @@ Which file holds which equation (Schwartzkopff et al. 2020):
                                friction, dilation
 ``injection.py``               Eq. 10 (source), Eq. 29 (NoF): rate or pressure control
 ``leak_off_mesh.py``           leak-off resolved across the fault: mesh graded normal to it
+``materials.py``               Eq. 1-2 constants: drained and constrained moduli, Biot modulus,
+                               uniaxial storage and diffusivity
 =============================  =================================================================
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 from .base import BLOCK_ORDER, ConstantMatrices, Term
 from .contact import Contact, CoulombFriction, RateStateFriction
@@ -32,7 +35,31 @@ from .injection import PressureInjection, RateInjection
 from .leak_off_mesh import LeakOffGrading
 from .rock import BiotCoupling, DamageZone, DarcyRock, Elasticity, LeakOff
 
-__all__ = ["Physics", "Term", "ConstantMatrices", "terms_for", "BLOCK_ORDER"]
+__all__ = ["Physics", "Term", "ConstantMatrices", "terms_for", "BLOCK_ORDER", "SWITCHABLE", "effects_on",
+           "switches_implied_by"]
+
+#: effects a study may switch off one at a time (the others define which model it is)
+SWITCHABLE = ("fault_flow", "leak_off", "rate_friction", "state_evolution", "dilation",
+              "aperture_evolution", "gravity", "damage_zone", "poroelastic")
+
+
+def effects_on(scene) -> frozenset:
+    """Names of the scene's effects that are switched on."""
+    ef = scene.effects
+    return frozenset(f.name for f in fields(ef) if getattr(ef, f.name))
+
+
+def switches_implied_by(fault: dict) -> dict:
+    """Effect switches (name -> False) that zero values of a ``[fault]`` table imply: a = 0 is
+    constant friction (rate friction and state evolution off), a dilation angle of 0 is no
+    dilation. Zero is the lower bound of both parameters in the paper's ranges, which the scene
+    would otherwise refuse as a switch without its parameter."""
+    off = {}
+    if fault.get("rate_parameter", 1.0) == 0.0:
+        off.update(rate_friction=False, state_evolution=False)
+    if fault.get("dilation_angle", 1.0) == 0.0:
+        off["dilation"] = False
+    return off
 
 
 @dataclass(frozen=True)
@@ -63,6 +90,13 @@ class Physics:
     @property
     def injection(self):
         return self.find(RateInjection) or self.find(PressureInjection)
+
+    def graded_cut_height(self, scene) -> float:
+        """Height across the fault of the element the leak-off grading makes the fault cut (m);
+        0 when the mesh is not graded (no leak-off, grading off, a fault at an angle,
+        impermeable rock)."""
+        grading = self.find(LeakOffGrading)
+        return 0.0 if grading is None else grading.cut_height(scene, self.zones(scene) + tuple(scene.zones))
 
     def refine_mesh(self, scene, mesh):
         """The scene's mesh as the terms need it (e.g. graded across the fault)."""

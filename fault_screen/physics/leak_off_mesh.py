@@ -29,6 +29,7 @@ import numpy as np
 
 from ..mesh import StructuredMesh, grade_across
 from .base import Term
+from .materials import diffusivity, effective_rock
 
 #: cut-element height over the first step's leak-off length sqrt(c dt): the leaked volume is then
 #: within 2 % of the erfc solution once the first steps' time error has decayed (from the 20th
@@ -37,15 +38,6 @@ SIZE_FRACTION = 0.5
 #: a mesh whose cut elements are taller than this many sqrt(c dt) across a fault that cannot be
 #: graded gets a warning
 WARN_RATIO = 4.0
-
-
-def storage_coefficient(props: dict, mechanics: bool) -> float:
-    """Uniaxial-strain storage S = 1/M + alpha^2 / (K + 4G/3) (1/Pa) of ``effective_rock`` props."""
-    if not mechanics:
-        return props["inv_M"]
-    E, nu = props["E"], props["nu"]
-    constrained = E * (1.0 - nu) / ((1.0 + nu) * (1.0 - 2.0 * nu))  # K + 4G/3, Pa
-    return props["inv_M"] + props["alpha"] ** 2 / constrained
 
 
 def fault_axis(angle_deg: float) -> int | None:
@@ -70,8 +62,6 @@ class LeakOffGrading(Term):
     def leak_off_length(self, scene, zones) -> float:
         """sqrt(c dt) of the first step (m) in the most slowly diffusing permeable rock the
         fault crosses; 0 when none is permeable."""
-        from ..discretisation import effective_rock
-
         p = np.asarray(scene.fault_point, dtype=float)
         a = np.radians(scene.fault.angle)
         n = np.array([-np.sin(a), np.cos(a)])
@@ -88,7 +78,7 @@ class LeakOffGrading(Term):
         for spec in specs:
             props = effective_rock(spec, scene.fluid.bulk_modulus, scene.fluid.viscosity)
             if props["mobility"] > 0:
-                c.append(props["mobility"] / storage_coefficient(props, self.mechanics))
+                c.append(diffusivity(props, self.mechanics))
         return float(np.sqrt(min(c) * scene.time.dt)) if c else 0.0
 
     def target_size(self, scene, zones) -> float:
@@ -97,10 +87,17 @@ class LeakOffGrading(Term):
             return self.size_given
         return SIZE_FRACTION * self.leak_off_length(scene, zones)
 
+    def cut_height(self, scene, zones) -> float:
+        """Height across the fault of the element the grading makes the fault cut (m); 0 when
+        it grades nothing (grading off, a fault at an angle, impermeable rock)."""
+        if not self.enabled or fault_axis(scene.fault.angle) is None:
+            return 0.0
+        return self.target_size(scene, zones)
+
     def refine_mesh(self, scene, mesh: StructuredMesh, zones) -> StructuredMesh:
         axis = fault_axis(scene.fault.angle)
-        size = self.target_size(scene, zones)
-        if not self.enabled or axis is None or size <= 0:
+        size = self.cut_height(scene, zones)
+        if size <= 0:
             return mesh
         at = scene.fault_point[1 - axis]
         if axis == 0:
