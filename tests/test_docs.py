@@ -310,3 +310,30 @@ def test_cli_reference_has_every_command_and_the_exit_codes():
     assert page.count("Usage: ") == len(commands)
     codes = re.findall(r"^- (\d) -- ", page, re.M)
     assert codes == ["0", "1", "2", "3", "4"]
+
+
+def _output_of(workspace, page: Path, command_start: str) -> subprocess.CompletedProcess:
+    """What the page's command starting with ``command_start`` printed (the page's examples run first)."""
+    for block, done in workspace.run_page(page):
+        if block["body"].startswith(command_start):
+            return done
+    raise AssertionError(f"{_page_id(page)} has no example starting {command_start!r}")
+
+
+def test_scene_page_fault_state_numbers_are_what_scene_check_prints(workspace):
+    """Scenes: the fault-effective reading of Rustrel's stresses gives sigma'_n0 and the overpressure
+    to failure the page quotes, as `fault-screen scene check` prints them."""
+    text = (DOCS / "scenes.md").read_text().replace("\n", " ")
+    quoted = re.search(r"give sigma'_n0 = ([\d.]+) MPa and ([\d.]+) MPa to failure as fault-effective", text)
+    assert quoted is not None
+    out = _output_of(workspace, DOCS / "scenes.md", "fault-screen scene check configs/rustrel-2015-calibrated").stdout
+    assert re.search(rf"effective normal stress\s+{re.escape(quoted[1])} MPa", out), out
+    assert f"overpressure to failure at the injection point: {quoted[2]} MPa" in out, out
+
+
+def test_screening_page_exit_codes_are_the_commands(workspace):
+    """The screening page says the impermeable run reaches yellow (exit 4 with --fail-on yellow) and
+    not red (exit 0 with --fail-on red)."""
+    page = DOCS / "screening.md"
+    assert _output_of(workspace, page, "fault-screen screen impermeable.h5 --fail-on red").returncode == 0
+    assert "exit code 4" in _output_of(workspace, page, "fault-screen screen impermeable.h5 --fail-on yellow").stdout
