@@ -291,6 +291,15 @@ def test_scene_reference_has_every_ranged_key_with_its_unit_and_range():
     assert rows[("mesh", "nx")]["doc"].startswith("Elements along x")
 
 
+def test_scene_docstring_units_agree_with_the_ranges_and_quantities():
+    """Where a field's docstring names its unit, the unit the scene validates and converts with is
+    that one (a docstring saying (m) over a value read in Pa would mislead every reader)."""
+    hook = _hook()
+    named = [(r, hook.doc_unit(r["doc"])) for r in hook.scene_rows() if hook.doc_unit(r["doc"])]
+    assert len(named) >= 40
+    assert [(r["section"], r["key"], r["unit"], u) for r, u in named if u != r["unit"]] == []
+
+
 def test_results_reference_is_the_output_schema():
     from fault_screen.outputs import SCHEMA, markdown_table
 
@@ -337,3 +346,15 @@ def test_screening_page_exit_codes_are_the_commands(workspace):
     page = DOCS / "screening.md"
     assert _output_of(workspace, page, "fault-screen screen impermeable.h5 --fail-on red").returncode == 0
     assert "exit code 4" in _output_of(workspace, page, "fault-screen screen impermeable.h5 --fail-on yellow").stdout
+
+
+def test_readme_links_stay_in_the_repository_and_exist():
+    """The README's links open files of the repository (the site's pages are checked by
+    mkdocs build --strict); no link leaves it."""
+    text = (ROOT / "README.md").read_text()
+    links = re.findall(r"\]\(([^)]+)\)", text)
+    assert len(links) >= 15
+    for link in links:
+        assert "://" not in link, link
+        path = link.split("#", 1)[0]
+        assert (ROOT / path).exists(), link

@@ -85,15 +85,32 @@ def doc_unit(doc: str) -> str | None:
     m = _DOC_UNIT.search(doc)
     if m is None:
         return None
-    return {"degrees": "deg", "m^2": "m2", "kg/m^3": "kg/m3"}.get(m[1], m[1])
+    return {"degrees": "deg", "m^2": "m2", "kg/m^3": "kg/m3", "m^2/(Pa s)": "m2/(Pa s)"}.get(m[1], m[1])
+
+
+def field_unit(key: str, name: str, doc: str, kinds: set) -> str:
+    """The SI unit of a scene key: its range's, its quantity's, or the one its docstring names."""
+    from fault_screen import scene
+    from fault_screen.units import SI_UNIT
+
+    if name == "schedule":
+        return "[s, m3/s] (rate control) or [s, Pa] (pressure control)"
+    if kinds <= {str, bool, dict}:
+        return ""  # a word, a switch or a table: no unit
+    if key in scene.RANGES:
+        return scene.RANGES[key][0]
+    quantity = getattr(scene, "QUANTITY", {}).get(name)
+    if quantity == "angle":
+        return "deg"
+    if quantity in SI_UNIT:
+        return SI_UNIT[quantity]
+    return doc_unit(doc) or "-"
 
 
 def scene_rows() -> list[dict]:
     """One row per scene key: section, key, unit, physical range, plausible range, default, doc."""
     from fault_screen.scene import RANGES, Scene
-    from fault_screen.cli.scene import _unit
 
-    scene = Scene()
     rows = []
 
     def walk(cls, section: str):
@@ -111,14 +128,9 @@ def scene_rows() -> list[dict]:
             key = f"{section.split('.')[0].strip('[]')}.{f.name}"
             if section.startswith(("[zones]", "damage_zone")) and f"rock.{f.name}" in RANGES:
                 key = f"rock.{f.name}"
-            unit = _unit(section.strip("[]"), f.name, None if default is dataclasses.MISSING else default,
-                         scene)
             doc = docs.get(f.name, "")
             kinds = {a for a in (typing.get_args(hints[f.name]) or (hints[f.name],)) if a is not type(None)}
-            if kinds <= {str, bool, dict}:
-                unit = ""  # a word, a switch or a table: no unit
-            elif unit in ("-", "") and doc_unit(doc) not in (None, "-"):
-                unit = doc_unit(doc)  # an unset quantity: the unit its docstring names
+            unit = field_unit(key, f.name, doc, kinds)
             physical = plausible = ""
             if key in RANGES:
                 _, (plo, phi), (qlo, qhi) = RANGES[key]
