@@ -358,3 +358,53 @@ def test_readme_links_stay_in_the_repository_and_exist():
         assert "://" not in link, link
         path = link.split("#", 1)[0]
         assert (ROOT / path).exists(), link
+
+
+def test_cli_reference_help_is_what_help_prints():
+    """The reference shows each command's --help as the command prints it (80 columns)."""
+    from click.testing import CliRunner
+
+    from fault_screen.cli import main
+
+    hook = _hook()
+    for path, cmd in hook.cli_commands():
+        args = path.split()[1:] + ["--help"]
+        printed = CliRunner().invoke(main, args, prog_name="fault-screen", terminal_width=80)
+        assert printed.exit_code == 0, path
+        assert printed.output == hook.command_help(cmd, path) + "\n", path
+
+
+def _table_rows(text: str, first_cell: str) -> dict[str, list[str]]:
+    """The rows of the markdown table whose header starts with ``first_cell``: first cell -> rest."""
+    table = text.split(f"| {first_cell} |", 1)[1].split("\n\n", 1)[0].splitlines()[2:]
+    return {cells[0]: cells[1:] for cells in ([c.strip() for c in row.strip("|").split("|")] for row in table)}
+
+
+def test_screening_page_metrics_and_defaults_are_the_codes():
+    """Every metric the rules may name is on the page with its unit, and the defaults table and
+    the default rules are MonitorSpec's."""
+    from fault_screen.rules import METRICS
+    from fault_screen.scene import MonitorSpec
+
+    text = (DOCS / "screening.md").read_text()
+    listed = {}
+    for names, cells in _table_rows(text, "metric").items():
+        keys = re.findall(r"`(\w+)`", names)
+        units = [u.strip() for u in cells[0].split(",")]
+        listed.update(zip(keys, units * (len(keys) if len(units) == 1 else 1)))
+    assert set(listed) == set(METRICS)
+    for name, (unit, _) in METRICS.items():
+        assert listed[name] == ("-" if unit == "1" else unit), name
+    spec = MonitorSpec()
+    shown = {re.sub(r"`", "", k): v[0] for k, v in _table_rows(text, "threshold").items()}
+    assert set(shown) == {"slip_rate_yellow", "slip_rate_red", "utilisation_yellow", "magnitude_yellow",
+                          "magnitude_red", "event_rate_window"}
+    for name, cell in shown.items():
+        assert float(re.search(r"[-\d.e]+(?=\s|$)", cell.replace("ML ", ""))[0]) == getattr(spec, name), name
+    prose = " ".join(text.split("Default rules, in order:", 1)[1].split("\n\n", 1)[0].split())
+    for rule in spec.rules:
+        assert f"`{rule.name}` (`{rule.when}`)" in prose, rule.name
+        assert f'"{rule.action}"' in prose, rule.action
+    assert {r.hold for r in spec.rules if r.level == "red"} == {3600.0}
+    assert {r.hold for r in spec.rules if r.level == "yellow"} == {600.0}
+    assert "hold 1 h" in prose and "hold 10 min" in prose
