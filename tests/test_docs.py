@@ -408,3 +408,19 @@ def test_screening_page_metrics_and_defaults_are_the_codes():
     assert {r.hold for r in spec.rules if r.level == "red"} == {3600.0}
     assert {r.hold for r in spec.rules if r.level == "yellow"} == {600.0}
     assert "hold 1 h" in prose and "hold 10 min" in prose
+
+
+def test_setup_command_runs_the_bundled_scene_from_an_empty_folder(tmp_path):
+    """The README's first set-up command after its install: `fault-screen run` in a folder with
+    nothing in it finds the bundled scene, writes its result there and ends with a verdict."""
+    setup = next(b for b in blocks(ROOT / "README.md") if b["lang"] == "bash")
+    command = setup["body"].splitlines()[0].split("#")[0].split("&&")[1].strip()
+    assert command == "fault-screen run"
+    env = dict(os.environ, MPLBACKEND="Agg",
+               PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}")
+    done = subprocess.run(command.split(), cwd=tmp_path, env=env, capture_output=True, text=True,
+                          stdin=subprocess.DEVNULL)
+    assert done.returncode == 0, done.stderr[-3000:]
+    written = sorted(p.name for p in tmp_path.iterdir())
+    assert len(written) == 1 and written[0].endswith(".h5"), written
+    assert "verdict:" in done.stdout
