@@ -160,10 +160,7 @@ def scene_reference() -> str:
     for r in scene_rows():
         if r["section"] != section:
             section = r["section"]
-            title = f"[{section}]" if not section.startswith("[") and section != "(top level)" else section
-            if section.startswith("["):
-                title = f"[{section}]"
-            lines += ["", f"## `{title}`" if section != "(top level)" else "## Top level", "",
+            lines += ["", f"## `[{section}]`" if section != "(top level)" else "## Top level", "",
                       "| key | unit | physical range | plausible range | default | meaning |",
                       "|---|---|---|---|---|---|"]
         lines.append(f"| `{r['key']}` | {_cell(r['unit'])} | {r['physical']} | {r['plausible']} | "
