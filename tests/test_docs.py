@@ -424,3 +424,26 @@ def test_setup_command_runs_the_bundled_scene_from_an_empty_folder(tmp_path):
     written = sorted(p.name for p in tmp_path.iterdir())
     assert len(written) == 1 and written[0].endswith(".h5"), written
     assert "verdict:" in done.stdout
+
+
+def test_monitoring_example_logs_the_quoted_level_change(tmp_path):
+    """The monitoring page's live example, on the whole log at once (the writer's speed-up aside):
+    the monitor logs the level change the page quotes, at the model time it quotes, and the
+    alert reaches alerts.jsonl."""
+    import json
+    import shutil
+
+    page = (DOCS / "monitoring.md").read_text()
+    live = next(b for b in blocks(DOCS / "monitoring.md") if b["skip"] is not None)
+    command = commands(live["body"])[1]
+    assert command.startswith("fault-screen monitor configs/rustrel-2015-impermeable.toml --follow live.csv")
+    (tmp_path / "configs").symlink_to(ROOT / "configs")
+    shutil.copy(ROOT / "configs" / "logs" / "rustrel-2015-standin.csv", tmp_path / "live.csv")
+    env = dict(os.environ, PATH=f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}")
+    done = subprocess.run(["bash", "-c", command.replace("--idle-exit 10", "--idle-exit 2")], cwd=tmp_path,
+                          env=env, capture_output=True, text=True, stdin=subprocess.DEVNULL, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    quoted = re.search(r"At model time (\d+) s.*?`(level green -> yellow \(near failure\): [^`.]*)", page, re.S)
+    assert f"t = {quoted[1]} s: {quoted[2]}" in done.stderr + done.stdout
+    alerts = [json.loads(line) for line in (tmp_path / "alerts.jsonl").read_text().splitlines()]
+    assert [a["level"] for a in alerts] == ["yellow"]
