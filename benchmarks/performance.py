@@ -3,7 +3,9 @@
     python benchmarks/performance.py                 # every row (several minutes on 2 cores)
     python benchmarks/performance.py --skip fine tests refined   # leave out the longest rows
 
-Every case runs in its own process (peak memory is that process's max RSS). "now" is the figure
+The table is printed and written to docs/performance/performance.md (--no-doc: printed only).
+
+Every case runs in its own process (peak memory is that process's max RSS). "issue 15 measured" is the figure
 the issue measured before the work on it; "measured" is this run. The machine's load (1-minute
 load average) is printed before and after: on a shared machine every wall time grows with it,
 so compare rows of one run, and rerun when the load was high.
@@ -141,6 +143,7 @@ def main():
     ap.add_argument("--skip", nargs="*", default=[],
                     choices=["replay", "cold", "busy", "slip", "refined", "fine", "tests"])
     ap.add_argument("--case", help=argparse.SUPPRESS)
+    ap.add_argument("--no-doc", action="store_true", help="do not write docs/performance/performance.md")
     args = ap.parse_args()
     if args.case:
         print(json.dumps(run_case(args.case)))
@@ -216,9 +219,17 @@ def main():
             f"{wall / 60:.1f} min (CPU {cpu / 60:.1f} min; {tail.strip('= ')})")
     print(f"Measured {started} on {os.cpu_count()} cores; load average {load0:.1f} at the start, "
           f"{os.getloadavg()[0]:.1f} at the end\n")
-    print("| what | now | target | measured |\n|---|---|---|---|")
-    for what, now, target, measured in rows:
-        print(f"| {what} | {now} | {target} | {measured} |")
+    table = ["| what | issue 15 measured | target | measured |", "|---|---|---|---|"]
+    table += [f"| {what} | {now} | {target} | {measured} |" for what, now, target, measured in rows]
+    print("\n".join(table))
+    if not args.no_doc:
+        from doc_tables import write
+
+        write("performance", "Run costs",
+              "Each case runs in its own process (peak memory is that process's max RSS). "
+              "\"issue 15 measured\" is what the performance issue measured before the work on it. "
+              "Rows left out with `--skip`: " + (", ".join(args.skip) or "none") + ".",
+              table, load0)
 
 
 if __name__ == "__main__":

@@ -2,10 +2,14 @@
 
     python benchmarks/stability.py [CASE ...] [--markdown]
 
+Run over every case (no CASE given), it also writes the markdown table to
+docs/performance/stability.md.
+
 Prints, per case: steps, step cuts, damped retries (steps that needed the line search), Newton
 iterations of the accepted attempts (mean / max), smallest step, wall time, mass-balance error
 and how the run ended. Wall times are for one warm process on this machine (2 cores shared).
 """
+import os
 import sys
 import warnings
 from pathlib import Path
@@ -19,7 +23,10 @@ from stability_cases import CASES, OPEN_CASES, balance_error, run_case, solver_s
 
 def main(argv):
     markdown = "--markdown" in argv
-    names = [a for a in argv if not a.startswith("--")] or list(CASES) + list(OPEN_CASES)
+    given = [a for a in argv if not a.startswith("--")]
+    names = given or list(CASES) + list(OPEN_CASES)
+    load0 = os.getloadavg()[0]
+    rows = []
     warnings.simplefilter("ignore")
     head = ("case", "steps", "cuts", "damped", "Newton mean", "Newton max", "smallest dt (s)", "wall (s)",
             "balance", "end")
@@ -33,8 +40,9 @@ def main(argv):
         try:
             run = run_case(name)
         except Exception as exc:  # noqa: BLE001 - a failing case is a row of the table
+            rows.append(f"| {name} | FAILED: {str(exc).split(':')[0]} |" + " |" * (len(head) - 2))
             if markdown:
-                print(f"| {name} | FAILED: {str(exc).split(':')[0]} |" + " |" * (len(head) - 2), flush=True)
+                print(rows[-1], flush=True)
             else:
                 print(f"{name:30s} FAILED: {exc}", flush=True)
             continue
@@ -42,11 +50,22 @@ def main(argv):
         end = f"stopped ({s['stopped']}) at {run.result.time[-1]:.4g} s" if s["stopped"] else "completed"
         cells = (name, s["steps"], s["cuts"], s["damped"], f"{s['it_mean']:.2f}", s["it_max"],
                  f"{s['dt_min']:.3g}", f"{s['wall']:.2f}", f"{balance_error(run.result):.1e}", end)
+        rows.append("| " + " | ".join(str(c) for c in cells) + " |")
         if markdown:
-            print("| " + " | ".join(str(c) for c in cells) + " |", flush=True)
+            print(rows[-1], flush=True)
         else:
             print(f"{name:30s} {s['steps']:6d} {s['cuts']:5d} {s['damped']:6d} {s['it_mean']:8.2f} {s['it_max']:6d} "
                   f"{s['dt_min']:10.3g} {s['wall']:7.2f} {balance_error(run.result):9.1e}  {end}", flush=True)
+
+    if not given:
+        from doc_tables import write
+
+        write("stability", "Hard cases",
+              "Every hard case of `configs/hard-cases/` in one warm process: steps, step cuts, "
+              "\"damped\" (steps that needed the line search), Newton iterations of the accepted "
+              "attempts (mean and max), smallest step, wall time, fluid-balance error (of the injected "
+              "volume) and how the run ended. See [Numerical stability](../stability.md).",
+              ["| " + " | ".join(head) + " |", "|" + "---|" * len(head), *rows], load0)
 
 
 if __name__ == "__main__":

@@ -62,16 +62,6 @@ def test_injection_point_values_come_from_the_nearest_fault_point(result):
         assert np.array_equal(result.injection[key], result.fault[key][:, k])
 
 
-def test_readme_results_table_is_the_output_schema():
-    """Units live in one place: the README's table is generated from fault_screen.outputs."""
-    from conftest import ROOT
-    from fault_screen.outputs import markdown_table
-
-    readme = (ROOT / "README.md").read_text()
-    block = readme.split("<!-- outputs table: begin -->\n", 1)[1].split("\n<!-- outputs table: end -->", 1)[0]
-    assert block == markdown_table()
-
-
 # ---------------------------------------------------------------------------------------------
 # results streamed to the file as the run goes
 # ---------------------------------------------------------------------------------------------
