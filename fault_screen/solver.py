@@ -39,6 +39,12 @@ DAMPED_ITERATION_FACTOR = 4
 BULK_BALANCE = 1e-3
 
 
+#: the contact forces are differences of total tractions and their in-situ values (f = int N
+#: (tau - tau0) t - ...): their round-off is this many units of round-off of the in-situ traction
+#: forces, which the mechanical reference never goes below (``NewtonSolver._in_situ_reference``)
+IN_SITU_ROUNDOFF = 4.0
+
+
 #: a deferred bulk update (see NewtonSolver._step) is made when the fault residual has not halved
 #: for this many Newton iterations
 STALLED_ITERATIONS = 3
@@ -188,6 +194,7 @@ class NewtonSolver:
     _blas_limited = False
     _restored_P = None
     _restored_condensed = None   # (tangent, dt) of the checkpoint's condensed block
+    _in_situ_floor = None        # (see _in_situ_reference)
     lu = None
 
     def __init__(self, disc: Discretisation):
@@ -517,7 +524,28 @@ class NewtonSolver:
         AHx, Cd = self._linear_products(x, x_n)
         mech, flow = _reference_norms(self.scale, AHx, Cd, dt, flow_known, self._free_mech,
                                       self._free_flow)
-        return max(ref0[0], mech), max(ref0[1], flow)
+        return max(ref0[0], mech, self._in_situ_reference()), max(ref0[1], flow)
+
+    def _in_situ_reference(self):
+        """The mechanical reference below which the test would ask for less than the round-off of
+        the contact forces: IN_SITU_ROUNDOFF units of round-off of the in-situ traction forces
+        (scaled), over the tolerance. Without it a step in which nothing moves the fault (no flow
+        yet) has internal forces near zero as its reference and cannot converge: its residual
+        stays at the round-off of tau - tau0. Zero without a contact term."""
+        if self._in_situ_floor is None:
+            forces = np.zeros(self.disc.n_dofs)
+            if self.disc.physics.contact is not None:
+                fp = self.disc.fault_points
+                t, n = self.disc.fault.tangent, self.disc.fault.normal
+                for a in range(8):   # (node a // 2, component a % 2 of the jump)
+                    i, c = divmod(a, 2)
+                    at = fp.jump_dofs[:, a] >= 0
+                    np.add.at(forces, fp.jump_dofs[at, a],
+                              (fp.weight * fp.N[:, i] * (abs(fp.tau0 * t[c])
+                                                         + abs(fp.sigma_n0 * n[c])))[at])
+            magnitude = np.linalg.norm((self.scale * forces)[self._free_mech])
+            self._in_situ_floor = IN_SITU_ROUNDOFF * np.finfo(float).eps * magnitude / self.tol
+        return self._in_situ_floor
 
     def _linear_products(self, x, x_n):
         """[A; Hf] x and C (x - x_n), for the reference magnitudes. While the bulk's answer is
