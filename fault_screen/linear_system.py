@@ -50,7 +50,17 @@ class CondensedSystem:
     ``A``, ``C``, ``Hf``: the constant matrices (CSR); ``free``, ``fixed``: the free and fixed
     unknowns; ``condensed``: which unknowns are condensed (N; a mask over all unknowns, the free
     ones of the rest are B); ``coordinates``: () -> the unknowns' positions (m), for the bulk's
-    order."""
+    order; ``mechanical``: which unknowns are displacements (a mask; the rest are flow ones).
+
+    A bulk that depends on the step size (rock pore pressure) is factorised in its symmetric
+    form: with its flow rows multiplied by -dt the scaled poroelastic block is symmetric and
+    quasi-definite (stiffness positive definite, storage plus dt times conduction positive
+    definite), so SuperLU keeps its diagonal pivots, and with them the fill-reducing order, at
+    every step size. Factorised as it is, its pivoting grew with dt (the flow rows' diagonal,
+    storage over dt, shrinks against the coupling): on the paper-units Rustrel scene the factors
+    took 3.7 times the memory and 5-6 times the time at dt = 60-600 s that they take at 5 s
+    (benchmarks/factorisation.py). The row factors are undone on the right-hand side and on the
+    Schur complement (``_row_factor``)."""
 
     _dense = None
     _order = None
@@ -63,9 +73,11 @@ class CondensedSystem:
     _restored_condensed = None   # (tangent, dt) of the checkpoint's condensed block
     lu = None
     P = None
+    _row_factor = None   # per free unknown in the factors' order: -dt (flow), 1 (mechanics)
 
-    def __init__(self, A, C, Hf, time_weight, free, fixed, condensed, coordinates):
+    def __init__(self, A, C, Hf, time_weight, free, fixed, condensed, coordinates, mechanical):
         self.A, self.C, self.Hf = A, C, Hf
+        self._mechanical = mechanical
         self.time_weight = time_weight
         self.free = free
         self._fixed = fixed
@@ -178,10 +190,16 @@ class CondensedSystem:
             # reached holding neither L nor the matrix factorised
             held = [Ls[self._order][:, self._order].tocsc()]
             del Ls, L
+            self._row_factor = None
+            if not self.factors_any_dt:   # the symmetric form (see the class docstring)
+                self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
+                held[0].data *= self._row_factor[held[0].indices]
             self.lu = None  # the old factors go before the new ones are made (peak memory)
             release_freed_memory()
             self.lu = bordered_lu(held.pop, len(B), self._split)
             self.factorizations += 1
+            if self._row_factor is not None:   # (the Schur complement of the rows as they are)
+                self.lu.schur /= self._row_factor[len(B):, None]
             # P = L_NN - S in the Schur complement's own memory, which the factors then give up
             # (n_N x n_N dense: 34 MB on the fine 30 deg scene), L_NN added entry by entry
             rows, cols, vals = self._LNN_entries
@@ -250,8 +268,13 @@ class CondensedSystem:
         swept = None
         if bulk_eliminated:
             g = rN
-        else:
+        elif self._row_factor is None:
             swept, g = self.lu.forward(-sR[linear], rN)
+        else:   # (the factors are of the rows times _row_factor: so is the right-hand side)
+            f = self._row_factor
+            nB = len(linear)
+            swept, g = self.lu.forward(f[:nB] * -sR[linear], f[nB:] * rN)
+            g /= f[nB:]
         dxN = dense.solve(g) if len(N) else g
         out[N] = dxN
         if defer:

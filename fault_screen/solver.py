@@ -199,7 +199,7 @@ class NewtonSolver:
             nonlinear[b.q] = True
         nonlinear |= self._uncoupled_to_linear(nonlinear)
         self.system = CondensedSystem(self.A, self.C, self.Hf, self.time_weight, self.free,
-                                      self._fixed, nonlinear, disc.dof_coordinates)
+                                      self._fixed, nonlinear, disc.dof_coordinates, mech)
         self.N, self.B = self.system.N, self.system.B
         self._mech_B = self.mech_free[~nonlinear[self.free]]
         self.n_index = self.system.n_index
