@@ -23,6 +23,10 @@ Rows (keys for --skip in brackets):
   error against the reference (relative L2 at the end, as tests/test_verification_*.py).
 - [refined] Rustrel on a 200 x 201 mesh (4x refinement), whole run.
 - [fine] the 30 deg T = 0.7 scene at half its element size, whole run.
+- [stepsize] the paper-units calibrated Rustrel scene with growing steps (growth 1.2, dt_max
+  600 s) and 3 h of shut-in after its 1400 s: the median wall of a step right after a step-size
+  change against that of a step at an unchanged size (the ratio; target <= 3x), and the whole
+  run's wall time against the plain 1400-s run's (target <= 2x).
 - [tests] `python -m pytest -q` (the README's test command), wall time.
 """
 from __future__ import annotations
@@ -45,6 +49,7 @@ TREE = Path(os.environ.get("FAULT_SCREEN_TREE", ROOT))
 sys.path.insert(0, str(TREE))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 RUSTREL = ROOT / "configs" / "rustrel-2015-calibrated.toml"
+PAPER = ROOT / "configs" / "rustrel-2015-calibrated-paper-units.toml"
 SLIP_SCENES = ["fluid-driven-slip-T0.4-horizontal", "fluid-driven-slip-T0.4-dip30",
                "fluid-driven-slip-T0.7-horizontal", "fluid-driven-slip-T0.7-dip30"]
 #: a case that runs longer than this is stopped and reported as such (s)
@@ -60,6 +65,11 @@ def _scene(case: str):
     if case == "rustrel-200x201":
         s = Scene.from_toml(RUSTREL)
         return s.replace(mesh=replace(s.mesh, nx=200, ny=201))
+    if case == "paper-growing":
+        s = Scene.from_toml(PAPER)
+        return s.replace(time=replace(s.time, growth=1.2, dt_max=600.0, end=s.time.end + 3 * 3600.0))
+    if case == "paper":
+        return Scene.from_toml(PAPER)
     if case == "fine-T0.7-dip30":
         from verification_cost import scaled_scene
 
@@ -73,10 +83,15 @@ def run_case(case: str) -> dict:
     from fault_screen import Simulation
 
     scene = _scene(case)
-    walls = []
+    walls, step_sizes = [], []
+
+    def progress(step, t, end, wall):
+        walls.append(time.perf_counter())
+        step_sizes.append(sim.last_row["dt"])
+
     t0, c0 = time.perf_counter(), time.process_time()
     sim = Simulation(scene)
-    sim.advance(scene.time.end, progress=lambda step, t, end, wall: walls.append(time.perf_counter()))
+    sim.advance(scene.time.end, progress=progress)
     result = sim.result()
     total = time.perf_counter() - t0
     out = dict(case=case, wall=total, cpu=time.process_time() - c0, dofs=sim.disc.n_dofs,
@@ -84,6 +99,13 @@ def run_case(case: str) -> dict:
                newton=int(result.solver["iterations"].sum()),
                step_ms=1e3 * float(np.median(np.diff(walls))) if len(walls) > 1 else float("nan"),
                peak_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
+    # each step's wall after the first; a step whose size differs from the last one's "changed"
+    step_walls, sizes = np.diff(walls), np.asarray(step_sizes[1:])
+    changed = sizes != np.asarray(step_sizes[:-1])
+    if changed.any() and (~changed).any():
+        out.update(changed_ms=1e3 * float(np.median(step_walls[changed])),
+                   unchanged_ms=1e3 * float(np.median(step_walls[~changed])),
+                   n_changed=int(changed.sum()), n_unchanged=int((~changed).sum()))
     if case.startswith("fluid-driven-slip") or case == "fine-T0.7-dip30":
         from verification_cost import error_against_reference
 
@@ -141,7 +163,7 @@ def _wc(r):
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--skip", nargs="*", default=[],
-                    choices=["replay", "cold", "busy", "slip", "refined", "fine", "tests"])
+                    choices=["replay", "cold", "busy", "slip", "refined", "fine", "stepsize", "tests"])
     ap.add_argument("--case", help=argparse.SUPPRESS)
     ap.add_argument("--no-doc", action="store_true", help="do not write docs/performance/performance.md")
     args = ap.parse_args()
@@ -206,6 +228,19 @@ def main():
         row("fine inclined fault (30 deg T = 0.7, half element size)", "151 s, 1.4 GB", "<= 30 s, <= 500 MB",
             f"> {s['timeout']} s (stopped)" if "timeout" in s else
             f"{_wc(s)}, {s['peak_mb']:.0f} MB ({s['dofs']} unknowns), slip L2 error {100 * s['error']:.2f} %")
+    if "stepsize" not in args.skip:
+        plain = child("paper", env)
+        g = child("paper-growing", env)
+        if "timeout" in g:
+            row("step-size change, paper-units Rustrel (growth 1.2, dt_max 600 s, 3 h shut-in)",
+                "80x; 31 s", "<= 3x; <= 2x the 1400-s run", f"> {g['timeout']} s (stopped)")
+        else:
+            row("step-size change, paper-units Rustrel (growth 1.2, dt_max 600 s, 3 h shut-in)",
+                "80x; 31 s", "<= 3x; <= 2x the 1400-s run",
+                f"first step after a change {g['changed_ms']:.0f} ms (median of {g['n_changed']}) = "
+                f"{g['changed_ms'] / g['unchanged_ms']:.1f}x a step at unchanged size "
+                f"({g['unchanged_ms']:.0f} ms, median of {g['n_unchanged']}); whole run "
+                f"{_s(g['wall'])} = {g['wall'] / plain['wall']:.1f}x the 1400-s run ({_s(plain['wall'])})")
     if "tests" not in args.skip:
         t0 = time.perf_counter()
         c0 = resource.getrusage(resource.RUSAGE_CHILDREN)

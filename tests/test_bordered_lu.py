@@ -38,7 +38,7 @@ def prepared():
 def system(prepared):
     solver = prepared
     D = sp.diags(solver.scale)
-    M = (D @ solver.L @ D).tocsr()[solver._order][:, solver._order]
+    M = (D @ solver.L @ D).tocsr()[solver.system.order][:, solver.system.order]
     nB = len(solver.B)
     dense = M.toarray()
     return BorderedLU(M.tocsc(), nB), dense, nB
@@ -135,9 +135,9 @@ def test_split_factorisation_equals_the_whole(system, prepared):
     bordered by the separator and the condensed unknowns (``SplitBorderedLU``): the same Schur
     complement and sweeps as the one factorisation, against numpy's dense solves."""
     lu, M, nB = system
-    n1, n2, ns = prepared._split
+    n1, n2, ns = prepared.system.split
     assert min(n1, n2) > 10 * ns > 0   # two real halves and a separator between them
-    split = SplitBorderedLU(sp.csc_matrix(M), nB, prepared._split)
+    split = SplitBorderedLU(sp.csc_matrix(M), nB, prepared.system.split)
     assert np.allclose(M[:n1, n1:n1 + n2], 0.0) and np.allclose(M[n1:n1 + n2, :n1], 0.0)
     # each half borders on the separator and on the condensed unknowns it couples to: the fault
     # crosses the cut, so each touches a part of it (this scene: 58 and 74 of 128), and the
@@ -182,7 +182,7 @@ def elastic():
     x = np.zeros(solver.disc.n_dofs)
     solver._prepare(scene.time.dt, x, solver.disc.physics.contact.initial_history(solver.disc))
     D = sp.diags(solver.scale)
-    M = (D @ solver.L @ D).tocsr()[solver._order][:, solver._order].toarray()
+    M = (D @ solver.L @ D).tocsr()[solver.system.order][:, solver.system.order].toarray()
     return solver, M, len(solver.B)
 
 
@@ -220,7 +220,7 @@ def test_symmetric_split_factorisation(elastic):
     """Both halves of a split symmetric block keep L and the diagonal only, and the split
     factorisation solves as the whole does."""
     solver, M, nB = elastic
-    split = SplitBorderedLU(sp.csc_matrix(M), nB, solver._split)
+    split = SplitBorderedLU(sp.csc_matrix(M), nB, solver.system.split)
     assert all(half._U is None for half in split._parts)
     _check_against_dense(split, M, nB, 13)
 
@@ -233,7 +233,7 @@ def test_quarters_factorisation(elastic, monkeypatch):
     monkeypatch.setattr(bordered_lu, "SPLIT_ABOVE", 100)
     monkeypatch.setattr(bordered_lu, "PART_SIZE", 100)
     B = sp.csr_matrix(M[:nB, :nB])
-    xy = solver.disc.dof_coordinates()[solver._order[:nB]]
+    xy = solver.disc.dof_coordinates()[solver.system.order[:nB]]
     inner, split, quarters = nested_dissection(B, xy, return_split=True, return_quarters=True)
     layout, parts = split_layout(nB, split, quarters)
     assert len(parts) == 5 and min(parts[:4]) > 100 and parts[4] == sum(s for *_, s in quarters) + split[2]

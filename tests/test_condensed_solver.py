@@ -1,4 +1,4 @@
-"""The condensed block's dense solver (``solver._CondensedSolver``): every way it solves M x = b
+"""The condensed block's dense solver (``linear_system.CondensedSolver``): every way it solves M x = b
 (a fresh LU; a step-size change through the storage rows; a slip front's Woodbury update and
 iteration on top of that) meets CONDENSED_RTOL against M itself (formed densely here) and
 numpy's solve, on a small block given like the Newton solver's: M(1/dt) = A + C/dt + H - P + T,
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from fault_screen.solver import CONDENSED_RTOL, LOW_RANK_FRACTION, _CondensedSolver
+from fault_screen.linear_system import CONDENSED_RTOL, LOW_RANK_FRACTION, CondensedSolver
 
 N_MECH, N_FLOW = 60, 20
 N = N_MECH + N_FLOW
@@ -83,7 +83,7 @@ def _check(dense, M, rng):
 
 def test_each_path_solves_the_block_of_its_step_size_and_tangent(blocks):
     rng = np.random.default_rng(1)
-    dense = _CondensedSolver(blocks[1])
+    dense = CondensedSolver(blocks[1])
     contact = _tangent(np.arange(10, 20), 50.0)
     # a fresh LU
     inv0 = 1.0 / 1e-3
@@ -134,7 +134,7 @@ def test_the_tangent_change_is_read_off_the_triplets_exactly(blocks):
     """M - M1 is T - T0 entry by entry: nothing where the triplets are equal (a step-size change
     alone is none), the rows and columns of every entry that changed, a change inside the
     storage pattern included, and its dense K x K block."""
-    dense = _CondensedSolver(blocks[1])
+    dense = CondensedSolver(blocks[1])
     contact = _tangent(np.arange(10, 20), 50.0)
     _set(dense, blocks, 1e3, contact)
     _set(dense, blocks, 1e3 / 1.06, contact)
@@ -154,7 +154,7 @@ def test_the_tangent_change_is_read_off_the_triplets_exactly(blocks):
 
 def test_a_new_condensation_or_pattern_is_factorised(blocks):
     rng = np.random.default_rng(3)
-    dense = _CondensedSolver(blocks[1])
+    dense = CondensedSolver(blocks[1])
     contact = _tangent(np.arange(10, 20), 50.0)
     _set(dense, blocks, 1e3, contact)
     M = _set(dense, blocks, 1e3, contact, base=2)
@@ -167,7 +167,7 @@ def test_a_new_condensation_or_pattern_is_factorised(blocks):
 
 def test_without_a_storage_block_a_new_step_size_is_factorised(blocks):
     rng = np.random.default_rng(2)
-    dense = _CondensedSolver()
+    dense = CondensedSolver()
     for k, inv_dt in enumerate((1e3, 1e3 / 1.06)):
         M = _set(dense, blocks, inv_dt, _tangent(np.arange(10, 20), 50.0))
         _check(dense, M, rng)

@@ -1,0 +1,196 @@
+"""Factorisations of the free system, side by side on the same matrices (issue 28 items 1-2).
+
+    python benchmarks/factorisation.py                    # every scene (minutes on 2 cores)
+    python benchmarks/factorisation.py --scenes rustrel rustrel-paper
+
+For each scene and step size the scaled free Jacobian M = D (A + C/dt + theta Hf) D is taken in
+the solver's own order (the bulk B in its nested-dissection order, the condensed unknowns N
+last: the bordered design) and factorised by
+
+- ``superlu``: SuperLU as the solver calls it today (given order, SymmetricMode, SuperLU's
+  default diagonal pivot threshold on a poroelastic block, 0.1 on an elastic one);
+- ``superlu-sym``: SuperLU on the symmetric form S = E M (E: -dt on the flow rows, which makes
+  the poroelastic block symmetric and quasi-definite), threshold 0.1;
+- ``qdldl``: the quasi-definite LDL^T of the ``qdldl`` package on S (no pivoting; the package
+  applies its own AMD order to the given one), first made at the first step size and then only
+  refactorised numerically (``update``: the ordering and symbolic analysis reused) at the others.
+
+Columns: factor time, solve time (one right-hand side), the factors' memory (values and indices),
+and the relative residual |M x - b| / |b| of the solve on the unsymmetric M, b random. The
+``asym`` column is max |S - S^T| / max |S| (0 up to round-off where the symmetric form holds).
+The table is printed and written to docs/performance/factorisation.md (generated: do not edit).
+Every timing is the best of ``--repeat`` runs in this one process; on a busy machine compare
+rows of one run. Each method factorises the whole free matrix in one call: the solver splits a
+large bulk into parts factorised one after the other (``bordered_lu.SplitBorderedLU``), which
+takes less time and memory than the rows here, alike for every method.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+OUT = ROOT / "docs" / "performance" / "factorisation.md"
+STEP_SIZES = (5.0, 60.0, 600.0)
+
+
+def _scene(key):
+    from fault_screen import Scene
+
+    configs = ROOT / "configs"
+    if key == "rustrel":
+        return Scene.from_toml(configs / "rustrel-2015-calibrated.toml")
+    if key == "rustrel-paper":
+        return Scene.from_toml(configs / "rustrel-2015-calibrated-paper-units.toml")
+    if key == "rustrel-200x201":
+        s = Scene.from_toml(configs / "rustrel-2015-calibrated.toml")
+        return s.replace(mesh=replace(s.mesh, nx=200, ny=201))
+    if key == "fine-T0.7-dip30":
+        from verification_cost import scaled_scene
+
+        return scaled_scene("fluid-driven-slip-T0.7-dip30", 0.5)
+    raise SystemExit(f"unknown scene {key}")
+
+
+SCENES = ("rustrel", "rustrel-paper", "rustrel-200x201", "fine-T0.7-dip30")
+
+
+def free_matrices(scene, step_sizes):
+    """(M, E, nB) for each step size: the scaled free Jacobian in the solver's order, the row
+    signs and step sizes that make it symmetric (E), and the number of bulk unknowns."""
+    from fault_screen import Simulation
+
+    sim = Simulation(scene)
+    solver, disc = sim.solver, sim.disc
+    x0 = np.zeros(disc.n_dofs)
+    contact = disc.physics.contact
+    history = contact.initial_history(disc) if contact is not None else None
+    solver._prepare(step_sizes[0], x0, history)
+    system = solver.system
+    order = system.order
+    D = sp.diags(system.scale)
+    mech = np.zeros(disc.n_dofs, dtype=bool)
+    mech[disc.blocks.u] = True
+    mech[disc.blocks.a] = True
+    out = []
+    for dt in step_sizes:
+        M = (D @ system._linear_jacobian(dt) @ D).tocsr()[order][:, order].tocsc()
+        E = np.where(mech[order], 1.0, -dt)
+        out.append((M, E, len(system.B)))
+    return out, disc.n_dofs
+
+
+def _best(fn, repeat):
+    best, value = np.inf, None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        value = fn()
+        best = min(best, time.perf_counter() - t0)
+    return best, value
+
+
+def _residual(M, x, b):
+    return float(np.linalg.norm(M @ x - b) / np.linalg.norm(b))
+
+
+def measure(key, repeat):
+    import qdldl
+
+    from fault_screen.bordered_lu import SYMMETRIC_PIVOT_THRESHOLD, _linear_rows_symmetric
+
+    mats, n_dofs = free_matrices(_scene(key), STEP_SIZES)
+    rows = []
+    ldl = None
+    rng = np.random.default_rng(0)
+    for dt, (M, E, nB) in zip(STEP_SIZES, mats):
+        b = rng.standard_normal(M.shape[0])
+        S = sp.diags(E) @ M
+        S = S.tocsc()
+        largest = abs(S).max()
+        asym = abs(S - S.T).max() / largest if largest else 0.0
+        elastic = _linear_rows_symmetric(M, nB)
+        base = dict(scene=key, dt=dt, n=M.shape[0], nB=nB, asym=asym)
+
+        def superlu(A, threshold):
+            return spla.splu(A, permc_spec="NATURAL", diag_pivot_thresh=threshold,
+                             options=dict(SymmetricMode=True))
+
+        for name, A, threshold, rhs_scale in (
+                ("superlu", M, SYMMETRIC_PIVOT_THRESHOLD if elastic else None, None),
+                ("superlu-sym", S, SYMMETRIC_PIVOT_THRESHOLD, E)):
+            t_fact, lu = _best(lambda: superlu(A, threshold), repeat)
+            rhs = b if rhs_scale is None else rhs_scale * b
+            t_solve, x = _best(lambda: lu.solve(rhs), repeat)
+            memory = (lu.L.nnz + lu.U.nnz) * 12 / 1e6
+            rows.append(dict(base, method=name, factor=t_fact, solve=t_solve, memory=memory,
+                             residual=_residual(M, x, b), note=""))
+            lu = None
+        upper = sp.triu(S, format="csc")
+        try:
+            if ldl is None:
+                t_fact, ldl = _best(lambda: qdldl.Solver(upper, upper=True), repeat)
+                note = "ordering + symbolic + numeric"
+            else:
+                t_fact, _ = _best(lambda: ldl.update(upper, upper=True), repeat)
+                note = "numeric only (update)"
+        except RuntimeError as error:   # (qdldl's own error, e.g. its index type overflowing)
+            rows.append(dict(base, method="qdldl", factor=np.nan, solve=np.nan, memory=np.nan,
+                             residual=np.nan, note=f"failed: {error}"))
+            continue
+        t_solve, y = _best(lambda: ldl.solve(E * b), repeat)
+        L_factor = ldl.factors()[0]
+        memory = (L_factor.nnz * 12 + 2 * M.shape[0] * 8) / 1e6
+        rows.append(dict(base, method="qdldl", factor=t_fact, solve=t_solve, memory=memory,
+                         residual=_residual(M, y, b), note=note))
+    return rows
+
+
+def table(rows):
+    head = ("| scene | dt (s) | unknowns | method | factor (s) | solve (ms) | memory (MB) "
+            "| residual | asym | note |")
+    lines = [head, "|" + "---|" * 10]
+    for r in rows:
+        lines.append(f"| {r['scene']} | {r['dt']:g} | {r['n']} | {r['method']} | {r['factor']:.3f} "
+                     f"| {1e3 * r['solve']:.2f} | {r['memory']:.1f} | {r['residual']:.1e} "
+                     f"| {r['asym']:.0e} | {r['note']} |")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--scenes", nargs="*", default=list(SCENES), choices=SCENES)
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--no-write", action="store_true", help="print only")
+    args = parser.parse_args(argv)
+    load0 = os.getloadavg()[0]
+    rows = []
+    for key in args.scenes:
+        rows += measure(key, args.repeat)
+        print(table([r for r in rows if r["scene"] == key]), flush=True)
+    load1 = os.getloadavg()[0]
+    text = table(rows)
+    print(f"\nload average {load0:.1f} before, {load1:.1f} after")
+    if not args.no_write:
+        OUT.parent.mkdir(parents=True, exist_ok=True)
+        OUT.write_text(
+            "# Factorisations of the free system\n\n"
+            "Generated by `python benchmarks/factorisation.py` (do not edit by hand). "
+            "Every row factorises the same scaled matrix of the scene at that step size; "
+            "see the script's docstring for the methods and columns.\n\n"
+            f"Load average during the run: {load0:.1f} before, {load1:.1f} after "
+            "(2 cores; rows of one run compare, absolute times grow with the load).\n\n"
+            + text + "\n")
+        print(f"written {OUT.relative_to(ROOT)}")
+
+
+if __name__ == "__main__":
+    main()
