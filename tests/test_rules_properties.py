@@ -112,12 +112,18 @@ def test_chains_of_any_length_evaluate(n, op, data):
 
 
 def test_a_scene_with_a_long_or_chain_screens_and_deep_nesting_is_a_scene_error():
-    chain = " or ".join(["max_utilisation > 2"] * 5000 + ["peak_slip_rate > 1e-6"])
+    # 400 terms: within the scene's limit on a condition's length (10,000 characters)
+    chain = " or ".join(["max_utilisation > 2"] * 400 + ["peak_slip_rate > 1e-6"])
     scene = Scene.from_dict({"monitor": {"rules": [{"level": "red", "name": "long", "when": chain}]}})
     screener = Screener(scene.monitor)
     screener.update(0.0, {"max_utilisation": 0.1, "peak_slip_rate": 0.0})
     screener.update(1.0, {"max_utilisation": 0.1, "peak_slip_rate": 2e-6})
     assert [(t.time, t.to_level, t.rule) for t in screener.transitions] == [(1.0, 2, "long")]
+    longer = " or ".join(["max_utilisation > 2"] * 5000)
+    with pytest.raises(SceneError) as err:
+        Scene.from_dict({"monitor": {"rules": [{"level": "red", "name": "long", "when": longer}]}})
+    msg = str(err.value)
+    assert "monitor.rules[0] ('long').when" in msg and "at most 10000" in msg and "\n" not in msg
     deep = "(" * 2000 + "max_utilisation > 2" + ")" * 2000
     with pytest.raises(SceneError) as err:
         Scene.from_dict({"monitor": {"rules": [{"level": "red", "name": "deep", "when": deep}]}})

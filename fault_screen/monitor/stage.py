@@ -381,8 +381,11 @@ class Stage:
             return
         screened = [a["time"] for a in self.associations if a.get("id") in ids]
         gone = [e.time for e in self.pending_events if e.id in ids] + screened
-        if hasattr(self.screener, "forget_events"):   # its event_rate counts them no more
-            self.screener.forget_events(screened)
+        # the screener's event_rate counts them no more (the built-in one, or a custom one that can)
+        screener = self.screener if self.screener is not None else \
+            (self.screening.screener if self.screening is not None else None)
+        if hasattr(screener, "forget_events"):
+            screener.forget_events(screened)
         self.pending_events = [e for e in self.pending_events if e.id not in ids]
         self.associations = [a for a in self.associations if a.get("id") not in ids]
         times = list(self.event_times)
