@@ -37,8 +37,8 @@ def test_dashboard_and_rules_name_only_exported_metrics_and_the_dashboard_shows_
     families -= {"fault_screen_step_wall_seconds"}
     assert sorted(families - on_dashboard) == []
     # level, 11 screening metrics, 2 forecasts, model time and lag, step wall time, samples,
-    # events, pending alerts, info
-    assert len(families) == 21
+    # events, pending and dead-letter alerts, info
+    assert len(families) == 22
     assert {r["alert"] for g in rules["groups"] for r in g["rules"]} >= {"FaultScreenRed",
                                                                          "FaultScreenYellow"}
 

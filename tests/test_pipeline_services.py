@@ -364,6 +364,7 @@ def test_metrics_scraped_during_a_run_hold_the_result_files_values(scene_file, t
         assert s[("fault_screen_step_wall_seconds_count", ())] == k   # row 0: the in-situ state
         assert s[("fault_screen_events_received", ())] == 0
         assert s[("fault_screen_alerts_pending", ())] == 0
+        assert s[("fault_screen_alerts_dead_letters", ())] == 0
         assert math.isnan(s[("fault_screen_forecast_time_to_yellow_seconds", ())])
         assert math.isnan(s[("fault_screen_forecast_time_to_red_seconds", ())])
         info = (("scene_title", scene.title), ("version", __version__))

@@ -18,6 +18,7 @@ the ``fault_screen_`` prefix, base SI units in the name, ``_total`` for counters
 ``fault_screen_events_received``                 seismic events and detections held (a revised
                                                  event counts once, a deleted one no more)
 ``fault_screen_alerts_pending``                  alert deliveries waiting in the outbox
+``fault_screen_alerts_dead_letters``             alert deliveries refused for good (dead letters)
 ``fault_screen_info``                            scene title and fault_screen version
 ==============================================  ===============================================
 
@@ -88,6 +89,9 @@ class MetricsExporter:
                             "Seismic events and detections held (revised ones once)", registry=r)
         self.pending = Gauge("fault_screen_alerts_pending",
                              "Alert deliveries waiting in the outbox", registry=r)
+        self.dead = Gauge("fault_screen_alerts_dead_letters",
+                          "Alert deliveries refused for good by their receiver (dead letters)",
+                          registry=r)
         self.info = Info("fault_screen", "The scene followed and the program", registry=r)
         self.info.info({"scene_title": str(getattr(scene, "title", "")), "version": __version__})
         for g in (*self.screening.values(), self.time_to_yellow, self.time_to_red,
@@ -125,6 +129,7 @@ class MetricsExporter:
             self.model_lag.set(st.last_sample_time - st.time)
         self.events.set(len(st.associations) + len(st.pending_events))
         self.pending.set(svc.outbox.pending())
+        self.dead.set(svc.outbox.dead())
 
     def set_forecast(self, time_to_yellow: Optional[float], time_to_red: Optional[float]) -> None:
         """The look-ahead's model time to yellow and red (s; None: not reached in its horizon)."""
