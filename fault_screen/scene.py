@@ -62,7 +62,7 @@ class MeshSpec:
     refinement: Refinement | None = None
     fault_grading: str = "auto"
     """'auto': with leak-off, grade the node lines across a fault parallel to x or y down to a
-    fraction of the leak-off length sqrt(c dt) of the first step (README "Leak-off and mesh");
+    fraction of the leak-off length sqrt(c dt) of the first step (docs/verification.md, "Leak-off and mesh");
     'off': keep the lines as given."""
     fault_grading_size: float | None = None
     """Height of the element the fault cuts with fault_grading (m); default 0.5 sqrt(c dt)."""
@@ -255,14 +255,14 @@ class InjectionSpec:
     schedule: tuple[tuple[float, float], ...] = ((0.0, 0.0),)
     """Steps (time s, value): value holds from its time to the next (m^3/s or Pa)."""
     log: str | None = None
-    """An injection-rate log (CSV, see README) that replaces the schedule under rate control;
+    """An injection-rate log (CSV, see docs/injection-logs.md) that replaces the schedule under rate control;
     a relative path is taken from the scene file's folder. Model time 0 = its first stamp."""
     log_flow_unit: str | None = None
     """Flow-rate unit of the log when its header names none (e.g. 'L/min')."""
     log_max_gap: float = 600.0
     """Longest gap between log samples before it counts as a problem (s)."""
     log_policy: str = "stop"
-    """What to do with a bad log line: 'stop', 'skip' or 'hold' (see README)."""
+    """What to do with a bad log line: 'stop', 'skip' or 'hold' (see docs/injection-logs.md)."""
     allow_flowback: bool = False
     """Accept negative flow rates (fluid produced back from the interval: flowback after
     shut-in) in the schedule and in volumes passed to the stepper; refused otherwise, so that a

@@ -22,7 +22,7 @@ def tiny_scene():
     """Initial (mean) paper-units Rustrel on a 14 x 15 mesh with 100 s steps (14 steps); also the
     scene of benchmarks/calibration_recovery.py."""
     base = Scene.from_toml(CONFIGS / "rustrel-2015-initial-paper-units.toml")
-    # the mesh as given: machinery on a tiny scene, not leak-off accuracy (README 'Leak-off and mesh')
+    # the mesh as given: machinery on a tiny scene, not leak-off accuracy (docs/verification.md, 'Leak-off and mesh')
     return base.replace(mesh=dataclasses.replace(base.mesh, nx=14, ny=15, fault_grading="off"),
                         time=dataclasses.replace(base.time, dt=100.0))
 

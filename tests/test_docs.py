@@ -447,3 +447,17 @@ def test_monitoring_example_logs_the_quoted_level_change(tmp_path):
     assert f"t = {quoted[1]} s: {quoted[2]}" in done.stderr + done.stdout
     alerts = [json.loads(line) for line in (tmp_path / "alerts.jsonl").read_text().splitlines()]
     assert [a["level"] for a in alerts] == ["yellow"]
+
+
+def test_forecast_page_table_is_what_the_command_prints(workspace):
+    """Forecast: the table and the advice line the page quotes are the command's output, line for
+    line (no wall times are printed, so the whole table is deterministic)."""
+    page = DOCS / "forecast.md"
+    printed = _output_of(workspace, page, "fault-screen forecast configs/rustrel-2015-impermeable.toml --at 5min")
+    assert printed.returncode == 0, printed.stderr[-3000:]
+    quoted = next(b["body"] for b in blocks(page) if b["lang"] == "text" and b["body"].startswith("made at"))
+    lines = [" ".join(line.split()) for line in printed.stdout.splitlines()]
+    for line in quoted.splitlines():
+        assert " ".join(line.split()) in lines, line
+    assert (workspace.path / "forecast.csv").is_file()
+    assert (workspace.path / "figs" / "rustrel-2015-impermeable-forecast.png").is_file()

@@ -16,7 +16,7 @@ from fault_screen.scene import SceneError
 def tiny():
     """The paper-units calibrated Rustrel scene on a 14 x 15 mesh with 50 s steps (~0.2 s)."""
     base = Scene.from_toml(CONFIGS / "rustrel-2015-calibrated-paper-units.toml")
-    # the mesh as given: machinery on a tiny scene, not leak-off accuracy (README 'Leak-off and mesh')
+    # the mesh as given: machinery on a tiny scene, not leak-off accuracy (docs/verification.md, 'Leak-off and mesh')
     return base.replace(mesh=dataclasses.replace(base.mesh, nx=14, ny=15, fault_grading="off"),
                         time=dataclasses.replace(base.time, dt=50.0))
 

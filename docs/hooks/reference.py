@@ -99,7 +99,7 @@ def field_unit(key: str, name: str, doc: str, kinds: set) -> str:
         return ""  # a word, a switch or a table: no unit
     if key in scene.RANGES:
         return scene.RANGES[key][0]
-    quantity = getattr(scene, "QUANTITY", {}).get(name)
+    quantity = scene.QUANTITY.get(name)
     if quantity == "angle":
         return "deg"
     if quantity in SI_UNIT:

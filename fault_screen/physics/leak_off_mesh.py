@@ -128,5 +128,5 @@ class LeakOffGrading(Term):
             f"leak-off: the elements the fault cuts are up to {height:.3g} m across it, "
             f"{height / length:.3g} times the leak-off length sqrt(c dt) = {length:.3g} m of the first "
             f"step, and {why}: the fault pressure is tied to the rock storage of the cut elements and "
-            f"results depend on the element height across the fault (README 'Leak-off and mesh'); "
+            f"results depend on the element height across the fault (docs/verification.md, 'Leak-off and mesh'); "
             f"refine with [mesh.refinement] or lay the fault along x", SceneWarning, stacklevel=2)
