@@ -1,5 +1,5 @@
 """Calibration by recovery: synthetic noisy observations from known parameters, estimated back
-from the mean values -- the two scenarios of tests/test_calibration.py, printed: NoF, intact E and
+from the mean values -- the two scenarios of tests/studies/test_calibration.py, printed: NoF, intact E and
 mu0; and the fault-flow trio NoF, 2h0 and kappa.
 
 Run: OPENBLAS_NUM_THREADS=1 python benchmarks/calibration_recovery.py

@@ -20,7 +20,7 @@ Rows (keys for --skip in brackets):
 - [busy] the warm replay again while two CPU-bound processes run (3 processes on 2 cores), with
   the default BLAS threading (no OPENBLAS_NUM_THREADS set).
 - [slip] each fluid-driven-slip verification scene at bundled resolution, warm, and its slip
-  error against the reference (relative L2 at the end, as tests/test_verification_*.py).
+  error against the reference (relative L2 at the end, as tests/verification/test_verification_*.py).
 - [refined] Rustrel on a 200 x 201 mesh (4x refinement), whole run.
 - [fine] the 30 deg T = 0.7 scene at half its element size, whole run.
 - [stepsize] the paper-units calibrated Rustrel scene with growing steps (growth 1.2, dt_max

@@ -533,7 +533,7 @@ def estimate_size(scene: Scene) -> tuple[int, int, float]:
     are built (``model_mesh``: the graded mesh and the leak-off grading, so ``elements`` is the
     built mesh's) unless an axis would have more than ``LINES_BUILT`` of them; then the counts
     are upper bounds (refusing an absurd mesh must not itself exhaust the memory). Unknowns:
-    the nodes' and those of the nodes the fault enriches (tests/test_accuracy.py states how
+    the nodes' and those of the nodes the fault enriches (tests/studies/test_accuracy.py states how
     close they come to the built model)."""
     m, switched_on = scene.mesh, effects_on(scene)
     on = {name: name in switched_on for name in ("mechanics", "poroelastic", "fault", "leak_off", "fault_flow")}

@@ -36,7 +36,7 @@ REF_CORNERS = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
 #: Heaviside enrichment of a node is dropped only when its enriched function vanishes
 #: identically (no support on the far side of the fault), which would make the system singular.
 #: Thin slivers are kept: they are needed for exactness (patch test) and the Jacobi scaling of
-#: the solver keeps them well conditioned (see tests/test_verification_patch.py).
+#: the solver keeps them well conditioned (see tests/verification/test_verification_patch.py).
 SLIVER_FRACTION = 0.0
 
 #: A fault through mesh nodes (through a node, or along a mesh line) is moved off them along its
@@ -45,7 +45,7 @@ SLIVER_FRACTION = 0.0
 #: far side, which the assembly never integrates (the in-situ state then shows an
 #: out-of-balance force), and a fault along a mesh line cuts no element at all. 1e-6 of an
 #: element is far below any physical length of the model, and the patch tests are exact at that
-#: offset (tests/test_verification_patch.py).
+#: offset (tests/verification/test_verification_patch.py).
 NODE_CLEARANCE = 1e-6
 
 

@@ -7,6 +7,11 @@ ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs"
 VERIFICATION = CONFIGS / "verification"
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # tests/analytical.py
+# the test files sit in folders mirroring the package (tests/physics, tests/solver, ...) with unique
+# basenames and no __init__.py; a few import another's cases (test_forecast_fork from test_stepper,
+# validation/test_docs_tables from test_docs), so every folder is importable whatever pytest collects
+sys.path.extend(str(folder) for folder in sorted(Path(__file__).resolve().parent.iterdir())
+                if folder.is_dir() and next(folder.glob("test_*.py"), None) is not None)
 
 
 @pytest.fixture(scope="session")

@@ -11,7 +11,7 @@ exist only in the built site:
   ``fault_screen.cli._options`` decides them;
 - ``changelog.md``: the repository's ``CHANGELOG.md``.
 
-``tests/test_docs.py`` imports the same functions and checks what they produce against the code.
+``tests/docs/test_docs.py`` imports the same functions and checks what they produce against the code.
 """
 from __future__ import annotations
 

@@ -33,7 +33,7 @@ from .materials import diffusivity, effective_rock
 
 #: cut-element height over the first step's leak-off length sqrt(c dt): the leaked volume is then
 #: within 2 % of the erfc solution once the first steps' time error has decayed (from the 20th
-#: step, tests/test_leak_off_mesh.py; after one step it is the implicit step's own -11 %)
+#: step, tests/physics/test_leak_off_mesh.py; after one step it is the implicit step's own -11 %)
 SIZE_FRACTION = 0.5
 #: a mesh whose cut elements are taller than this many sqrt(c dt) across a fault that cannot be
 #: graded gets a warning

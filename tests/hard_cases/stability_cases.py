@@ -181,7 +181,7 @@ def run_case(name: str) -> Run:
 def balance_error(result) -> float:
     """Largest |stored + drained - injected| over the run, relative to the largest injected
     volume (into the model fault: the interval's divided by NoF), as in
-    tests/test_verification_mass_balance.py."""
+    tests/verification/test_verification_mass_balance.py."""
     nof = result.scene.injection.number_of_fractures
     injected = result.injection["volume"] / nof
     b = result.balance

@@ -24,7 +24,7 @@ def _diffusion_length(scene, t):
 
 def test_critically_stressed_slip_front_lambda():
     """T = 0.02: lambda = 17.97 (Viesca 2021); the patch spans 60 elements. lambda from the slip
-    moment (as in tests/test_verification_fluid_driven_slip.py) within 4 %."""
+    moment (as in tests/verification/test_verification_fluid_driven_slip.py) within 4 %."""
     run = run_case("critically-stressed-T0.02")
     r, scene = run.result, run.scene
     T = 0.02

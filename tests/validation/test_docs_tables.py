@@ -1,6 +1,6 @@
 """The validation page's table (docs/validation.md) against the runs it quotes, to the digits shown:
 peak overpressure, slip at the injection point at the end, slip onset, first yellow, unknowns and
-the fluid budget. The impermeable SI row is checked in the quick suite (tests/test_docs.py)."""
+the fluid budget. The impermeable SI row is checked in the quick suite (tests/docs/test_docs.py)."""
 from __future__ import annotations
 
 import re

@@ -13,7 +13,7 @@ import yaml
 from fault_screen import Scene
 from fault_screen.monitor.metrics_exporter import MetricsExporter
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DEPLOY = ROOT / "docs" / "deploy"
 NAME = re.compile(r"\bfault_screen_[a-z_]+\b")
 

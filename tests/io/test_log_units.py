@@ -19,7 +19,7 @@ from fault_screen.io.injection_log import InjectionLogError, read_injection_log
 from fault_screen.io.log_stream import LogDecoder
 from fault_screen.io.plausibility import check_plausible
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 BASEL = ROOT.parent / "shared" / "data" / "basel-2006" / "basel-2006-injection-1min.csv"
 if not BASEL.exists():
     BASEL = Path("/work/shared/data/basel-2006/basel-2006-injection-1min.csv")

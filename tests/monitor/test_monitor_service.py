@@ -1,7 +1,7 @@
 """The monitor service end to end (fake stepper and screener from tests/monitor_fakes.py, real
 source and alert plugins through entry points): a log written while it is followed, idle exit,
 SIGTERM, standard input, catalogue events.  kill -9 and resume with the real stepper:
-tests/test_monitor_resume.py."""
+tests/monitor/test_monitor_resume.py."""
 from __future__ import annotations
 
 import dataclasses
@@ -23,7 +23,7 @@ from fault_screen.io.injection_log import read_injection_log
 from fault_screen.monitor.service import MonitorConfig, MonitorService
 from monitor_fakes import FakeSimulation, ThresholdScreener, run_service
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 STANDIN = ROOT / "configs" / "logs" / "rustrel-2015-standin.csv"
 
 

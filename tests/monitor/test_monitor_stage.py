@@ -17,7 +17,7 @@ from fault_screen.monitor import SeismicEvent, Site, Stage
 from fault_screen.monitor.stage import SampleBuffer, alert_id
 from monitor_fakes import V_FAIL, FakeSimulation, ThresholdScreener
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 LOG = ROOT / "configs" / "logs" / "rustrel-2015-standin.csv"
 
 

@@ -11,7 +11,7 @@ from fault_screen.io.injection_log import (
     read_injection_log,
 )
 
-LOGS = Path(__file__).resolve().parents[1] / "configs" / "logs"
+LOGS = Path(__file__).resolve().parents[2] / "configs" / "logs"
 LPM = 1e-3 / 60.0  # 1 L/min in m3/s
 
 

@@ -19,7 +19,7 @@ from fault_screen.physics.materials import constrained_modulus, drained_bulk_mod
 
 from conftest import CONFIGS
 
-PACKAGE = Path(__file__).resolve().parent.parent / "fault_screen"
+PACKAGE = Path(__file__).resolve().parents[2] / "fault_screen"
 #: a small scene with leak-off along x: the grading adds rows across the fault (10 x 11 as given)
 SMALL = """title = "small"
 [mesh]

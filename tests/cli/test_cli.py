@@ -17,7 +17,7 @@ from fault_screen import Scene, SimulationError
 from fault_screen.cli import main
 from fault_screen.cli._progress import Progress
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 BUNDLED = ROOT / "configs" / "rustrel-2015-calibrated.toml"
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 CET = timezone(timedelta(hours=1))

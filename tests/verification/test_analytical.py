@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy import special
 
-sys.path.insert(0, os.path.dirname(__file__))
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # tests/analytical.py
 import analytical as A  # noqa: E402
 
 # Representative poroelastic column (SI)

@@ -23,7 +23,7 @@ from fault_screen.cli import main
 from fault_screen.io.injection_log import read_injection_log
 from fault_screen.testing.servers import EVENT_ID, FakeServices
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 STANDIN = ROOT / "configs" / "logs" / "rustrel-2015-standin.csv"
 
 

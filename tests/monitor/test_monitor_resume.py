@@ -22,7 +22,7 @@ from fault_screen import Result, Scene
 from fault_screen.scene import MonitorRule
 from fault_screen.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 STANDIN = ROOT / "configs" / "logs" / "rustrel-2015-standin.csv"
 N_LINES = 70            # comment and header lines plus the first 65 samples (625 s)
 GROUPS = ("fault", "injection", "balance", "solver")

@@ -17,7 +17,7 @@ from fault_screen.io.injection_log import InjectionLogError, read_injection_log
 from fault_screen.io.log_stream import LogDecoder
 from fault_screen.monitor import plugins
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 LOGS = ROOT / "configs" / "logs"
 STANDIN = LOGS / "rustrel-2015-standin.csv"
 GAPS = LOGS / "standin-with-gaps.csv"

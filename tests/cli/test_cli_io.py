@@ -19,7 +19,7 @@ from fault_screen.plotting import flow_unit, magnitude_groups
 from fault_screen.plotting._canvas import _title
 from fault_screen.result import Result
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 BUNDLED = ROOT / "configs" / "rustrel-2015-calibrated.toml"
 LPM = 1e-3 / 60.0
 

@@ -12,7 +12,7 @@ import monitor_env
 from fault_screen import Scene
 from fault_screen.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SCENE = ROOT / "configs" / "rustrel-2015-calibrated.toml"
 LOG = ROOT / "configs" / "logs" / "rustrel-2015-standin.csv"
 

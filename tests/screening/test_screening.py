@@ -22,7 +22,7 @@ from fault_screen.scene import MonitorRule, MonitorSpec
 from fault_screen.screening import (MetricsTracker, Screener, read_transitions, screen_result,
                                     stopped_unstable)
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 IMPERMEABLE = ROOT / "configs" / "rustrel-2015-impermeable.toml"
 CALIBRATED = ROOT / "configs" / "rustrel-2015-calibrated.toml"
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"

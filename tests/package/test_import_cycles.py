@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = {"fault_screen": ROOT / "fault_screen",
             "fault_screen_plugins": ROOT / "plugins" / "fault_screen_plugins"}
 

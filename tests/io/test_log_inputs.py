@@ -24,7 +24,7 @@ from fault_screen.monitor import plugins
 from fault_screen.monitor.seismicity import CatalogFollower
 from fault_screen.units import parse_header
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 HEADER = "elapsed[s],flow_rate[L/min]"
 
 
