@@ -14,6 +14,7 @@
 """
 from __future__ import annotations
 
+import ast
 import importlib.util
 import math
 import os
@@ -257,11 +258,16 @@ def test_equation_table_names_files_and_tests_that_exist():
             assert (ROOT / "fault_screen" / path).is_file(), path
         tests = re.findall(r"`(tests/[\w/]+\.py)(?:::(\w+))?`", test_cell)
         assert tests, line
+        tests += [(tests[-1][0], name) for name in re.findall(r"`::(\w+)`", test_cell)]
+        # each test names its equation: the row's first number after "Eq." on its docstring's first line
+        # (the module's docstring where the row names a whole file)
+        equation = re.match(r"\| Eq\. (\d+)", line).group(1)
         for path, name in tests:
-            source = (ROOT / path).read_text()
-            assert name == "" or re.search(rf"^def {name}\(", source, re.M), f"{path}::{name}"
-        for name in re.findall(r"`::(\w+)`", test_cell):
-            assert re.search(rf"^def {name}\(", (ROOT / tests[-1][0]).read_text(), re.M), name
+            tree = ast.parse((ROOT / path).read_text())
+            node = next((f for f in tree.body if isinstance(f, ast.FunctionDef) and f.name == name), None)
+            assert name == "" or node is not None, f"{path}::{name}"
+            first = (ast.get_docstring(node or tree) or "").splitlines()[0:1]
+            assert first and re.search(rf"\bEq\. [^:]*\b{equation}\b", first[0]), f"{path}::{name}"
 
 
 def _hook():

@@ -1,6 +1,6 @@
-"""Each fault term against something independent: hand-computed return maps, finite-difference
-tangents, Renshaw's formula and its limits, steady-state rate-and-state friction and the aging
-law's steady state."""
+"""Eq. 17-27, 32 (contact, friction, dilation) and Eq. 28: each fault term against something
+independent: hand-computed return maps, finite-difference tangents, Renshaw's formula and its
+limits, steady-state rate-and-state friction and the aging law's steady state."""
 import numpy as np
 import pytest
 
@@ -69,6 +69,8 @@ def test_rate_state_tangent_is_consistent(b):
 
 
 def test_renshaw_matches_eq28_and_its_limits():
+    """Eq. 28 (Renshaw aperture): the paper's form to 1e-14, its small- and large-slip limits, and a
+    positive aperture with a continuous slope on closing."""
     h0, sh = 5e-5, 2e-4
     for d in (1e-6, 3e-5, 2e-4, 5e-3):
         eq28 = h0 + d * np.exp(-np.log(1 + (sh / d) ** 2) / 2)  # paper's form, written out

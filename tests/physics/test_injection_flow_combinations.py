@@ -1,4 +1,5 @@
-"""Every injection control with every fault-flow option runs, and conserves fluid.
+"""Eq. 10 (source), 29 (injection): every injection control with every fault-flow option runs, and
+conserves fluid.
 
 The unknowns are partitioned into a linear bulk and a condensed nonlinear set; a combination
 that leaves an unknown without linear coupling in the bulk (the pressure-control multiplier when

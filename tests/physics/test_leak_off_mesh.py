@@ -102,8 +102,9 @@ def test_storage_coefficient_matches_hand_computation():
 
 @pytest.mark.parametrize("ratio", [10, 1, 0.1])
 def test_leaked_volume_matches_erfc_at_any_element_height(runs, ratio):
-    """Element heights 10, 1 and 0.1 times sqrt(c t_end): within 2 % from 20 s (20 first steps;
-    before that the implicit step's own error dominates: -11 % after one step, as for any mesh)."""
+    """Eq. 3-7 (modified level set, leak-off): element heights 10, 1 and 0.1 times sqrt(c t_end):
+    within 2 % of the erfc leaked volume from 20 s (20 first steps; before that the implicit step's
+    own error dominates: -11 % after one step, as for any mesh)."""
     r = runs[(ratio, "auto")]
     assert r.injection["overpressure"][-1] == pytest.approx(DP, rel=1e-9)
     t, err = leaked_error(r)

@@ -31,8 +31,9 @@ def small_scene(kind, angle=0.0, gravity=False, **initial):
 @pytest.mark.parametrize("angle", [0.0, 30.0])
 @pytest.mark.parametrize("kind,k", [("total", 0.0), ("biot_effective", ALPHA), ("fault_effective", 1.0)])
 def test_uniform_stress_gives_the_hand_computed_fault_tractions(kind, k, angle):
-    """By hand: total sigma = given - k p0 I; the fault (Biot coefficient 1) carries
-    sigma'_n0 = -n.sigma.n - p0 and tau0 = t.sigma.n."""
+    """Eq. 1 at rest, Eq. 19 at t = 0 (in-situ stress, initial fault tractions), by hand: total
+    sigma = given - k p0 I; the fault (Biot coefficient 1) carries sigma'_n0 = -n.sigma.n - p0 and
+    tau0 = t.sigma.n."""
     p0 = P0
     if kind == "total":  # Rustrel's numbers as total stresses put the fault beyond failure:
         with pytest.raises(SceneError, match="beyond failure"):
@@ -56,6 +57,8 @@ def test_the_issue_numbers_for_rustrel():
 
 @pytest.mark.parametrize("kind", ["total", "biot_effective", "fault_effective"])
 def test_gravity_with_each_kind_is_in_equilibrium(kind):
+    """Eq. 1 at rest (in-situ stress with gravity): each stress kind is in equilibrium, residual
+    below 1e-10 of its scale."""
     # deeper numbers so that every kind leaves the fault below failure
     scene = small_scene(kind, angle=20.0, gravity=True, stress=[-40e6, -30e6, 2e6])
     disc = discretise(scene)

@@ -1,7 +1,8 @@
-"""The nonlinear terms' assembled Jacobians (their triplets: rows and columns from the term's
-pattern, values from its kernel) against central finite differences of the same terms'
-residuals, on the calibrated Rustrel scene part-way through its injection (slipping and sticking
-points under rate-and-state friction, an opening fault with an evolving aperture)."""
+"""Eq. 11-14 (Newton's consistent Jacobian) for the terms of Eq. 17-28: the nonlinear terms'
+assembled Jacobians (their triplets: rows and columns from the term's pattern, values from its
+kernel) against central finite differences of the same terms' residuals, on the calibrated Rustrel
+scene part-way through its injection (slipping and sticking points under rate-and-state friction, an
+opening fault with an evolving aperture)."""
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -27,6 +28,8 @@ def state():
 
 @pytest.mark.parametrize("kind", [Contact, EvolvingApertureConduction])
 def test_assembled_tangent_matches_finite_differences(state, kind):
+    """Eq. 17-27, 32 (contact, friction, dilation): each nonlinear term's assembled
+    Jacobian matches central finite differences of its residual, column by column."""
     sim = state
     disc = sim.disc
     term = disc.physics.find(kind)

@@ -98,6 +98,8 @@ def time_study():
 
 
 def test_time_order_is_one(time_study):
+    """Eq. 11-14 (implicit time step): the observed time order of the fault overpressure and the
+    injection rate is backward Euler's 1, within 0.15."""
     study = time_study
     for q in ("fault_overpressure_l2", "injection_flow_rate"):
         assert study.orders[("time", q)].order == pytest.approx(1.0, abs=0.15), q

@@ -22,6 +22,8 @@ def test_rigid_impermeable_rock_has_only_fault_pressure_unknowns(run):
 
 @pytest.mark.parametrize("fraction", [0.25, 0.5, 1.0])
 def test_fault_pressure_is_erfc(run, fraction):
+    """Eq. 10, 16 (fault storage, cubic law): the fault pressure is dp erfc(|x| / sqrt(4 alpha t))
+    within 2 % of dp, and the injected volume is what the fault stores."""
     scene, result = run
     f = scene.fault
     alpha = f.hydraulic_aperture ** 3 / (12 * scene.fluid.viscosity * f.kappa) / f.storativity

@@ -51,6 +51,8 @@ def test_published_lambda_values():
 
 @pytest.mark.parametrize("fraction", [0.25, 0.5, 1.0])
 def test_slip_profile(run, fraction):
+    """Eq. 15 (fault pressure on the walls): the slip profile is the self-similar solution's within
+    5 % relative L2, driven by the erfc pressure within 2 % of dp."""
     scene, model, r, T = run
     ref = _reference(scene, model, T)
     i = int(np.argmin(np.abs(r.time - fraction * scene.time.end)))

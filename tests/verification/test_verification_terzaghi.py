@@ -25,6 +25,8 @@ def test_no_fault_means_no_fault_unknowns(run):
 
 @pytest.mark.parametrize("tau", [0.01, 0.05, 0.2, 0.5, 1.0])
 def test_pressure_and_settlement_match_series(run, tau):
+    """Eq. 1-2, 8-9 (elasticity, Biot coupling, storage, Darcy): pressure within 1 % of p_u and
+    settlement within 1 % of Terzaghi's series."""
     scene, model, states = run
     rk = scene.rock
     biot_modulus = 1.0 / model.zone_props[0]["inv_M"]
