@@ -264,8 +264,8 @@ class BorderedLU:
     When the linear block's rows equal its columns transposed (M_BB symmetric, M_BN = M_NB^T: an
     elastic bulk; not a poroelastic one, whose flow rows carry the storage over dt) and SuperLU
     kept its diagonal pivots there, U's linear rows are D L^T (D their diagonal): the backward
-    sweep then reads L and D, and U is not held (half the factors' memory; fine 30 deg scene
-    634 -> 557 MB). U's trailing block still gives the Schur complement."""
+    sweep then reads L and D, and U is not held (half the factors' memory). U's trailing block
+    still gives the Schur complement."""
 
     def __init__(self, M, n_linear: int):
         if callable(M):
@@ -397,8 +397,8 @@ class SplitBorderedLU:
     to.
 
     The peak memory of a sparse LU is SuperLU's storage with scipy's copy of its factors beside
-    it; one part at a time divides it (Rustrel 200 x 201: the run's peak 1076 -> 915 MB in
-    halves). With M = [B1 . E1; . B2 E2; W1 W2 M_WW] (W = S + N), each part's factorisation of
+    it; one part at a time divides it. With M = [B1 . E1; . B2 E2; W1 W2 M_WW] (W = S + N),
+    each part's factorisation of
     [B_i E_i; W_i M_WW] gives M_WW - W_i B_i^-1 E_i (the border's block keeps its trailing
     factors regular), so R = M_WW - sum_i W_i B_i^-1 E_i is M with every part eliminated, dense on
     W, and the Schur complement on N eliminates S from it with a dense LU of R_SS.
@@ -449,7 +449,7 @@ class SplitBorderedLU:
             self.nnz += lu.nnz
             self._parts.append(lu)
         # R in its four blocks on S and N (R_NN becomes the Schur complement in place: no
-        # |W|^2 array beside it, and no |N|^2 product: 114 -> 52 MB on the fine 30 deg scene)
+        # |W|^2 array beside it, and no |N|^2 product)
         R_SS, R_SN = M_WW[:ns, :ns].toarray(), M_WW[:ns, ns:].toarray()
         R_NS, R_NN = M_WW[ns:, :ns].toarray(), M_WW[ns:, ns:].toarray()
         del M_WW

@@ -400,9 +400,9 @@ SMALL_CHANGE = 0.05
 REFINEMENTS = 3
 REFINEMENT_GAIN = 1e-3
 
-#: GMRES iterations allowed before the condensed block is factorised anew: measured on this
-#: machine, an LU of n unknowns costs as much as 12 iterations (each a product with M and a
-#: solve with the old factors) at n = 400, where fixed costs dominate, and about n/40 beyond
+#: GMRES iterations allowed before the condensed block is factorised anew: an LU of n unknowns
+#: costs about as much as 12 iterations (each a product with M and a solve with the old factors)
+#: at n = 400, where fixed costs dominate, and about n/40 beyond
 def _condensed_max_iterations(n):
     return min(30, max(12, n // 40))
 

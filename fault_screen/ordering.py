@@ -36,8 +36,8 @@ def nested_dissection(pattern: sp.spmatrix, xy: np.ndarray, leaf: int = LEAF_SIZ
     couple to the upper side being the separator, and is placed as [its lower side without the
     separator, its upper side, the separator], each part keeping the order it had; the parts
     larger than ``leaf`` are cut in turn. All the sets of one level of cuts are cut together,
-    in place in the permutation (a few array operations per level instead of per set: 30 -> 12
-    ms on Rustrel, 460 -> 235 ms on 200 x 201, the same permutation)."""
+    in place in the permutation (a few array operations per level instead of per set; the same
+    permutation)."""
     n = pattern.shape[0]
     sym = (abs(pattern) + abs(pattern.T)).tocsr()
     sym.sum_duplicates()
