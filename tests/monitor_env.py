@@ -54,3 +54,31 @@ def pythonpath(folder: Path) -> dict:
     env["PYTHONPATH"] = os.pathsep.join(parts)
     env["OPENBLAS_NUM_THREADS"] = "1"
     return env
+
+
+def calibrated_scene_with_step(folder: Path, dt: float) -> Path:
+    """``scene.toml`` in ``folder``: the bundled calibrated Rustrel scene with steps of ``dt`` s
+    (fewer steps: faster monitor tests)."""
+    import dataclasses
+
+    from fault_screen import Scene
+
+    s = Scene.from_toml(ROOT / "configs" / "rustrel-2015-calibrated.toml")
+    s = s.replace(time=dataclasses.replace(s.time, dt=dt))
+    path = folder / "scene.toml"
+    path.write_text(s.to_toml())
+    return path
+
+
+def csv_follower(path, *, log_name: str = "test.csv", **options):
+    """The monitor's csv source following ``path`` with a decoder of ``options``:
+    ``(source, decoder)``."""
+    import logging
+
+    from fault_screen.io.log_stream import LogDecoder
+    from fault_screen.monitor import plugins
+
+    dec = LogDecoder(str(path), **options)
+    src = plugins.instantiate("source", "csv", str(path), decoder=dec, poll_interval=0.01,
+                              log=logging.getLogger(log_name))
+    return src, dec

@@ -19,8 +19,6 @@ import monitor_env
 from fault_screen import Result, Scene
 from fault_screen.io.events import EventsError, read_events
 from fault_screen.io.injection_log import InjectionLogError, read_injection_log
-from fault_screen.io.log_stream import LogDecoder
-from fault_screen.monitor import plugins
 from fault_screen.monitor.seismicity import CatalogFollower
 from fault_screen.units import parse_header
 
@@ -35,9 +33,7 @@ def entry_points_visible(tmp_path_factory):
 
 def follow(path, **options):
     """Samples and warnings of the monitor's csv source reading ``path`` to its end."""
-    dec = LogDecoder(str(path), **options)
-    src = plugins.instantiate("source", "csv", str(path), decoder=dec, poll_interval=0.01,
-                              log=logging.getLogger("test.inputs"))
+    src, dec = monitor_env.csv_follower(path, log_name="test.inputs", **options)
     got = src.read(0.05) + src.flush() + dec.end()
     src.close()
     return got, dec

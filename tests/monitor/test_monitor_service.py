@@ -4,7 +4,6 @@ SIGTERM, standard input, catalogue events.  kill -9 and resume with the real ste
 tests/monitor/test_monitor_resume.py."""
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import signal
@@ -36,11 +35,7 @@ def dist(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def scene_file(tmp_path_factory):
-    s = Scene.from_toml(ROOT / "configs" / "rustrel-2015-calibrated.toml")
-    s = s.replace(time=dataclasses.replace(s.time, dt=7.0))
-    path = tmp_path_factory.mktemp("scene") / "scene.toml"
-    path.write_text(s.to_toml())
-    return path
+    return monitor_env.calibrated_scene_with_step(tmp_path_factory.mktemp("scene"), 7.0)
 
 
 def append_lines(path, lines, pause):

@@ -28,11 +28,7 @@ def entry_points_visible(tmp_path_factory):
     monitor_env.activate(tmp_path_factory.mktemp("dist"))
 
 
-def follower(path, **kw):
-    dec = LogDecoder(str(path), **kw)
-    src = plugins.instantiate("source", "csv", str(path), decoder=dec, poll_interval=0.01,
-                              log=logging.getLogger("test.csv"))
-    return src, dec
+follower = monitor_env.csv_follower
 
 
 def arrays(samples):

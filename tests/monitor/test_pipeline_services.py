@@ -4,7 +4,6 @@ replay of the same samples array for array), an FDSN event service revising and 
 the Prometheus exposition scraped during a run, and the messages for bad services."""
 from __future__ import annotations
 
-import dataclasses
 import json
 import logging
 import math
@@ -35,11 +34,7 @@ def entry_points_visible(tmp_path_factory):
 @pytest.fixture(scope="module")
 def scene_file(tmp_path_factory):
     """The calibrated Rustrel scene with 10 s steps (fewer steps: a faster test)."""
-    s = Scene.from_toml(ROOT / "configs" / "rustrel-2015-calibrated.toml")
-    s = s.replace(time=dataclasses.replace(s.time, dt=10.0))
-    path = tmp_path_factory.mktemp("scene") / "scene.toml"
-    path.write_text(s.to_toml())
-    return path
+    return monitor_env.calibrated_scene_with_step(tmp_path_factory.mktemp("scene"), 10.0)
 
 
 def short_log(folder: Path, samples: int) -> Path:
