@@ -17,6 +17,7 @@ needs and keeps it across Newton iterations and steps:
 from __future__ import annotations
 
 import contextlib
+import copy
 import functools
 
 import numpy as np
@@ -129,6 +130,16 @@ class CondensedSystem:
             self._restored_condensed = (
                 (np.array(state["condensed_tangent_rows"]), np.array(state["condensed_tangent_cols"]),
                  np.array(state["condensed_tangent_values"])), float(state["condensed_step"]))
+
+    def fork(self) -> "CondensedSystem":
+        """A system for a fork of the run: the same state, the constant blocks, the bulk's
+        factors and the condensation shared read-only (a step only replaces them, never writes
+        into them: a fork that needs new factors makes its own), the dense solver's caches its
+        own. Call it between steps."""
+        twin = copy.copy(self)
+        twin._blas_limited = False
+        twin._dense = None if self._dense is None else self._dense.fork()
+        return twin
 
     def _new_condensed_solver(self):
         """The run's dense solver; it is told the storage block when that is all a step-size
@@ -577,6 +588,16 @@ class CondensedSolver:
         if (self.factors is None or base is None or base != self._base0
                 or (self.inv_dt != self.factored_inv_dt and self.storage is None)):
             self._factorise()
+
+    def fork(self) -> "CondensedSolver":
+        """The same solver for a fork: the factors shared read-only, the columns of the inverse
+        solved for so far (filled in place, page by page) copied."""
+        twin = copy.copy(self)
+        for name in ("_Z", "_Z1", "_have", "_have1"):
+            value = getattr(self, name, None)
+            if value is not None:
+                setattr(twin, name, value.copy(order="K"))   # (Fortran order kept)
+        return twin
 
     def _times(self, v):
         """M v = -P v + (L_NN + T) v."""

@@ -13,6 +13,7 @@ support is cut into a thin sliver well conditioned (the Jacobi part of Béchet e
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -237,6 +238,13 @@ class NewtonSolver:
     def restore_state(self, state: dict):
         """``CondensedSystem.restore_state``."""
         self.system.restore_state(state)
+
+    def fork(self) -> "NewtonSolver":
+        """A solver for a fork of the run, continuing from this one's state (``CondensedSystem.fork``:
+        the constant matrices and factors shared read-only). Call it between steps."""
+        twin = copy.copy(self)
+        twin.system = self.system.fork()
+        return twin
 
     def blas_threads(self):
         """``CondensedSystem.blas_threads``: a caller that takes many steps holds it around

@@ -338,30 +338,25 @@ class Simulation:
     # ------------------------------------------------------------------ forks
     def fork(self) -> "Simulation":
         """An independent simulation continuing from this one's state, in memory: advancing it
-        never changes this one, and it takes the steps this one would take (bit for bit, as a
-        checkpoint restored does). The scene, the discretisation and the physics terms are
-        shared: the steps only read them. The fork makes its own solver and factorisations
-        (restored from this solver's checkpoint state) and keeps its rows in memory, starting
-        with this run's newest row (a look-ahead; this run may stream to a file)."""
+        never changes this one, and it takes the steps this one would take (bit for bit). The
+        scene, the discretisation, the physics terms, the solver's constant matrices and its
+        current factorisations are shared: the steps only read them, and a fork that needs new
+        factors makes its own (``NewtonSolver.fork``). The fork keeps its rows in memory,
+        starting with this run's newest row (a look-ahead; this run may stream to a file).
+        Call it between steps of this run."""
         twin = object.__new__(type(self))
         twin.__dict__.update(self.__dict__)     # the counters and step-sequence state: scalars
-        twin.solver, twin._solver_origin = self._forked_solver()
+        twin.solver = self._forked_solver()
         twin.x = self.x.copy()
         twin.history = None if self.history is None else self.history.copy()
         twin.stopped = None if self.stopped is None else dict(self.stopped)
         twin.recorder = self.recorder.fork()
         return twin
 
-    def _forked_solver(self) -> tuple:
-        """A new solver in the state ``checkpoint`` stores for this one, and that state (the one
-        place a fork gets its solver: sharing the current factorisations would go here)."""
-        solver = NewtonSolver(self.disc)
-        self.disc.release_element_groups()   # (assembled again: the steps do not read them)
-        if self.solver.scale is not None:
-            solver.scale = self.solver.scale.copy()
-        state = self._solver_state()
-        solver.restore_state(state)
-        return solver, state
+    def _forked_solver(self):
+        """The solver of a fork: this one's state, its read-only parts shared (the one place a
+        fork gets its solver)."""
+        return self.solver.fork()
 
     def _solver_state(self) -> dict:
         """The solver's checkpoint state; for a fork (or a restored run) that has not taken a

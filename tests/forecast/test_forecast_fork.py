@@ -44,3 +44,33 @@ def test_a_fork_never_changes_the_original_and_takes_the_same_steps(case):
     # and the original continues bit-identically to a run that never forked
     sim.advance(scene.time.end)
     _assert_identical(sim.result(), reference)
+
+
+def test_a_fork_shares_the_factors_and_makes_its_own_for_other_steps(case):
+    """The fork starts on the original's factorisations (the same objects: none is redone for
+    the steps the original would take), and a fork whose steps are of other sizes (steps
+    growing 1.5 times to 8 times the run's, which a bulk with rock pore pressure must factorise
+    again) makes its own: the original then still continues bit-identically to a run that
+    never forked."""
+    import dataclasses
+
+    scene, reference = case
+    steps = (len(reference.time) - 1) // 2
+    sim = Simulation(scene)
+    sim.advance(scene.time.end, max_steps=steps)
+    system = sim.solver.system
+    lu, P, made = system.lu, system.P, sim.solver.factorizations
+    fork = sim.fork()
+    assert fork.solver.system.lu is lu and fork.solver.system.P is P
+    fork.advance(sim.time + 3 * sim.dt, max_steps=1)          # a step of the run's own size
+    if system.factors_any_dt or system.dt == sim.dt:
+        assert fork.solver.factorizations == made               # the shared factors served
+    longer = sim.fork()
+    dt = sim.dt
+    longer.scene = scene.replace(time=dataclasses.replace(scene.time, growth=1.5, dt_max=8 * dt))
+    longer.advance(scene.time.end)
+    if not system.factors_any_dt:
+        assert longer.solver.factorizations > made      # its own factors for the new sizes
+    assert system.lu is lu and system.P is P and sim.solver.factorizations == made
+    sim.advance(scene.time.end)
+    _assert_identical(sim.result(), reference)
