@@ -22,8 +22,8 @@ the largest constant rate that stays below a level; :mod:`~fault_screen.plotting
     print(ahead.run(parse_plan("hold"), 600.0).row())
 """
 from .advice import Advice, advise
-from .lookahead import COLUMNS, Forecast, LookAhead
+from .lookahead import COLUMNS, Forecast, LookAhead, StepLadder
 from .plans import Plan, PlanError, largest_rate_so_far, parse_duration, parse_plan
 
-__all__ = ["Advice", "advise", "COLUMNS", "Forecast", "LookAhead", "Plan", "PlanError",
+__all__ = ["Advice", "advise", "COLUMNS", "Forecast", "LookAhead", "Plan", "PlanError", "StepLadder",
            "largest_rate_so_far", "parse_duration", "parse_plan"]

@@ -6,10 +6,13 @@ screening state: the metrics tracker, the screener's holds and level); :meth:`Lo
 then makes one :class:`Forecast` per plan, each on its own fork of that state, so the caller's
 run is never touched and the look-ahead can run in a worker while the caller steps on. By
 default a fork takes the scene's own step sequence, so that the plan ``scene`` reproduces the
-uninterrupted run row for row.
+uninterrupted run row for row. A :class:`StepLadder` makes it take longer steps from a handful
+of sizes (doubling from the run's step) whose factorisations every look-ahead given the same
+ladder shares; ``benchmarks/lookahead.py`` measures what each costs in accuracy.
 """
 from __future__ import annotations
 
+import collections
 import copy
 import dataclasses
 import math
@@ -24,7 +27,7 @@ from ..screening.stepwise import StepScreening
 from ..screening import LEVEL_NAMES, RED, YELLOW
 from .plans import Plan
 
-__all__ = ["LookAhead", "Forecast", "COLUMNS", "screening_of"]
+__all__ = ["LookAhead", "Forecast", "COLUMNS", "StepLadder", "screening_of"]
 
 #: the columns of forecast.csv, in order
 COLUMNS = ("made_at", "plan", "horizon", "level_now", "level_at_horizon", "max_level",
@@ -113,17 +116,25 @@ class LookAhead:
 
     ``growth`` and ``dt_max`` (s): a look-ahead whose steps grow from the run's current step by
     this factor up to ``dt_max`` instead of following the scene's sequence: faster, less exact
-    (``benchmarks/lookahead.py`` measures what it costs); default: the scene's own sequence."""
+    (``benchmarks/lookahead.py`` measures what it costs); default: the scene's own sequence.
+    ``ladder``: a :class:`StepLadder` instead (its sizes' factorisations shared with every
+    look-ahead given the same ladder)."""
 
     def __init__(self, sim, screening: StepScreening, *, drive=None, start: Optional[datetime] = None,
-                 growth: Optional[float] = None, dt_max: Optional[float] = None):
+                 growth: Optional[float] = None, dt_max: Optional[float] = None,
+                 ladder: Optional["StepLadder"] = None):
+        if ladder is not None and (growth is not None or dt_max is not None):
+            raise ValueError("look-ahead steps: a ladder or growth/dt_max, not both")
         self.state = sim.fork()
         self.screening = _copy_screening(screening)
         self.drive = drive
         self.start = start
         self.made_at = float(sim.time)
         self.level_now = int(screening.screener.level)
-        self.time_steps = _time_steps(sim.scene, growth, dt_max)
+        self.ladder = ladder
+        self.time_steps = (_time_steps(sim.scene, growth, dt_max) if ladder is None
+                           else ladder.scene_for(sim.scene))
+        self._rungs = None if ladder is None else ladder.rungs(sim.dt)
 
     @property
     def control(self) -> str:
@@ -137,11 +148,21 @@ class LookAhead:
             sim.scene = self.time_steps
         screening = _copy_screening(self.screening)
         drive = plan.drive(sim, self.drive, self.start)
+        # the look-ahead reads each newest row once (its metrics are kept below): the fork's
+        # recorder keeps no more than that row
+        sim.recorder.rows = collections.deque(sim.recorder.rows, maxlen=1)
         first = {k.rsplit("/", 1)[1]: v for k, v in _now_record(self.state, screening).items()}
         times, levels = [self.made_at], [self.level_now]
         rows = {k: [v] for k, v in first.items()}
         end = self.made_at + float(horizon)
-        while sim.advance(end, max_steps=1, **drive):
+        ladder = self.ladder
+        while True:
+            if ladder is not None and sim.stopped is None and sim.time < end * (1 - 1e-12):
+                made = ladder.set_step(sim, self._rungs, end)
+            if not sim.advance(end, max_steps=1, **drive):
+                break
+            if ladder is not None:
+                ladder.keep(sim, made)
             record, level = _screen_newest(screening, sim)
             times.append(float(sim.time))
             levels.append(int(level))
@@ -150,6 +171,62 @@ class LookAhead:
         return _summarise(self.made_at, plan.name, float(horizon), np.array(times), np.array(levels),
                           {k: np.asarray(v, dtype=float) for k, v in rows.items()},
                           _time.perf_counter() - wall0, (sim.stopped or {}).get("message"))
+
+
+class StepLadder:
+    """Look-ahead steps from a handful of sizes: the run's step when the look-ahead begins,
+    doubling at every step up to ``dt_max`` (s; rounded down to a size of the ladder), never
+    beyond the step the run itself would take next (the friction law's limit, a step cut) and
+    ending on the horizon with the largest sizes that fit. Each size's linear system (with rock
+    pore pressure the bulk's factors depend on the step size) is factorised once and kept here:
+    every look-ahead given this ladder (the plans, the advice's bisection, later refreshes of the
+    same run) shares them, read-only. Valid for the forks of one run (its discretisation and
+    scaling). ``factorizations``: how many the look-aheads on it have made so far."""
+
+    def __init__(self, dt_max: float):
+        dt_max = float(dt_max)
+        if not (dt_max > 0 and math.isfinite(dt_max)):
+            raise ValueError(f"look-ahead steps: the ladder's dt_max {dt_max!r} must be > 0")
+        self.dt_max = dt_max
+        self.factorizations = 0
+        self._systems = {}        # step size (s) -> the solver's linear system prepared for it
+        self._disc = None         # the discretisation of the run whose forks use the ladder
+
+    def scene_for(self, scene):
+        """The scene whose step sequence proposes the ladder's steps (doubling up to dt_max)."""
+        return scene.replace(time=dataclasses.replace(scene.time, growth=2.0, dt_max=self.dt_max))
+
+    def rungs(self, dt0: float) -> np.ndarray:
+        """The sizes, largest first: dt0 * 2^k up to dt_max (dt0 alone when dt_max is smaller)."""
+        sizes = [float(dt0)]
+        while sizes[-1] * 2.0 <= self.dt_max * (1 + 1e-12):
+            sizes.append(sizes[-1] * 2.0)
+        return np.array(sizes[::-1])
+
+    def set_step(self, sim, rungs, end) -> int:
+        """Make the next step of ``sim`` the largest size of ``rungs`` within both the step it
+        would take and what is left to ``end``, on that size's kept linear system. Returns the
+        factorisations of that system so far (for ``keep``)."""
+        if self._disc is None:
+            self._disc = sim.disc
+        elif sim.disc is not self._disc:
+            raise ValueError("a step ladder serves the forks of one run: make one per run")
+        room = min(sim.dt, end - sim.time)
+        fit = rungs[rungs <= room * (1 + 1e-12)]
+        dt = float(fit[0]) if fit.size else float(end - sim.time)
+        sim.dt = dt
+        solver = sim.solver
+        kept = self._systems.get(dt)
+        if kept is not None and solver.system.dt != dt:
+            solver.system = kept.fork()
+        return solver.system.factorizations
+
+    def keep(self, sim, factorizations_before: int):
+        """Keep the linear system of the step just taken (a size not kept before)."""
+        system = sim.solver.system
+        self.factorizations += system.factorizations - factorizations_before
+        if system.dt is not None and system.dt not in self._systems:
+            self._systems[system.dt] = system.fork()
 
 
 def _time_steps(scene, growth, dt_max):

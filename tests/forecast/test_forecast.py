@@ -17,7 +17,7 @@ import fault_screen
 from conftest import CONFIGS, VERIFICATION
 from fault_screen import Scene, Simulation
 from fault_screen.screening.stepwise import StepScreening
-from fault_screen.forecast import LookAhead, Plan, PlanError, advise, parse_duration, parse_plan
+from fault_screen.forecast import LookAhead, Plan, PlanError, StepLadder, advise, parse_duration, parse_plan
 from fault_screen.forecast.lookahead import screening_of
 from fault_screen.screening import GREEN, YELLOW
 
@@ -299,3 +299,16 @@ def test_longer_steps_grow_from_the_run_step_and_stay_within_a_step(rustrel_run)
     assert abs(f.time_to_yellow - 90.0) <= steps[i - 1]
     with pytest.raises(ValueError, match="growth"):
         LookAhead(sim, screening, growth=0.5)
+
+
+def test_a_step_ladder_finds_yellow_within_its_step(rustrel_run):
+    """Doubling from the run's 5 s step up to 40 s (5, 10, 20, 40, 40...): the plan hold reaches
+    yellow within the step that holds the exact 90 s (a step ends at 75 s, the next at 115 s)."""
+    sim, screening = rustrel_run
+    f = LookAhead(sim, screening, ladder=StepLadder(40.0)).run(parse_plan("hold"), 180.0)
+    steps = np.diff(f.time)
+    assert np.array_equal(steps[:4], [5.0, 10.0, 20.0, 40.0]) and set(steps) <= {5.0, 10.0, 20.0, 40.0}
+    assert f.time[-1] == NOW + 180.0
+    assert 90.0 <= f.time_to_yellow <= 115.0
+    with pytest.raises(ValueError, match="not both"):
+        LookAhead(sim, screening, ladder=StepLadder(40.0), growth=1.2)

@@ -5,7 +5,7 @@ import pytest
 
 from fault_screen import Simulation
 from fault_screen.simulate import simulate
-from test_stepper import CASES, _arrays, _assert_identical
+from test_stepper import CASES, _arrays, _assert_identical, poroelastic_growing
 
 
 @pytest.fixture(scope="module", params=list(CASES))
@@ -72,5 +72,32 @@ def test_a_fork_shares_the_factors_and_makes_its_own_for_other_steps(case):
     if not system.factors_any_dt:
         assert longer.solver.factorizations > made      # its own factors for the new sizes
     assert system.lu is lu and system.P is P and sim.solver.factorizations == made
+    sim.advance(scene.time.end)
+    _assert_identical(sim.result(), reference)
+
+
+def test_a_step_ladder_factorises_each_size_once_for_every_look_ahead():
+    """The poroelastic scene (its bulk factors depend on the step size) at 2 s steps, looked
+    ahead 100 s on a ladder up to 16 s: steps 2, 4, 8, then 16 s, ending on the horizon with the
+    largest sizes that fit (94 s + 4 + 2); three sizes factorised (4, 8, 16 s; the run's 2 s
+    factors are shared), none for a second plan or a later look-ahead on the same ladder, and
+    the run continues bit-identically to one that never looked ahead."""
+    import dataclasses
+
+    from fault_screen.forecast import LookAhead, StepLadder, parse_plan
+    from test_forecast import run_to
+
+    scene = poroelastic_growing()
+    scene = scene.replace(time=dataclasses.replace(scene.time, end=160.0, growth=1.0, dt_max=2.0))
+    reference = simulate(scene)
+    sim, screening = run_to(scene, 40.0)
+    ladder = StepLadder(16.0)
+    hold = LookAhead(sim, screening, ladder=ladder).run(parse_plan("hold"), 100.0)
+    assert np.array_equal(np.diff(hold.time), [2, 4, 8, 16, 16, 16, 16, 16, 4, 2])
+    assert hold.time[-1] == 140.0 and ladder.factorizations == 3
+    LookAhead(sim, screening, ladder=ladder).run(parse_plan("stop"), 100.0)
+    sim.advance(50.0, align=True)
+    later = LookAhead(sim, screening, ladder=ladder).run(parse_plan("scale:2"), 50.0)
+    assert later.time[-1] == 100.0 and ladder.factorizations == 3
     sim.advance(scene.time.end)
     _assert_identical(sim.result(), reference)
