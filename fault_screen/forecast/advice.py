@@ -6,7 +6,8 @@ a rate ``1 + tolerance`` times it (or more) reaches it, as far as the level grow
 rate. Under pressure control the same is done with a constant overpressure. When even rate 0
 reaches the level (a rule's hold keeping it counts), the fault is going there whatever the
 injection does next (Basel 2006: the largest event came after the shut-in); the advice says so
-and advises 0.
+and advises 0. The evaluations share the fork point, and with a step ladder its factorisations;
+a rate's look-ahead stops once it reaches the level.
 """
 from __future__ import annotations
 
@@ -74,7 +75,9 @@ def advise(lookahead: LookAhead, horizon: float, *, level: int = YELLOW, max_rat
     forecasts = []
 
     def reaches(value: float) -> bool:
-        f = lookahead.run(Plan.constant(value, control), horizon)
+        # a rate above 0 stops at the level (whether it is reached is all the bisection asks);
+        # shut-in runs the whole horizon: when it reaches the level, its forecast is the advice
+        f = lookahead.run(Plan.constant(value, control), horizon, until=level if value > 0 else None)
         forecasts.append(f)
         return f.reaches(level)
 

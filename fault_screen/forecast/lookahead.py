@@ -140,8 +140,10 @@ class LookAhead:
     def control(self) -> str:
         return self.state.scene.injection.control
 
-    def run(self, plan: Plan, horizon: float) -> Forecast:
-        """The forecast of ``plan`` over ``horizon`` (s) from now, on a fork."""
+    def run(self, plan: Plan, horizon: float, *, until: Optional[int] = None) -> Forecast:
+        """The forecast of ``plan`` over ``horizon`` (s) from now, on a fork. ``until``: stop at
+        the first row ahead at this level or above (what the advice asks: whether the level is
+        reached); the forecast's rows then end there and ``stopped`` says so."""
         wall0 = _time.perf_counter()
         sim = self.state.fork()
         if self.time_steps is not None:
@@ -168,9 +170,15 @@ class LookAhead:
             levels.append(int(level))
             for k, v in record.items():
                 rows.setdefault(k.rsplit("/", 1)[1], []).append(v)
+            if until is not None and level >= until:
+                break
+        stopped = (sim.stopped or {}).get("message")
+        if until is not None and levels[-1] >= until and len(levels) > 1 and sim.time < end * (1 - 1e-12):
+            stopped = (f"look-ahead stopped at t = {sim.time:.6g} s, where it reached "
+                       f"{LEVEL_NAMES[levels[-1]]}")
         return _summarise(self.made_at, plan.name, float(horizon), np.array(times), np.array(levels),
                           {k: np.asarray(v, dtype=float) for k, v in rows.items()},
-                          _time.perf_counter() - wall0, (sim.stopped or {}).get("message"))
+                          _time.perf_counter() - wall0, stopped)
 
 
 class StepLadder:

@@ -220,6 +220,12 @@ def test_advice_bracket_on_impermeable_rustrel(rustrel_now):
     assert not advice.even_zero_reaches and advice.upper is not None
     assert advice.upper - advice.rate <= 0.02 * advice.rate
     assert 0 < advice.rate < 22e-3 / 60          # below the rate that reaches yellow at 390 s
+    # a rate's look-ahead that reaches yellow ends at its first yellow row
+    reached = [f for f in advice.forecasts if f.reaches(YELLOW)]
+    assert reached
+    for f in reached:
+        assert np.flatnonzero(f.level[1:] >= YELLOW).tolist() == [len(f.level) - 2]
+        assert f.time[-1] - NOW == f.time_to_yellow < horizon and "reached yellow" in f.stopped
     scene = Scene.from_toml(CONFIGS / f"{IMPERMEABLE}.toml")
     scene = scene.replace(time=dataclasses.replace(scene.time, end=NOW + horizon))
     from fault_screen.schedule import StepSchedule
