@@ -23,6 +23,9 @@ __all__ = ["Advice", "advise"]
 #: the bisection stops after this many look-aheads whatever the bracket
 MAX_EVALUATIONS = 40
 
+#: steps down from a rate that reaches the level before the bracket's lower end is taken as 0
+BRACKET_STEPS = 6
+
 
 @dataclass
 class Advice:
@@ -63,9 +66,12 @@ class Advice:
 
 
 def advise(lookahead: LookAhead, horizon: float, *, level: int = YELLOW, max_rate: Optional[float] = None,
-           tolerance: float = 0.02) -> Advice:
+           tolerance: float = 0.02, near: Optional[float] = None) -> Advice:
     """Bisect for the largest constant rate (overpressure) in [0, ``max_rate``] whose look-ahead
-    from ``lookahead``'s state stays below ``level`` over ``horizon`` (s)."""
+    from ``lookahead``'s state stays below ``level`` over ``horizon`` (s). ``near``: a rate
+    expected close to the answer (the last advice of a live run): the bracket is first sought
+    around it, widening 2 ``tolerance``, then twice that, ... until one side stays below and the
+    other reaches the level (the same bracket, in fewer look-aheads when the answer moved little)."""
     control = lookahead.control
     if max_rate is None:
         max_rate = 2.0 * largest_rate_so_far(lookahead.state, lookahead.drive)
@@ -85,9 +91,16 @@ def advise(lookahead: LookAhead, horizon: float, *, level: int = YELLOW, max_rat
                max_rate=float(max_rate), forecasts=forecasts)
     if reaches(0.0):
         return Advice(rate=0.0, upper=0.0, even_zero_reaches=True, evaluations=1, **out)
-    if not reaches(max_rate):
-        return Advice(rate=float(max_rate), upper=None, even_zero_reaches=False, evaluations=2, **out)
-    lo, hi = 0.0, float(max_rate)
+    max_rate = float(max_rate)
+    if near is not None and 0.0 < near < max_rate:
+        lo, hi = _bracket(reaches, float(near), max_rate, 2.0 * tolerance)
+        if hi is None:
+            return Advice(rate=max_rate, upper=None, even_zero_reaches=False,
+                          evaluations=len(forecasts), **out)
+    elif not reaches(max_rate):
+        return Advice(rate=max_rate, upper=None, even_zero_reaches=False, evaluations=2, **out)
+    else:
+        lo, hi = 0.0, max_rate
     while hi - lo > tolerance * lo and len(forecasts) < MAX_EVALUATIONS:
         mid = 0.5 * (lo + hi)
         if reaches(mid):
@@ -95,3 +108,27 @@ def advise(lookahead: LookAhead, horizon: float, *, level: int = YELLOW, max_rat
         else:
             lo = mid
     return Advice(rate=lo, upper=hi, even_zero_reaches=False, evaluations=len(forecasts), **out)
+
+
+def _bracket(reaches, near, max_rate, widen):
+    """(lo, hi) around ``near``: lo stays below the level (0 is known to), hi reaches it (None:
+    not even ``max_rate`` does); each step away from ``near`` is ``widen`` times it, doubling
+    (after BRACKET_STEPS down, lo is 0 and the bisection does the rest)."""
+    if reaches(near):
+        hi = near
+        for _ in range(BRACKET_STEPS):
+            value = hi / (1.0 + widen)
+            if not reaches(value):
+                return value, hi
+            hi = value
+            widen *= 2.0
+        return 0.0, hi
+    lo = near
+    while True:
+        value = min(lo * (1.0 + widen), max_rate)
+        if reaches(value):
+            return lo, value
+        if value >= max_rate:
+            return max_rate, None
+        lo = value
+        widen *= 2.0

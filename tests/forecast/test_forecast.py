@@ -226,6 +226,12 @@ def test_advice_bracket_on_impermeable_rustrel(rustrel_now):
     for f in reached:
         assert np.flatnonzero(f.level[1:] >= YELLOW).tolist() == [len(f.level) - 2]
         assert f.time[-1] - NOW == f.time_to_yellow < horizon and "reached yellow" in f.stopped
+    # from a hint 10 % above (a live run's last advice) the same bracket in fewer look-aheads:
+    # down 4 % (still reaching), down 8 % more (below), then bisection to 2 %
+    again = advise(rustrel_now, horizon, near=1.1 * advice.rate)
+    assert again.upper - again.rate <= 0.02 * again.rate
+    assert again.rate < advice.upper and advice.rate < again.upper      # the brackets overlap
+    assert again.evaluations < advice.evaluations
     scene = Scene.from_toml(CONFIGS / f"{IMPERMEABLE}.toml")
     scene = scene.replace(time=dataclasses.replace(scene.time, end=NOW + horizon))
     from fault_screen.schedule import StepSchedule
