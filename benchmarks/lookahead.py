@@ -157,8 +157,7 @@ Scenes: the default scene is `configs/rustrel-2015-calibrated-paper-units.toml`,
 The SI reading of the same table, `configs/rustrel-2015-calibrated.toml`, drains through its
 damage zone: its fault barely pressurises (0.08 MPa at 700 s), its largest utilisation stays at
 its in-situ 0.4537 whatever the plan, and it never leaves green.
-An earlier version of this page timed that scene: its identical rows for every plan were the
-physics of that scene, not a property of the look-ahead.
+Timed there, every plan gives the same rows: the physics of that scene, not the look-ahead.
 """
 
 
