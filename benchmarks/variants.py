@@ -164,8 +164,8 @@ def main():
         names = ["plain", *names]
     load0 = os.getloadavg()[0]
     child("plain")  # numba's cache in place
-    head = ("variant", "steps", "cuts", "Newton", "wall", "wall / plain", "CPU / plain", "CPU per step / plain",
-            "finite", "balance", "end")
+    head = ("variant", "steps", "cuts", "Newton", "wall", "wall / plain", "CPU / plain",
+            "CPU per step / plain", "finite", "balance", "end")
     table = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     plain = None
     for name in names:

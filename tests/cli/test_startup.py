@@ -61,7 +61,8 @@ def test_package_names_resolve_to_their_definitions():
     code = ("import sys, fault_screen as fs\n"
             "before = sorted(m for m in ('numba', 'scipy', 'fault_screen.stepper') if m in sys.modules)\n"
             "import fault_screen.simulate, fault_screen.api, fault_screen.stepper, fault_screen.scene\n"
-            "print(before, fs.simulate is fault_screen.api.simulate, fs.Simulation is fault_screen.stepper.Simulation,"
+            "print(before, fs.simulate is fault_screen.api.simulate,"
+            " fs.Simulation is fault_screen.stepper.Simulation,"
             " fs.SceneError is fault_screen.scene.SceneError, callable(fs.simulate))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.stdout.split() == ["[]", "True", "True", "True", "True"], out.stderr[-2000:]
