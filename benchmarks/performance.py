@@ -16,9 +16,12 @@ Rows (keys for --skip in brackets):
   stepper's progress callback; peak memory of that process.
 - [cold] the first `fault-screen run` (bundled scene, result written) in a new process with an
   empty numba cache (JIT compilation included), then three more with that cache (best and
-  slowest).
-- [busy] the warm replay again while two CPU-bound processes run (3 processes on 2 cores), with
-  the default BLAS threading (no OPENBLAS_NUM_THREADS set).
+  slowest); where a warm `fault-screen run` spends its time (imports, numba's cache loads of
+  the kernels, the rest), timed inside one process; `fault-screen --help` in a new process.
+- [busy] the warm replay again while two CPU-bound processes run (3 processes on 2 cores), right
+  after the same replay alone, with the default BLAS threading (no OPENBLAS_NUM_THREADS set) and
+  with OPENBLAS_NUM_THREADS=1: wall against the isolated run, CPU against the isolated run's
+  (threads spinning would raise it) and the share of a core the run got (CPU / wall).
 - [slip] each fluid-driven-slip verification scene at bundled resolution, warm, and its slip
   error against the reference (relative L2 at the end, as tests/verification/test_verification_*.py).
 - [refined] Rustrel on a 200 x 201 mesh (4x refinement), whole run.
@@ -114,6 +117,40 @@ def run_case(case: str) -> dict:
     return out
 
 
+def run_split() -> dict:
+    """Where a warm `fault-screen run` of the bundled scene spends its time, in one process:
+    the imports (the CLI, then the model's modules: numba, scipy, h5py), numba's cache loads
+    of the kernels (each kernel's first call), and the rest (scene, model, steps, screening,
+    result file, summary)."""
+    t0, c0 = time.perf_counter(), time.process_time()
+    import fault_screen.cli
+    import fault_screen.api  # noqa: F401 - the model's modules, as `run` imports them
+    t1, c1 = time.perf_counter(), time.process_time()
+    from numba.core.dispatcher import Dispatcher
+
+    loads = []
+    compile_ = Dispatcher.compile
+
+    def timed(self, sig):
+        start = time.perf_counter()
+        try:
+            return compile_(self, sig)
+        finally:
+            loads.append(time.perf_counter() - start)
+
+    Dispatcher.compile = timed
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            fault_screen.cli.main(["run", "--out", str(Path(tmp) / "r.h5"), "--quiet"],
+                                  prog_name="fault-screen", standalone_mode=False)
+        finally:
+            Dispatcher.compile = compile_
+    t2, c2 = time.perf_counter(), time.process_time()
+    return dict(imports=t1 - t0, kernels=sum(loads), n_kernels=len(loads),
+                first_kernel=loads[0] if loads else 0.0, rest=t2 - t1 - sum(loads), total=t2 - t0,
+                cpu_imports=c1 - c0, cpu=c2 - c0)
+
+
 def child(case: str, env=None, timeout=CASE_TIMEOUT) -> dict:
     try:
         out = subprocess.run([sys.executable, __file__, "--case", case], capture_output=True,
@@ -139,6 +176,14 @@ def cli_run(env) -> tuple[float, float]:
         raise RuntimeError(out.stderr)
     rss = [line.split()[1] for line in out.stderr.splitlines() if line.startswith("MAXRSS")]
     return wall, float(rss[-1]) / 1024.0
+
+
+def cli_help(env) -> float:
+    """Wall time (s) of `fault-screen --help` in a fresh process."""
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-c", "from fault_screen.cli import main; main(['--help'])"],
+                   capture_output=True, text=True, cwd=ROOT, env=env, timeout=CASE_TIMEOUT, check=True)
+    return time.perf_counter() - t0
 
 
 def _env(tree=ROOT, **extra):
@@ -168,7 +213,7 @@ def main():
     ap.add_argument("--no-doc", action="store_true", help="do not write docs/performance/performance.md")
     args = ap.parse_args()
     if args.case:
-        print(json.dumps(run_case(args.case)))
+        print(json.dumps(run_split() if args.case == "split" else run_case(args.case)), flush=True)
         return
     rows = []
 
@@ -187,7 +232,6 @@ def main():
         row("median wall per step, Rustrel", "~10 ms", "<= 3 ms", f"{r['step_ms']:.1f} ms")
         row("peak memory of the process, Rustrel (compilation included)", "264 MB", "<= 300 MB",
             f"{r['peak_mb']:.0f} MB warm")
-        isolated = r["wall"]
     if "cold" not in args.skip:
         with tempfile.TemporaryDirectory() as cache:
             cold, cold_mb = cli_run(_env(NUMBA_CACHE_DIR=cache))
@@ -197,17 +241,38 @@ def main():
             f"{_s(cold)}; later processes {_s(later[0])} (best of 3; slowest {_s(later[-1])})")
         if "replay" not in args.skip:
             rows[2] = rows[2][:3] + (f"{cold_mb:.0f} MB cold (`fault-screen run`); {r['peak_mb']:.0f} MB warm",)
-    if "busy" not in args.skip and "replay" not in args.skip:
-        hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
-        try:
-            time.sleep(0.5)
-            b = child("rustrel", env)
-        finally:
-            for h in hogs:
-                h.kill()
-                h.wait()
-        row("Rustrel warm with 2 competing CPU-bound processes (default BLAS threads)", "8.6-41 s",
-            "<= 2.5x the isolated time", f"{_wc(b)} = {b['wall'] / isolated:.1f}x isolated")
+        split = min((child("split", env) for _ in range(3)), key=lambda r: r["total"])
+        row("where a warm `fault-screen run` spends its time (in one process, best of 3)", "~1.1 s imports, "
+            "~0.8 s 24 kernels, ~2 s the rest", "<= 2 s in all",
+            f"{_s(split['total'])} (CPU {_s(split['cpu'])}): imports {_s(split['imports'])} "
+            f"(CPU {_s(split['cpu_imports'])}), numba's cache loads "
+            f"{_s(split['kernels'])} ({split['n_kernels']} kernels; the first, with numba's own set-up, "
+            f"{_s(split['first_kernel'])}), scene, model, steps and result {_s(split['rest'])}")
+        helps = sorted(cli_help(env) for _ in range(3))
+        row("`fault-screen --help` in a fresh process (imports no model)", "-", "-",
+            f"{_s(helps[0])} (best of 3; slowest {_s(helps[-1])})")
+    if "busy" not in args.skip:
+        # isolated and busy back to back, the BLAS threads as the user has them and forced to one:
+        # the CPU time shows whether threads spin (CPU above the isolated run's), the CPU share
+        # (CPU / wall) what the scheduler gave the run
+        for label, case_env in (("default BLAS threads", env),
+                                ("OPENBLAS_NUM_THREADS=1", _env(OPENBLAS_NUM_THREADS="1"))):
+            alone = child("rustrel", case_env)
+            hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
+            try:
+                time.sleep(0.5)
+                b = child("rustrel", case_env)
+                load_busy = os.getloadavg()[0]
+            finally:
+                for h in hogs:
+                    h.kill()
+                    h.wait()
+            row(f"Rustrel warm with 2 competing CPU-bound processes ({label})", "8.6-41 s",
+                "<= 2.5x the isolated time",
+                f"{_wc(b)} = {b['wall'] / alone['wall']:.1f}x isolated ({_wc(alone)} just before); CPU "
+                f"{b['cpu'] / alone['cpu']:.2f}x isolated; CPU share {b['cpu'] / b['wall']:.2f} of a core "
+                f"(load average {load_busy:.1f} at its end; 3 equal processes on 2 cores alone would "
+                f"get 0.67)")
     if "slip" not in args.skip:
         for name in SLIP_SCENES:
             s = child(name, env)

@@ -9,23 +9,60 @@ from __future__ import annotations
 import click
 
 from ._options import Group, version_option
-from .accuracy import accuracy
-from .calibrate import calibrate
-from .ensemble import ensemble
-from .forecast import forecast
-from .monitor import monitor
-from .plot import plot
-from .plugins import plugins
-from .replay import replay
-from .run import run
-from .scene import scene
-from .screen import screen
-from .sensitivity import sensitivity
 
 __all__ = ["main"]
 
+#: the commands; each is the function of that name in the module of that name in this package
+COMMANDS = ("accuracy", "calibrate", "ensemble", "forecast", "monitor", "plot", "plugins", "replay",
+            "run", "scene", "screen", "sensitivity")
 
-@click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"]})
+
+class LazyGroup(Group):
+    """The command group, importing a command's module only when that command is asked for:
+    ``fault-screen run`` does not import the monitor's, the forecast's or the plots' modules,
+    and ``fault-screen --help`` none of them until it lists them."""
+
+    def list_commands(self, ctx):
+        return sorted(set(COMMANDS) | set(self.commands))
+
+    def get_command(self, ctx, cmd_name):
+        if cmd_name in self.commands or cmd_name not in COMMANDS:
+            return self.commands.get(cmd_name)
+        command = _import_command(cmd_name)
+        self.add_command(command, cmd_name)
+        return command
+
+
+def _import_command(name: str) -> click.Command:
+    # each import written out, so that the import graph (tests/package/test_import_cycles.py) sees it
+    if name == "accuracy":
+        from .accuracy import accuracy as command
+    elif name == "calibrate":
+        from .calibrate import calibrate as command
+    elif name == "ensemble":
+        from .ensemble import ensemble as command
+    elif name == "forecast":
+        from .forecast import forecast as command
+    elif name == "monitor":
+        from .monitor import monitor as command
+    elif name == "plot":
+        from .plot import plot as command
+    elif name == "plugins":
+        from .plugins import plugins as command
+    elif name == "replay":
+        from .replay import replay as command
+    elif name == "run":
+        from .run import run as command
+    elif name == "scene":
+        from .scene import scene as command
+    elif name == "screen":
+        from .screen import screen as command
+    else:
+        from .sensitivity import sensitivity as command
+    return command
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @version_option
 def main():
     """Induced-seismicity screening: coupled hydro-mechanical X-FEM model of fluid injection
@@ -50,16 +87,3 @@ def main():
     3 the fault became unstable, 4 the --fail-on screening level was reached.
     """
 
-
-main.add_command(run)
-main.add_command(replay)
-main.add_command(plot)
-main.add_command(scene)
-main.add_command(screen)
-main.add_command(calibrate)
-main.add_command(sensitivity)
-main.add_command(ensemble)
-main.add_command(accuracy)
-main.add_command(monitor)
-main.add_command(plugins)
-main.add_command(forecast)

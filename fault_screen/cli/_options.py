@@ -77,11 +77,12 @@ def reading(what: str | None = None):
 def to_exit(exc: BaseException) -> click.ClickException | None:
     """The click exception (message + exit code) for an error escaping a command, or None to
     let it propagate (click's own exceptions, aborts, exits)."""
-    from ..simulate import SimulationError
-
     if isinstance(exc, (click.ClickException, click.exceptions.Exit, click.Abort,
                         KeyboardInterrupt, SystemExit)):
         return None
+    # after click's own exits (--help among them), which need no model imported
+    from ..simulate import SimulationError
+
     if isinstance(exc, SimulationError):
         return RunFailed(f"simulation failed: {exc}")
     from ..scene import SceneError

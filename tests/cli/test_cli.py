@@ -489,7 +489,7 @@ def test_out_is_a_file_and_out_dir_a_folder_on_every_command(command):
     write a folder show --out-dir DIR and hide the old --out."""
     from fault_screen.cli import main as group
 
-    cmd = group.commands[command]
+    cmd = group.get_command(None, command)
     shown = {opt: p for p in cmd.params if isinstance(p, click.Option) and not p.hidden
              for opt in p.opts}
     if command in FOLDER_COMMANDS:
@@ -521,7 +521,7 @@ def test_plot_out_dir_and_the_old_spelling_with_a_warning(tmp_path, scene_file):
 def test_every_command_that_takes_a_scene_has_set(command):
     from fault_screen.cli import main as group
 
-    (opt,) = [p for p in group.commands[command].params if "--set" in getattr(p, "opts", ())]
+    (opt,) = [p for p in group.get_command(None, command).params if "--set" in getattr(p, "opts", ())]
     assert opt.multiple and opt.metavar == "KEY=VALUE"
 
 
@@ -560,5 +560,5 @@ def test_documented_exit_codes_and_synopsis_match_the_code():
     # the module docstring that decides them lists the same five
     assert re.findall(r"^\* (\d) --", _options.__doc__, flags=re.M) == ["0", "1", "2", "3", "4"]
     synopsis = text[:text.index("Exit codes:")]
-    for name in group.commands:
+    for name in group.list_commands(None):
         assert f"fault-screen {name} " in synopsis, name

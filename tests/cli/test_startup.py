@@ -1,0 +1,68 @@
+"""What a command imports before it does anything: the commands that only read or list
+(``--help``, ``plugins``) never import numba, scipy or the model (fault_screen.stepper), and
+``run`` imports the modules of no other command. Counted in a fresh interpreter (sys.modules),
+never timed."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from fault_screen.cli import COMMANDS
+
+#: modules that a command which builds no model must not import
+MODEL_MODULES = ("numba", "scipy", "h5py", "fault_screen.stepper", "fault_screen.kernels")
+
+
+def imported_after(*argv: str) -> set[str]:
+    """Top modules and fault_screen modules in sys.modules after ``fault-screen ARGV`` (run
+    in a fresh interpreter; the command's exit code is ignored)."""
+    code = ("import sys, json, atexit\n"
+            "atexit.register(lambda: print('MODULES=' + json.dumps(sorted(sys.modules)), file=sys.stderr))\n"
+            "from fault_screen.cli import main\n"
+            f"main({list(argv)!r}, prog_name='fault-screen')\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    (line,) = [x for x in out.stderr.splitlines() if x.startswith("MODULES=")]
+    return set(json.loads(line[len("MODULES="):]))
+
+
+@pytest.mark.parametrize("argv", [("--help",), ("run", "--help")])
+def test_help_imports_no_model(argv):
+    modules = imported_after(*argv)
+    loaded = sorted(m for m in modules if m.split(".")[0] in MODEL_MODULES or
+                    any(m == p or m.startswith(p + ".") for p in MODEL_MODULES))
+    assert loaded == [], loaded
+
+
+def test_run_help_imports_no_other_command():
+    """Of the 12 command modules, ``run --help`` imports exactly one: run's."""
+    modules = imported_after("run", "--help")
+    commands = sorted(c for c in COMMANDS if f"fault_screen.cli.{c}" in modules)
+    assert len(COMMANDS) == 12
+    assert commands == ["run"]
+
+
+def test_every_command_is_listed_and_found():
+    """The lazy group lists the 12 commands and resolves each to the command of that name."""
+    from fault_screen.cli import main
+
+    assert main.list_commands(None) == sorted(COMMANDS)
+    for name in COMMANDS:
+        assert main.get_command(None, name).name == name
+    assert main.get_command(None, "no-such-command") is None
+
+
+def test_package_names_resolve_to_their_definitions():
+    """The package's names, imported on first use, are the objects of their modules; the
+    function ``simulate`` stays the package's name after the module ``fault_screen.simulate``
+    (which has the same name) is imported."""
+    code = ("import sys, fault_screen as fs\n"
+            "before = sorted(m for m in ('numba', 'scipy', 'fault_screen.stepper') if m in sys.modules)\n"
+            "import fault_screen.simulate, fault_screen.api, fault_screen.stepper, fault_screen.scene\n"
+            "print(before, fs.simulate is fault_screen.api.simulate,"
+            " fs.Simulation is fault_screen.stepper.Simulation,"
+            " fs.SceneError is fault_screen.scene.SceneError, callable(fs.simulate))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.stdout.split() == ["[]", "True", "True", "True", "True"], out.stderr[-2000:]
