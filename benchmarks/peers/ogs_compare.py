@@ -42,33 +42,28 @@ PROJECT = HERE / "rustrel-pressure.prj"
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-#: the model times (s) at which the slip at the injection point is compared
-COMPARE_TIMES = (100.0, 300.0, 900.0)
-LX = LY = 250.0
-FAULT_Y = INJECTION_X = 125.0
-UNIFORM_ELEMENTS = 50
-#: the graded mesh: elements of SIZE m within HALF_WIDTH of the injection point, growing by
-#: GROWTH outside (fault_screen's [mesh.refinement])
-SIZE, HALF_WIDTH, GROWTH = 1.0, (40.0, 2.0), 1.15
+from ogs_mesh import (FAULT_Y, GROWTH, HALF_WIDTH, INJECTION_X, SIZE, ogs_node_lines,  # noqa: E402
+                      write_ogs_meshes)
 
-
-def ogs_node_lines(graded: bool):
-    """OGS's node lines (x, y), the fault's y and the injection point's x (m)."""
-    if not graded:
-        lines = np.linspace(0.0, LX, UNIFORM_ELEMENTS + 1)
-        return lines, np.linspace(0.0, LY, UNIFORM_ELEMENTS + 1), FAULT_Y, INJECTION_X
-    from fault_screen.mesh import graded_line
-
-    return (graded_line(0.0, LX, INJECTION_X, HALF_WIDTH[0], SIZE, GROWTH),
-            graded_line(0.0, LY, FAULT_Y, HALF_WIDTH[1], SIZE, GROWTH), FAULT_Y, INJECTION_X)
+#: the model times (s) at which the slip at the injection point is compared: step ends (OGS
+#: would shorten a step to reach an output time between them)
+COMPARE_TIMES = (120.0, 300.0, 900.0)
 #: OGS's time step (s): the one of the scene, kept equal in both files
 DT = 30.0
+#: largest slip (m) either code may show after one step without injection (a fault shear
+#: traction of the wrong sign in the twin would jump it by 2 tau0 / kS = 1.7e-4 m)
+AT_REST_SLIP = 1e-8
 
 
-def our_scene_text(graded: bool, end: float) -> str:
+OVERPRESSURE = 2.8e6
+
+
+def our_scene_text(graded: bool, end: float, overpressure: float = OVERPRESSURE) -> str:
     """Our scene as TOML text: the bundled file, graded like OGS's graded mesh on request (the
-    fault then in the middle of the finest element row), ended at ``end`` (s)."""
+    fault then in the middle of the finest element row), ended at ``end`` (s), the injection
+    point held at ``overpressure`` (Pa)."""
     text = SCENE.read_text(encoding="utf-8").replace("end = 900.0", f"end = {end!r}")
+    text = text.replace('"schedule[MPa]" = [[0.0, 2.8]]', f"schedule = [[0.0, {overpressure!r}]]")
     if graded:
         text = text.replace("[fault]\n", f"[fault]\npoint = [{INJECTION_X!r}, {FAULT_Y + 0.5 * SIZE!r}]\n")
         text += (f"\n[mesh.refinement]\ncenter = [{INJECTION_X!r}, {FAULT_Y!r}]\n"
@@ -93,14 +88,16 @@ run = time.perf_counter() - t0
 nx, ny = mesh_shape(scene)
 print(json.dumps({"time": r.time.tolist(), "slip": np.abs(r.injection["slip"]).tolist(),
                   "iterations": int(np.sum(r.solver["iterations"])), "steps": len(r.time) - 1,
-                  "elements": nx * ny, "unknowns": int(sim.x.size), "run": run}))
+                  "elements": nx * ny, "unknowns": int(sim.x.size), "run": run,
+                  "largest_slip": float(np.max(np.abs(r.fault["slip"][-1])))}))
 """
 
 
-def run_ours(graded: bool, end: float) -> dict:
+def run_ours(graded: bool, end: float, overpressure: float = OVERPRESSURE) -> dict:
     """One whole process of ours: its wall time and what it printed."""
     t0 = time.perf_counter()
-    out = subprocess.run([sys.executable, "-c", _OURS, str(HERE)], input=our_scene_text(graded, end),
+    out = subprocess.run([sys.executable, "-c", _OURS, str(HERE)],
+                         input=our_scene_text(graded, end, overpressure),
                          capture_output=True, text=True, check=True)
     wall = time.perf_counter() - t0
     row = json.loads(out.stdout.strip().splitlines()[-1])
@@ -113,14 +110,18 @@ def compared_times(end: float) -> tuple:
     return tuple(t for t in COMPARE_TIMES if t <= end + 1e-9) or (end,)
 
 
-def ogs_project(end: float, path: Path) -> Path:
-    """rustrel-pressure.prj with its end, number of steps and output times set for ``end``."""
+def ogs_project(end: float, path: Path, overpressure: float = OVERPRESSURE) -> Path:
+    """rustrel-pressure.prj with its end, number of steps and output times set for ``end`` and
+    the injection point held at ``overpressure`` (Pa)."""
     parser = ET.XMLParser(target=ET.TreeBuilder(insert_comments=True))
     tree = ET.parse(PROJECT, parser=parser)
     stepping = tree.find("time_loop/processes/process/time_stepping")
     stepping.find("t_end").text = f"{end:g}"
     stepping.find("timesteps/pair/repeat").text = str(int(round(end / DT)))
     tree.find("time_loop/output/fixed_output_times").text = " ".join(f"{t:g}" for t in compared_times(end))
+    for parameter in tree.iterfind("parameters/parameter"):
+        if parameter.findtext("name") == "injection_overpressure":
+            parameter.find("value").text = repr(float(overpressure))
     tree.write(path, encoding="ISO-8859-1", xml_declaration=True)
     return path
 
@@ -133,16 +134,15 @@ def read_point_array(vtu: Path, name: str, components: int) -> np.ndarray:
     raise KeyError(f"{vtu.name} has no point array {name!r}")
 
 
-def run_ogs(graded: bool, end: float, work: Path, threads: int) -> dict:
+def run_ogs(graded: bool, end: float, work: Path, threads: int, overpressure: float = OVERPRESSURE,
+            name: str | None = None) -> dict:
     """One whole ``ogs`` process on the mesh written by ogs_mesh.py: its wall time, the Newton
     iterations its log reports and the slip at the injection node at the compared times."""
-    from ogs_mesh import write_ogs_meshes
-
-    name = "graded" if graded else "uniform"
+    name = name or ("graded" if graded else "uniform")
     meshes, out = work / name / "meshes", work / name / "out"
     out.mkdir(parents=True, exist_ok=True)
     info = write_ogs_meshes(meshes, *ogs_node_lines(graded))
-    project = ogs_project(end, work / name / "rustrel-pressure.prj")
+    project = ogs_project(end, work / name / "rustrel-pressure.prj", overpressure)
     env = dict(os.environ, OMP_NUM_THREADS=str(threads))
     t0 = time.perf_counter()
     done = subprocess.run([shutil.which("ogs") or "ogs", "-m", str(meshes), "-o", str(out), str(project)],
@@ -157,11 +157,13 @@ def run_ogs(graded: bool, end: float, work: Path, threads: int) -> dict:
         [vtu] = out.glob(f"ogs_ts_*_t_{t:.6f}.vtu")
         jump = read_point_array(vtu, "displacement_jump1", 2)
         slip_at[t] = float(abs(jump[info["injection_node"], 0]))   # the fault is along x
+    largest_slip = float(np.max(np.abs(jump[:, 0])))             # zero off the fault
     executed = re.search(r"Simulation completed. It took ([0-9.eE+-]+) s", log)
     return {"wall": wall, "iterations": len(re.findall(r"Iteration #\d+ started", log)),
             "run": float(executed.group(1)) if executed else float("nan"),
             "steps": len(re.findall(r"Time step #\d+ started", log)) - 1,
             "elements": info["matrix_elements"], "nodes": info["nodes"], "slip_at": slip_at,
+            "largest_slip": largest_slip,
             "linear_solves": [float(s) for s in re.findall(r"Linear solver took ([0-9.eE+-]+) s", log)]}
 
 
@@ -195,9 +197,15 @@ def main(argv=None) -> int:
     version = re.search(r"version:\s*(\S+)", version).group(1)
     load0 = os.getloadavg()[0]
     times = compared_times(args.end)
-    run_ours(False, min(args.end, 2 * DT))        # numba's cache filled before anything is timed
     rows = []
     with tempfile.TemporaryDirectory(prefix="ogs_compare_") as tmp:
+        # both twins start from the same in-situ state in equilibrium: one step without injection
+        # leaves the fault where it is (see AT_REST_SLIP); this also fills numba's cache before timing
+        at_rest = (run_ours(False, DT, 0.0)["largest_slip"],
+                   run_ogs(False, DT, Path(tmp), args.ogs_threads, 0.0, name="at_rest")["largest_slip"])
+        print(f"at rest, one step: largest slip {at_rest[0]:.1e} m (ours), {at_rest[1]:.1e} m (OGS)")
+        if max(at_rest) > AT_REST_SLIP:
+            raise SystemExit(f"the scene and its OGS twin do not start in equilibrium: slip {at_rest} m")
         for mesh in args.meshes:
             graded = mesh == "graded"
             runs = [run_ours(graded, args.end) for _ in range(args.repeat)]
@@ -216,7 +224,7 @@ def main(argv=None) -> int:
     if not args.no_doc:
         from doc_tables import write
 
-        path = write("peers", "Side by side with OpenGeoSys", intro(args, version, rows), lines, load0)
+        path = write("peers", "Side by side with OpenGeoSys", intro(args, version, at_rest), lines, load0)
         # doc_tables names the script as benchmarks/<file name>: this one lives one folder down
         page = path.read_text(encoding="utf-8")
         path.write_text(page.replace("benchmarks/ogs_compare.py", "benchmarks/peers/ogs_compare.py", 1),
@@ -225,28 +233,36 @@ def main(argv=None) -> int:
     return 0
 
 
-def intro(args, version: str, rows: list[dict]) -> str:
+def intro(args, version: str, at_rest: tuple) -> str:
     end = args.end
-    shorter = "" if end >= 900.0 else f" (ended at {end:g} s instead of the scene's 900 s to keep OGS's runs short)"
+    shorter = ("" if end >= 900.0
+               else f" (ended at {end:g} s instead of the scene's 900 s to keep OGS's runs short)")
     return (
         f"The scene `benchmarks/peers/rustrel-pressure.toml` and its OpenGeoSys {version} twin "
-        "`benchmarks/peers/rustrel-pressure.prj` (HYDRO_MECHANICS_WITH_LIE, lower-interface elements; "
-        "OGS from the package index, `pip install \"ogs==6.5.*\"`): a Rustrel-like fault held at "
-        "2.8 MPa of overpressure at the injection point, impermeable elastic rock, constant friction "
-        "0.68, constant hydraulic aperture; what differs from the bundled Rustrel scene and why is at "
-        f"the top of the TOML. Fixed steps of {DT:g} s{shorter}, backward Euler in both. "
-        "Both codes run one after the other as whole processes: wall time from start to exit (ours: "
-        f"median of {args.repeat} runs with numba's cache warm; OGS: one run, direct solver Eigen "
-        f"SparseLU, OMP_NUM_THREADS={args.ogs_threads}). Newton iterations: the whole run's. Slip: "
-        "the tangential displacement jump at the injection point. In-process: ours from building the "
-        "model to its result (imports and numba's cache load left out), OGS's own \"Simulation completed. It took\". Meshes: `uniform` is OGS's 5-m mesh "
-        "(OGS 50 x 50 serendipity quadrilaterals with the fault on the middle node line; ours 50 x 51 "
-        "bilinear elements so that the fault crosses the middle of a row); `graded` has "
-        f"{SIZE:g}-m elements within {HALF_WIDTH[0]:g} m of the injection point along the fault and "
-        f"{HALF_WIDTH[1]:g} m across it, growing by {GROWTH:g} outside (the same node lines in both; "
-        "ours has the fault in the middle of the finest row). Elements: OGS's count is of "
-        "quadratic (8-node) elements, ours of bilinear ones.")
-
+        "`benchmarks/peers/rustrel-pressure.prj` (HYDRO_MECHANICS_WITH_LIE, lower-interface "
+        "elements; OGS from the package index, `pip install \"ogs==6.5.*\"`): a Rustrel-like fault "
+        "held at 2.8 MPa of overpressure at the injection point, impermeable elastic rock, constant "
+        "friction 0.68, constant hydraulic aperture; what differs from the bundled Rustrel scene "
+        f"and why is at the top of the TOML. Fixed steps of {DT:g} s{shorter}, backward Euler in "
+        "both.\n\n"
+        "Both codes run one after the other as whole processes; wall time from start to exit "
+        f"(ours: the median of {args.repeat} runs with numba's cache warm; OGS: one run). OGS "
+        "solves with Eigen's SparseLU (the wheel is built without MKL, so PardisoLU is refused) "
+        f"with OMP_NUM_THREADS={args.ogs_threads} (on this loaded machine one thread factorised "
+        "faster than OGS's default two). In-process: ours from building the model to its result "
+        "(imports and numba's cache load left out), OGS's own \"Simulation completed. It took\". "
+        "Newton iterations: the whole run's. Slip: the tangential displacement jump at the "
+        "injection point.\n\n"
+        "Meshes: `uniform` is OGS's 5-m mesh (OGS 50 x 50 serendipity quadrilaterals with the "
+        "fault on the middle node line; ours 50 x 51 bilinear elements, so that the fault crosses "
+        f"the middle of a row); `graded` has {SIZE:g}-m elements within {HALF_WIDTH[0]:g} m of the "
+        f"injection point along the fault and {HALF_WIDTH[1]:g} m across it, growing by "
+        f"{GROWTH:g} outside (the same node lines in both; ours has the fault in the middle of the "
+        "finest row, OGS on the node line below it). OGS's elements are quadratic (8 nodes), ours "
+        "bilinear.\n\n"
+        "Checked first: held at zero overpressure for one step, the largest slip on the fault is "
+        f"{at_rest[0]:.1e} m (ours) and {at_rest[1]:.1e} m (OGS), so both start from the same "
+        "in-situ state in equilibrium.")
 
 if __name__ == "__main__":
     raise SystemExit(main())

@@ -20,6 +20,24 @@ import numpy as np
 
 VTK_VERTEX, VTK_QUADRATIC_EDGE, VTK_QUADRATIC_QUAD = 1, 21, 23
 MATRIX_ID, FAULT_ID = 0, 1
+#: the scene's domain (m), the fault's line and the injection point on it (rustrel-pressure.toml)
+LX = LY = 250.0
+FAULT_Y = INJECTION_X = 125.0
+UNIFORM_ELEMENTS = 50
+#: the graded mesh: elements of SIZE m within HALF_WIDTH of the injection point, growing by
+#: GROWTH outside (fault_screen's [mesh.refinement])
+SIZE, HALF_WIDTH, GROWTH = 1.0, (40.0, 2.0), 1.15
+
+
+def ogs_node_lines(graded: bool):
+    """OGS's node lines (x, y), the fault's y and the injection point's x (m)."""
+    if not graded:
+        lines = np.linspace(0.0, LX, UNIFORM_ELEMENTS + 1)
+        return lines, np.linspace(0.0, LY, UNIFORM_ELEMENTS + 1), FAULT_Y, INJECTION_X
+    from fault_screen.mesh import graded_line
+
+    return (graded_line(0.0, LX, INJECTION_X, HALF_WIDTH[0], SIZE, GROWTH),
+            graded_line(0.0, LY, FAULT_Y, HALF_WIDTH[1], SIZE, GROWTH), FAULT_Y, INJECTION_X)
 
 
 @dataclass(frozen=True)
@@ -138,11 +156,6 @@ def write_ogs_meshes(outdir: Path, x_lines: np.ndarray, y_lines: np.ndarray, fau
 
 
 def main() -> None:
-    import sys
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from ogs_compare import ogs_node_lines
-
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("outdir", type=Path)
     ap.add_argument("--graded", action="store_true")
