@@ -114,7 +114,7 @@ def forecast(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, en
     scene_path = Path(scene_path) if scene_path is not None else default_scene_path()
     scene = load_scene(scene_path)
     check_size(scene, str(scene_path))
-    draws = _draws(scene, params_path, members, distribution, seed, free, confidence, advise)
+    draws = _draws(scene, params_path, members, distribution, seed, free, confidence, advise, scheduler)
     drive, start, scene = _drive(scene, scene_path, log_path, end, t0, quiet,
                                  dict(flow_unit=flow_unit, pressure_unit=pressure_unit, max_gap=max_gap,
                                       policy=policy, date=log_date, tz=log_tz, time_column=time_column,
@@ -295,10 +295,10 @@ def _write_rows(path, columns, rows) -> None:
 
 
 # ---- --vary/--members: the ensemble -----------------------------------------------------------
-def _draws(scene, params_path, members, distribution, seed, free, confidence, advise):
+def _draws(scene, params_path, members, distribution, seed, free, confidence, advise, scheduler):
     """The members' parameter draws (None without --members), every ensemble option checked."""
     if params_path is None and members is None:
-        for name, value in (("--confidence", confidence), ("--free", free)):
+        for name, value in (("--confidence", confidence), ("--free", free), ("--scheduler", scheduler)):
             if value is not None:
                 raise BadInput(f"{name} is for an ensemble: give --vary PARAMS.toml --members N")
         return None

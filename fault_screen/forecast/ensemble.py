@@ -76,10 +76,12 @@ class MemberRun:
     cpu_s: float = math.nan
 
 
-def lookaheads(scene, times: Sequence[float], drive=None, start: Optional[datetime] = None):
+def lookaheads(scene, times: Sequence[float], drive=None, start: Optional[datetime] = None,
+               steps: Optional[dict] = None):
     """Run ``scene`` from time 0, screened at every row, and yield a :class:`LookAhead` at the
     last step ending by each of ``times`` (s, ascending). ``drive``: what drives the run (an
-    InjectionLog), None for the scene's schedule; ``start``: date-time of model time 0."""
+    InjectionLog), None for the scene's schedule; ``start``: date-time of model time 0;
+    ``steps``: the look-aheads' ``growth`` and ``dt_max`` (default: the scene's own steps)."""
     from ..screening.stepwise import StepScreening
     from ..stepper import Simulation
 
@@ -91,16 +93,17 @@ def lookaheads(scene, times: Sequence[float], drive=None, start: Optional[dateti
     for t in times:
         while sim.advance(t, volume=volume, align=True, max_steps=1):
             screening.screen_simulation(sim)
-        yield LookAhead(sim, screening, drive=drive, start=start)
+        yield LookAhead(sim, screening, drive=drive, start=start, **(steps or {}))
 
 
 def run_member(index: int, scene_dict: dict, overrides: dict, times: Sequence[float], plans: Sequence[Plan],
                horizon: float, drive=None, start: Optional[datetime] = None,
-               advice: Optional[dict] = None) -> MemberRun:
+               advice: Optional[dict] = None, steps: Optional[dict] = None) -> MemberRun:
     """One member (the scene of ``scene_dict`` with ``overrides``), run where it is called (a
     Dask worker, or this process). ``advice``: keywords of :func:`advise` (level, max_rate) to
-    advise at every time too. Never raises: a failure comes back with ``ok=False`` and the
-    error, as the ensemble command records its runs."""
+    advise at every time too; ``steps``: the look-aheads' ``growth`` and ``dt_max`` (see
+    :class:`LookAhead`). Never raises: a failure comes back with ``ok=False`` and the error,
+    as the ensemble command records its runs."""
     from ..ensemble import scene_with
     from ..scene import Scene
 
@@ -108,7 +111,7 @@ def run_member(index: int, scene_dict: dict, overrides: dict, times: Sequence[fl
     wall0, cpu0 = _time.perf_counter(), _time.process_time()
     try:
         scene = scene_with(Scene.from_dict(scene_dict), overrides)
-        for ahead in lookaheads(scene, times, drive, start):
+        for ahead in lookaheads(scene, times, drive, start, steps):
             if advice is not None:
                 found = advise(ahead, horizon, **advice)
                 found.forecasts = []     # the bisection's look-aheads stay in the worker
@@ -285,7 +288,9 @@ class LiveEnsemble:
     stepping too, for the deterministic columns; ``drive``: what drives the members between
     :meth:`advance` calls that give no volume, and whose ``rate_at`` the plan ``hold`` reads
     (a live sample buffer or an InjectionLog), None for the scene's schedule; ``start``: the
-    date-time of model time 0. A member whose step fails is set aside with its error and no
+    date-time of model time 0; ``advice`` (keywords of :func:`advise`) and ``confidence``: the
+    ensemble advice with every forecast; ``steps``: the look-aheads' ``growth`` and ``dt_max``
+    (default: the scene's own steps). A member whose step fails is set aside with its error and no
     longer counted (the rows' ``members`` says how many are left).
 
     :meth:`forecast` is the monitor's forecaster protocol: ``forecast(sim_fork, plans,
@@ -295,13 +300,13 @@ class LiveEnsemble:
 
     def __init__(self, scene, draws: Sequence[dict], *, base: bool = True, drive=None,
                  start: Optional[datetime] = None, advice: Optional[dict] = None,
-                 confidence: Optional[float] = None):
+                 confidence: Optional[float] = None, steps: Optional[dict] = None):
         from ..ensemble import scene_with
         from ..screening.stepwise import StepScreening
         from ..stepper import Simulation
 
         self.drive, self.start = drive, start
-        self.advice, self.confidence = advice, confidence
+        self.advice, self.confidence, self.steps = advice, confidence, dict(steps or {})
         self.failed: list[tuple[int, str]] = []
         self.members = []     # (index, params, Simulation, StepScreening)
         entries = ([(-1, {})] if base else []) + list(enumerate(draws))
@@ -344,7 +349,7 @@ class LiveEnsemble:
             run = MemberRun(index=index, params=params)
             wall0, cpu0 = _time.perf_counter(), _time.process_time()
             try:
-                ahead = LookAhead(sim, screening, drive=self.drive, start=self.start)
+                ahead = LookAhead(sim, screening, drive=self.drive, start=self.start, **self.steps)
                 if self.advice is not None and index >= 0:
                     found = advise(ahead, horizon, **self.advice)
                     found.forecasts = []

@@ -236,6 +236,7 @@ def test_ensemble_advice_is_the_member_rate_that_leaves_the_allowed_fraction_abo
     (["--vary", "{vary}", "--members", "2", "--confidence", "0.9"], "add --advise"),
     (["--vary", "{vary}", "--members", "2", "--advise", "--confidence", "1.5"], "between 0 and 1"),
     (["--confidence", "0.9", "--advise"], "--confidence is for an ensemble"),
+    (["--scheduler", "tcp://127.0.0.1:1"], "--scheduler is for an ensemble"),
     (["--vary", "{vary}", "--members", "2", "--free", "rock.porosity"], "rock.porosity"),
 ])
 def test_bad_ensemble_options_exit_2_with_a_message(args, message, tmp_path, friction_file):
