@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 import time as _time
 import traceback
 from dataclasses import dataclass, field
@@ -296,7 +297,10 @@ class LiveEnsemble:
     :meth:`forecast` is the monitor's forecaster protocol: ``forecast(sim_fork, plans,
     horizon, now_utc) -> list[dict]``, one row per plan (forecast.csv's columns with the
     ensemble ones, plus ``made_at_utc``), made on forks of the members (``sim_fork`` is not
-    used: the members carry their own states). It runs in the caller's thread."""
+    used: the members carry their own states). It runs in the caller's thread; :meth:`advance`
+    and the forks a forecast starts from are taken under one lock, so a look-ahead worker may
+    call both (stepping N members costs N live steps: keep it off the thread that sends the
+    alerts)."""
 
     def __init__(self, scene, draws: Sequence[dict], *, base: bool = True, drive=None,
                  start: Optional[datetime] = None, advice: Optional[dict] = None,
@@ -309,6 +313,7 @@ class LiveEnsemble:
         self.advice, self.confidence, self.steps = advice, confidence, dict(steps or {})
         self.failed: list[tuple[int, str]] = []
         self.members = []     # (index, params, Simulation, StepScreening)
+        self._lock = threading.Lock()
         entries = ([(-1, {})] if base else []) + list(enumerate(draws))
         for index, params in entries:
             sim = Simulation(scene_with(scene, params) if params else scene)
@@ -326,6 +331,10 @@ class LiveEnsemble:
         ``Simulation.advance`` takes), screening every row; returns the steps of the first."""
         if volume is None and pressure is None and self.drive is not None:
             volume = self.drive.volume
+        with self._lock:
+            return self._advance(t_next, volume, pressure)
+
+    def _advance(self, t_next, volume, pressure) -> int:
         taken, alive = None, []
         for member in self.members:
             index, params, sim, screening = member
@@ -344,12 +353,20 @@ class LiveEnsemble:
     def run(self, plans: Sequence[Plan], horizon: float) -> tuple[list[EnsembleForecast], Optional[EnsembleAdvice]]:
         """The forecasts of every plan over ``horizon`` (s) from now, and the ensemble advice
         when asked (``advice`` keywords and a ``confidence`` given)."""
-        runs, base = [], None
-        for index, params, sim, screening in self.members:
+        runs, base, aheads = [], None, []
+        with self._lock:    # every member forked at the same time
+            for index, params, sim, screening in self.members:
+                try:
+                    aheads.append((index, params, LookAhead(sim, screening, drive=self.drive,
+                                                            start=self.start, **self.steps)))
+                except Exception as exc:
+                    aheads.append((index, params, exc))
+        for index, params, ahead in aheads:
             run = MemberRun(index=index, params=params)
             wall0, cpu0 = _time.perf_counter(), _time.process_time()
             try:
-                ahead = LookAhead(sim, screening, drive=self.drive, start=self.start, **self.steps)
+                if isinstance(ahead, Exception):
+                    raise ahead
                 if self.advice is not None and index >= 0:
                     found = advise(ahead, horizon, **self.advice)
                     found.forecasts = []
