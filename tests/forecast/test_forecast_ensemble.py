@@ -17,15 +17,14 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from conftest import CONFIGS
-from fault_screen import Scene, Simulation
+from fault_screen import Scene
 from fault_screen.calibration import load_parameters, sample_parameters
 from fault_screen.cli import main
-from fault_screen.forecast import COLUMNS, LookAhead, Plan, parse_plan
+from fault_screen.forecast import COLUMNS, Plan, parse_plan
 from fault_screen.forecast.ensemble import (ENSEMBLE_COLUMNS, LiveEnsemble, MemberRun, ensemble_advice,
-                                            run_member, summarise, time_percentile)
+                                            lookaheads, run_member, summarise, time_percentile)
 from fault_screen.forecast.advice import Advice
 from fault_screen.screening import YELLOW
-from fault_screen.screening.stepwise import StepScreening
 
 IMPERMEABLE = str(CONFIGS / "rustrel-2015-impermeable.toml")
 MU0 = 0.68           # the scene's friction coefficient
@@ -40,9 +39,8 @@ upper = 0.76
 
 def _rows(path):
     with open(path, newline="") as fh:
-        reader = csv.reader(fh)
-        header = next(reader)
-        return header, [dict(zip(header, r)) for r in reader]
+        table = csv.DictReader(fh)
+        return table.fieldnames, list(table)
 
 
 @pytest.fixture(scope="module")
@@ -87,14 +85,7 @@ def test_the_csv_has_the_forecast_columns_then_exactly_the_ensemble_columns(made
 
 def test_p_yellow_is_the_fraction_of_draws_below_the_critical_friction(made, draws):
     res, _, rows = made
-    scene = Scene.from_toml(IMPERMEABLE)
-    sim = Simulation(scene)
-    fp = sim.disc.fault_points
-    screening = StepScreening.for_scene(scene, fp.s - sim.disc.injection.s, fp.weight)
-    screening.screen_simulation(sim)
-    while sim.advance(300.0, align=True, max_steps=1):
-        screening.screen_simulation(sim)
-    base = LookAhead(sim, screening).run(parse_plan("scene"), 100.0)
+    base = next(lookaheads(Scene.from_toml(IMPERMEABLE), [300.0])).run(parse_plan("scene"), 100.0)
     util = base.metrics["max_utilisation"]
     assert util.max() < 1.0                       # the scene sticks over the whole horizon
     critical = MU0 * util.max() / 0.9
