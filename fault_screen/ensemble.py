@@ -327,26 +327,34 @@ class Runner:
                     summarise, warm)
 
         try:
-            if self.client is None:
-                for i, v in enumerate(variants):
-                    done(run_task(*args(i, v)))
-            else:
-                from distributed import as_completed
-
-                futures = [self.client.submit(run_task, *args(i, v), pure=False) for i, v in enumerate(variants)]
-                where = {f.key: i for i, f in enumerate(futures)}
-                for fut in as_completed(futures):
-                    try:
-                        o = fut.result()
-                    except Exception as exc:  # the worker died: record the task anyway
-                        i = where[fut.key]
-                        o = TaskOutcome(index=i, name=variants[i].name, params=variants[i].overrides,
-                                        ok=False, error=f"worker lost: {type(exc).__name__}: {exc}")
-                    done(o)
+            for i, o in self.each(run_task, [args(i, v) for i, v in enumerate(variants)]):
+                if isinstance(o, BaseException):  # the worker died: record the task anyway
+                    o = TaskOutcome(index=i, name=variants[i].name, params=variants[i].overrides,
+                                    ok=False, error=f"worker lost: {type(o).__name__}: {o}")
+                done(o)
         finally:
             if stream is not None:
                 stream.close()
         return [o for o in outcomes if o is not None]
+
+    def each(self, task: Callable, calls: Sequence[tuple]):
+        """Yield ``(i, task(*calls[i]))`` as the calls finish (in this process: in order); a
+        call whose worker died yields its exception instead. ``task``: a picklable, module-level
+        function that does not raise (it reports its own failures)."""
+        if self.client is None:
+            for i, call in enumerate(calls):
+                yield i, task(*call)
+            return
+        from distributed import as_completed
+
+        futures = [self.client.submit(task, *call, pure=False) for call in calls]
+        where = {f.key: i for i, f in enumerate(futures)}
+        for fut in as_completed(futures):
+            try:
+                out = fut.result()
+            except Exception as exc:
+                out = exc
+            yield where[fut.key], out
 
 
 def run_ensemble(base: Scene, variants: Sequence[Variant], *, workers: int = 1,

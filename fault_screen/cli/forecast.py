@@ -13,6 +13,7 @@ import click
 from ._options import DIR, FILE, BadInput, check_size, log_options, t0_option, version_option
 from ._progress import format_duration
 from ._common import default_scene_path, load_scene, read_driving_log, read_scene_log
+from ._runner import _scheduler_callback, _workers_callback
 
 DEFAULT_PLANS = ("scene", "hold", "stop")
 
@@ -60,11 +61,29 @@ def _duration(what):
               help="Write <scene-stem>-forecast.png (one per forecast time when several) into DIR.")
 @t0_option
 @click.option("--quiet", "-q", is_flag=True, help="Only the table.")
+@click.option("--vary", "params_path", type=FILE, default=None, metavar="PARAMS.toml",
+              help="Ensemble: parameters to vary, with their means and bounds (mean -/+ 1 SD), "
+                   "the file `fault-screen ensemble --vary` takes; needs --members.")
+@click.option("--members", type=int, default=None, metavar="N",
+              help="Ensemble: number of parameter draws, each running its own history.")
+@click.option("--distribution", type=click.Choice(["normal", "uniform"]), default="normal",
+              show_default=True, help="Ensemble: how the draws are made (as `ensemble`).")
+@click.option("--seed", type=int, default=1, show_default=True, help="Ensemble: the draws' seed.")
+@click.option("--free", default=None, metavar="KEY,KEY",
+              help="Ensemble: vary only these parameters of PARAMS.toml [default: all].")
+@click.option("--confidence", type=float, default=None, metavar="C",
+              help="Ensemble advice: the largest rate whose probability of reaching "
+                   "--advise-level is at most 1 - C [default with --members: 0.9].")
+@click.option("--workers", type=int, default=2, show_default=True, callback=_workers_callback,
+              help="Ensemble: worker processes of the local Dask cluster (0: this process).")
+@click.option("--scheduler", default=None, metavar="tcp://HOST:PORT", callback=_scheduler_callback,
+              help="Ensemble: use an existing Dask scheduler instead of a local cluster.")
 @version_option
 def forecast(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, end, log_date, log_tz,
              time_column, flow_column, pressure_column, time_unit, volume_column,
              cumulative_volume_column, volume_unit, accept_implausible, at, every, horizon, plans,
-             advise, advise_level, max_rate, out, plot_dir, t0, quiet):
+             advise, advise_level, max_rate, out, plot_dir, t0, quiet, params_path, members,
+             distribution, seed, free, confidence, workers, scheduler):
     """Forecast what the fault of SCENE does over the next H under injection plans, from one or
     more times of its run (or of the replay of --log LOG, with replay's log options).
 
@@ -78,6 +97,12 @@ def forecast(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, en
     CSV give, per time and plan: the level now, at the horizon and the highest, the time to
     yellow and to red, the peak slip rate, the largest utilisation, the induced slip at the
     horizon and, with --advise, the advised rate.
+
+    With --vary PARAMS.toml --members N, N parameter draws each run their own history (as
+    Dask tasks, --workers/--scheduler) and the CSV gets, per time and plan, P(yellow) and
+    P(red) within the horizon, the 10/50/90 % time to yellow and the number of members; the
+    deterministic columns are the scene's own forecast; --advise gives the largest rate whose
+    probability of reaching --advise-level is at most 1 - --confidence.
     """
     from ..forecast import PlanError, parse_plan
     from ..screening import LEVEL_NAMES
@@ -89,6 +114,7 @@ def forecast(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, en
     scene_path = Path(scene_path) if scene_path is not None else default_scene_path()
     scene = load_scene(scene_path)
     check_size(scene, str(scene_path))
+    draws = _draws(scene, params_path, members, distribution, seed, free, confidence, advise, scheduler)
     drive, start, scene = _drive(scene, scene_path, log_path, end, t0, quiet,
                                  dict(flow_unit=flow_unit, pressure_unit=pressure_unit, max_gap=max_gap,
                                       policy=policy, date=log_date, tz=log_tz, time_column=time_column,
@@ -118,6 +144,11 @@ def forecast(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, en
     if not quiet:
         click.echo(f"forecasting {scene_path} ({scene.title}) at {len(times)} time(s), "
                    f"{len(plan_list)} plan(s), horizon {format_duration(horizon)}")
+    if draws is not None:
+        return _forecast_ensemble(scene, scene_path, drive, start, times, plan_list, horizon, draws,
+                                  dict(level=level, max_rate=max_rate_si) if advise else None,
+                                  confidence if confidence is not None else 0.9, workers, scheduler,
+                                  out, plot_dir, quiet)
     made = _forecasts(scene, drive, start, times, plan_list, horizon, advise, level, max_rate_si)
     click.echo(_table([f for f, _ in made], scene.injection.control))
     for line in dict.fromkeys(a.describe() for _, a in made if a is not None):
@@ -231,13 +262,22 @@ def _table(forecasts, control: str) -> str:
         rows.append((f"{f.made_at:g} s", f.plan, LEVEL_NAMES[f.level_now], LEVEL_NAMES[f.level_at_horizon],
                      LEVEL_NAMES[f.max_level], _fmt_time(f.time_to_yellow), _fmt_time(f.time_to_red),
                      f"{f.peak_slip_rate:.3g} m/s", f"{f.max_utilisation:.3f}", advised))
-    widths = [max(len(str(r[i])) for r in rows) for i in range(len(head))]
+    return _aligned(rows)
+
+
+def _aligned(rows) -> str:
+    """The rows (the heading first) as left-aligned text columns."""
+    widths = [max(len(str(r[i])) for r in rows) for i in range(len(rows[0]))]
     return "\n".join("  ".join(str(c).ljust(w) for c, w in zip(r, widths)).rstrip() for r in rows)
 
 
 def _write_csv(path, forecasts) -> None:
     from ..forecast import COLUMNS
 
+    _write_rows(path, COLUMNS, [f.row() for f in forecasts])
+
+
+def _write_rows(path, columns, rows) -> None:
     def cell(v):
         if v is None:
             return ""
@@ -248,8 +288,129 @@ def _write_csv(path, forecasts) -> None:
     tmp = path.with_name(path.name + ".part")
     with open(tmp, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
-        w.writerow(COLUMNS)
-        for f in forecasts:
-            row = f.row()
-            w.writerow([cell(row[c]) for c in COLUMNS])
+        w.writerow(columns)
+        for row in rows:
+            w.writerow([cell(row[c]) for c in columns])
     tmp.replace(path)
+
+
+# ---- --vary/--members: the ensemble -----------------------------------------------------------
+def _draws(scene, params_path, members, distribution, seed, free, confidence, advise, scheduler):
+    """The members' parameter draws (None without --members), every ensemble option checked."""
+    if params_path is None and members is None:
+        for name, value in (("--confidence", confidence), ("--free", free), ("--scheduler", scheduler)):
+            if value is not None:
+                raise BadInput(f"{name} is for an ensemble: give --vary PARAMS.toml --members N")
+        return None
+    if params_path is None:
+        raise BadInput("--members needs --vary PARAMS.toml (the parameters to draw)")
+    if members is None:
+        raise BadInput("--vary needs --members N (how many draws)")
+    if members < 1:
+        raise BadInput(f"--members {members}: must be >= 1")
+    if confidence is not None:
+        if not advise:
+            raise BadInput("--confidence is for the advice: add --advise")
+        if not 0.0 < confidence < 1.0:
+            raise BadInput(f"--confidence {confidence!r}: must be between 0 and 1 (e.g. 0.9)")
+    from ..calibration import sample_parameters
+    from .calibrate import load_parameters_option
+
+    params = load_parameters_option(params_path, scene, free)
+    return sample_parameters(params, members, distribution, seed)
+
+
+def _forecast_ensemble(scene, scene_path, drive, start, times, plans, horizon, draws, advice,
+                       confidence, workers, scheduler, out, plot_dir, quiet):
+    """The scene's own forecasts and every member's, as tasks on the ensemble runner; the
+    table, the CSV (the ensemble columns added) and the figure."""
+    from ..forecast import COLUMNS
+    from ..forecast.ensemble import ENSEMBLE_COLUMNS, ensemble_advice, run_member, summarise
+    from ._runner import TaskBar, open_runner
+    from ._options import RunFailed
+
+    scene_dict = scene.to_dict()
+    calls = [(i, scene_dict, d, times, plans, horizon, drive, start, advice) for i, d in enumerate(draws)]
+    calls.append((-1, scene_dict, {}, times, plans, horizon, drive, start, None))   # the scene itself
+    if not quiet:
+        click.echo(f"ensemble: {len(draws)} members and the scene itself, "
+                   f"{'in this process' if workers == 0 and scheduler is None else scheduler or f'{workers} workers'}")
+    runs = [None] * len(calls)
+    bar = TaskBar("forecast", quiet)
+    runner = open_runner(workers, scheduler)
+    try:
+        for i, run in runner.each(run_member, calls):
+            if isinstance(run, BaseException):   # the worker died: the member failed
+                from ..forecast.ensemble import MemberRun
+
+                run = MemberRun(index=calls[i][0], params=calls[i][2],
+                                error=f"worker lost: {type(run).__name__}: {run}")
+            runs[i] = run
+            bar(sum(r is not None for r in runs), len(runs), sum(r is not None and not r.ok for r in runs))
+    finally:
+        runner.close()
+    base, members = runs[-1], runs[:-1]
+    ok = [r for r in members if r.ok]
+    for r in members:
+        if not r.ok:
+            click.echo(f"member {r.index} failed ({_params_text(r.params)}): {r.error}", err=True)
+    if not base.ok:
+        click.echo(f"the scene itself failed: {base.error} (the deterministic columns are empty)", err=True)
+    if not ok:
+        raise RunFailed(f"all {len(members)} members failed; first: {members[0].error}")
+    made = summarise(members, base)
+    advices = {}
+    if advice is not None:
+        per_time = len(ok[0].advice)
+        for k in range(per_time):
+            found = ensemble_advice([r.advice[k] for r in ok], confidence)
+            advices[found.made_at] = found
+        for m in made:
+            m.advised_rate = advices[m.made_at].rate
+    click.echo(_ensemble_table(made, scene.injection.control))
+    for found in advices.values():
+        click.echo(found.describe())
+    cpu = sorted(r.cpu_s for r in ok)
+    if not quiet:
+        click.echo(f"{len(ok)} of {len(members)} members succeeded; CPU time per member "
+                   f"{cpu[len(cpu) // 2]:.3g} s (median), {cpu[-1]:.3g} s (most)")
+    _write_rows(out, COLUMNS + ENSEMBLE_COLUMNS, [m.row() for m in made])
+    if not quiet:
+        click.echo(f"forecasts: {out}")
+    if plot_dir is not None:
+        from ..plotting.forecast import plot_forecast
+
+        by_time = {}
+        for m in made:
+            by_time.setdefault(m.made_at, []).append(m)
+        for made_at, ms in by_time.items():
+            if any(m.base is None for m in ms):
+                continue
+            name = (f"{scene_path.stem}-forecast.png" if len(by_time) == 1
+                    else f"{scene_path.stem}-forecast-at-{made_at:g}s.png")
+            heading = scene.title + (f"\n{advices[made_at].describe()}" if made_at in advices else "")
+            path = plot_forecast([m.base for m in ms], plot_dir / name, spec=scene.monitor,
+                                 title=heading, ensemble=ms)
+            if not quiet:
+                click.echo(f"figure: {path}")
+
+
+def _params_text(params):
+    return ", ".join(f"{k} = {v:.4g}" for k, v in params.items())
+
+
+def _ensemble_table(made, control: str) -> str:
+    from ..screening import LEVEL_NAMES
+
+    head = ("made at", "plan", "now", "to yellow", "P(yellow)", "P(red)", "to yellow p10", "p50",
+            "p90", "members", "advised")
+    rows = [head]
+    for m in made:
+        b = m.base
+        advised = "-" if m.advised_rate is None else (
+            f"{m.advised_rate * 60e3:.4g} L/min" if control == "rate" else f"{m.advised_rate / 1e6:.4g} MPa")
+        rows.append((f"{m.made_at:g} s", m.plan, "-" if b is None else LEVEL_NAMES[b.level_now],
+                     "-" if b is None else _fmt_time(b.time_to_yellow), f"{m.p_yellow:.2f}",
+                     f"{m.p_red:.2f}", *(_fmt_time(m.percentile(q)) for q in (10, 50, 90)),
+                     str(m.members), advised))
+    return _aligned(rows)

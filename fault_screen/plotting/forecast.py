@@ -26,9 +26,11 @@ PANELS = (("peak_slip_rate", "peak slip rate (m/s)", 1.0),
           ("injection_overpressure", "injection overpressure (MPa)", 1e-6))
 
 
-def plot_forecast(forecasts, path, *, spec=None, advice=None, title: str = "") -> Path:
+def plot_forecast(forecasts, path, *, spec=None, advice=None, title: str = "", ensemble=None) -> Path:
     """Draw ``forecasts`` (made at one time) to the PNG ``path``; ``spec``: the ``[monitor]`` whose
-    thresholds are drawn; ``advice``: the :class:`~fault_screen.forecast.Advice` made there."""
+    thresholds are drawn; ``advice``: the :class:`~fault_screen.forecast.Advice` made there;
+    ``ensemble``: one :class:`~fault_screen.forecast.ensemble.EnsembleForecast` per forecast, in
+    the same order, whose members' 10-90 % band is shaded around each plan's line."""
     from ..screening import LEVEL_NAMES, RED, YELLOW
 
     forecasts = list(forecasts)
@@ -55,6 +57,8 @@ def plot_forecast(forecasts, path, *, spec=None, advice=None, title: str = "") -
                 y = np.maximum(y, SLIP_RATE_FLOOR)
             colour = "k" if style == "--" else colours[k % len(colours)]   # (red and yellow mean levels)
             ax.plot(t, y, style, color=colour, label=label, lw=1.6)
+            if ensemble is not None and style == "-":
+                _band(ax, f, ensemble[k].forecasts, name, scale, t, colour)
             for level, marker in ((YELLOW, "o"), (RED, "s")):
                 when = f.time_to_yellow if level == YELLOW else f.time_to_red
                 if when is None:
@@ -84,6 +88,18 @@ def plot_forecast(forecasts, path, *, spec=None, advice=None, title: str = "") -
         heading += f"\n{advice.describe()}"
     fig.suptitle(heading, fontsize=10)
     return _save(fig, Path(path))
+
+
+def _band(ax, f, members, name, scale, t, colour):
+    """The 10-90 % band of the members' ``name`` at the times of ``f`` (shaded)."""
+    series = [np.interp(f.time, m.time, np.asarray(m.metrics[name], dtype=float))
+              for m in members if name in m.metrics and m.time is not None and m.time.size]
+    if len(series) < 2:
+        return
+    lo, hi = np.nanpercentile(np.array(series) * scale, [10, 90], axis=0)
+    if name == "peak_slip_rate":
+        lo, hi = np.maximum(lo, SLIP_RATE_FLOOR), np.maximum(hi, SLIP_RATE_FLOOR)
+    ax.fill_between(t, lo, hi, color=colour, alpha=0.2, lw=0, label=f"{f.plan}: members 10-90 %")
 
 
 def _advised_label(advice) -> str:

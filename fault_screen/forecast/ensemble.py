@@ -1,0 +1,398 @@
+"""Forecasts over an ensemble of parameter draws: how likely each plan is to reach yellow and
+red within the horizon, when, and the largest rate that keeps that likelihood low.
+
+A *member* is the scene with one parameter draw (dotted scene keys, SI values, as
+``fault-screen ensemble --vary`` draws them). :func:`run_member` runs one member's own history
+from time 0 to every forecast time, forks there and runs each plan for the horizon (and, when
+asked, the member's own advice): one task on the ensemble runner per member, so each history
+runs once. :func:`summarise` turns the members' forecasts into one :class:`EnsembleForecast`
+per forecast time and plan:
+
+* ``p_yellow`` / ``p_red``: the fraction of the successful members whose level is at least
+  yellow / red at some row from "now" to the horizon ("now" included, as ``time_to_yellow`` is
+  0 when the level already is);
+* ``time_to_yellow_p10/p50/p90``: percentiles of the time to yellow over *all* successful
+  members, a member that does not reach yellow within the horizon counting as later than any
+  that does (+inf). A percentile is the smallest time by which at least that fraction of the
+  members is yellow (no interpolation between members), so it is empty (None) when fewer than
+  that fraction reach yellow: p50 is empty when fewer than half do;
+* ``members``: how many members succeeded; failed members are kept with their error.
+
+:func:`ensemble_advice`: the largest constant rate whose probability of reaching the advice
+level within the horizon is at most ``1 - confidence``. Each member bisects for its own largest
+rate below the level to 2 % (:func:`~fault_screen.forecast.advice.advise`); a member reaches
+the level at a rate above its own. The probability at a rate is then the fraction of members
+whose own rate is below it, a step function of the rate, and the advised rate is the largest
+rate at which that fraction is at most ``1 - confidence``: the (m+1)-th smallest member rate,
+m = floor((1 - confidence) n). This is what a bisection on the rate with every evaluation over
+all members converges to, with one task per member instead of a round trip per evaluation.
+
+:class:`LiveEnsemble` keeps the members stepping with live data and makes the same rows on
+demand, for the monitor's look-ahead worker.
+"""
+from __future__ import annotations
+
+import math
+import os
+import threading
+import time as _time
+import traceback
+from dataclasses import dataclass, field
+from datetime import datetime
+from typing import Iterable, Optional, Sequence
+
+import numpy as np
+
+from ..screening import LEVEL_NAMES, RED, YELLOW
+from .advice import Advice, advise
+from .lookahead import COLUMNS, Forecast, LookAhead
+from .plans import Plan
+
+__all__ = ["ENSEMBLE_COLUMNS", "PERCENTILES", "MemberRun", "EnsembleForecast", "EnsembleAdvice",
+           "run_member", "summarise", "ensemble_advice", "time_percentile", "LiveEnsemble",
+           "lookaheads", "ensemble_rows"]
+
+#: the columns forecast.csv gets with --members, after :data:`~fault_screen.forecast.COLUMNS`
+ENSEMBLE_COLUMNS = ("p_yellow", "p_red", "time_to_yellow_p10", "time_to_yellow_p50",
+                    "time_to_yellow_p90", "members")
+
+#: the percentiles of the time to yellow (%)
+PERCENTILES = (10, 50, 90)
+
+
+@dataclass
+class MemberRun:
+    """What one member's task returns. ``forecasts``: one :class:`Forecast` per forecast time
+    and plan (times outer, plans inner); ``advice``: one :class:`Advice` per forecast time when
+    advice was asked (its look-aheads left out); ``wall_s`` / ``cpu_s``: the task's wall and
+    CPU time (s), scene building and history included."""
+
+    index: int
+    params: dict
+    ok: bool = False
+    forecasts: list = field(default_factory=list, repr=False)
+    advice: list = field(default_factory=list, repr=False)
+    error: str = ""
+    wall_s: float = math.nan
+    cpu_s: float = math.nan
+
+
+def lookaheads(scene, times: Sequence[float], drive=None, start: Optional[datetime] = None,
+               steps: Optional[dict] = None):
+    """Run ``scene`` from time 0, screened at every row, and yield a :class:`LookAhead` at the
+    last step ending by each of ``times`` (s, ascending). ``drive``: what drives the run (an
+    InjectionLog), None for the scene's schedule; ``start``: date-time of model time 0;
+    ``steps``: the look-aheads' ``growth`` and ``dt_max`` (default: the scene's own steps)."""
+    from ..screening.stepwise import StepScreening
+    from ..stepper import Simulation
+
+    sim = Simulation(scene)
+    fp = sim.disc.fault_points
+    screening = StepScreening.for_scene(scene, fp.s - sim.disc.injection.s, fp.weight)
+    screening.screen_simulation(sim)
+    volume = drive.volume if drive is not None else None
+    for t in times:
+        while sim.advance(t, volume=volume, align=True, max_steps=1):
+            screening.screen_simulation(sim)
+        yield LookAhead(sim, screening, drive=drive, start=start, **(steps or {}))
+
+
+def run_member(index: int, scene_dict: dict, overrides: dict, times: Sequence[float], plans: Sequence[Plan],
+               horizon: float, drive=None, start: Optional[datetime] = None,
+               advice: Optional[dict] = None, steps: Optional[dict] = None) -> MemberRun:
+    """One member (the scene of ``scene_dict`` with ``overrides``), run where it is called (a
+    Dask worker, or this process). ``advice``: keywords of :func:`advise` (level, max_rate) to
+    advise at every time too; ``steps``: the look-aheads' ``growth`` and ``dt_max`` (see
+    :class:`LookAhead`). Never raises: a failure comes back with ``ok=False`` and the error,
+    as the ensemble command records its runs."""
+    from ..ensemble import scene_with
+    from ..scene import Scene
+
+    run = MemberRun(index=index, params=dict(overrides))
+    wall0, cpu0 = _time.perf_counter(), _time.process_time()
+    try:
+        scene = scene_with(Scene.from_dict(scene_dict), overrides)
+        for ahead in lookaheads(scene, times, drive, start, steps):
+            if advice is not None:
+                found = advise(ahead, horizon, **advice)
+                found.forecasts = []     # the bisection's look-aheads stay in the worker
+                run.advice.append(found)
+            run.forecasts.extend(_lean(ahead.run(plan, horizon)) for plan in plans)
+        run.ok = True
+    except Exception as exc:  # recorded with the member's parameters, never dropped
+        run.error = f"{type(exc).__name__}: {exc}"
+        if os.environ.get("FAULT_SCREEN_TRACEBACK"):
+            run.error += "\n" + traceback.format_exc()
+    run.wall_s = _time.perf_counter() - wall0
+    run.cpu_s = _time.process_time() - cpu0
+    return run
+
+
+#: the series of a forecast a member sends back (for the figure's band)
+BAND_METRICS = ("peak_slip_rate", "max_utilisation", "injection_overpressure")
+
+
+def _lean(f: Forecast) -> Forecast:
+    f.metrics = {k: v for k, v in f.metrics.items() if k in BAND_METRICS}
+    return f
+
+
+def time_percentile(times: np.ndarray, q: float) -> Optional[float]:
+    """The smallest time by which at least ``q`` % of the members are yellow (``times``: one
+    per member, +inf for a member that is not): None when fewer than ``q`` % ever are."""
+    t = np.sort(np.asarray(times, dtype=float))
+    if t.size == 0:
+        return None
+    k = max(int(math.ceil(q / 100.0 * t.size - 1e-9)), 1) - 1
+    return float(t[k]) if math.isfinite(t[k]) else None
+
+
+@dataclass
+class EnsembleForecast:
+    """One forecast time and plan over the ensemble (see the module docstring). ``base``: the
+    forecast of the scene itself (the deterministic columns), when it was made; ``failed``:
+    (member index, error) of the members that failed; ``advised_rate``: the ensemble's advice
+    (m3/s; Pa under pressure control) when asked."""
+
+    made_at: float
+    plan: str
+    horizon: float
+    members: int
+    p_yellow: float
+    p_red: float
+    time_to_yellow: np.ndarray = field(repr=False)
+    failed: list = field(default_factory=list)
+    base: Optional[Forecast] = None
+    advised_rate: Optional[float] = None
+    forecasts: list = field(default_factory=list, repr=False)
+
+    def percentile(self, q: float) -> Optional[float]:
+        return time_percentile(self.time_to_yellow, q)
+
+    def columns(self) -> dict:
+        """The ensemble columns of the forecast.csv row (None where empty)."""
+        out = {"p_yellow": self.p_yellow, "p_red": self.p_red}
+        for q in PERCENTILES:
+            out[f"time_to_yellow_p{q}"] = self.percentile(q)
+        out["members"] = self.members
+        return out
+
+    def row(self) -> dict:
+        """The whole forecast.csv row: the base scene's forecast (made_at, plan and horizon
+        always; the rest empty without it), the advice, the ensemble columns."""
+        row = dict.fromkeys(COLUMNS)
+        if self.base is not None:
+            row.update(self.base.row())
+        row.update(made_at=self.made_at, plan=self.plan, horizon=self.horizon,
+                   advised_rate=self.advised_rate)
+        row.update(self.columns())
+        return row
+
+
+def summarise(runs: Iterable[MemberRun], base: Optional[MemberRun] = None) -> list[EnsembleForecast]:
+    """One :class:`EnsembleForecast` per forecast time and plan, in the members' order."""
+    runs = list(runs)
+    ok = [r for r in runs if r.ok]
+    failed = [(r.index, r.error) for r in runs if not r.ok]
+    shape = ok[0].forecasts if ok else (base.forecasts if base is not None and base.ok else [])
+    out = []
+    for k, first in enumerate(shape):
+        fs = [r.forecasts[k] for r in ok]
+        tty = np.array([math.inf if f.time_to_yellow is None else f.time_to_yellow for f in fs])
+        n = len(fs)
+        out.append(EnsembleForecast(
+            made_at=first.made_at, plan=first.plan, horizon=first.horizon, members=n,
+            p_yellow=float(np.mean([f.max_level >= YELLOW for f in fs])) if n else math.nan,
+            p_red=float(np.mean([f.max_level >= RED for f in fs])) if n else math.nan,
+            time_to_yellow=tty, failed=failed, forecasts=fs,
+            base=base.forecasts[k] if base is not None and base.ok else None))
+    return out
+
+
+@dataclass
+class EnsembleAdvice:
+    """The largest constant ``rate`` (m3/s; Pa under pressure control) whose probability of
+    reaching ``level`` within ``horizon`` (s) from ``made_at`` is at most ``1 - confidence``
+    over ``members`` members. ``probability``: that probability at ``rate``; ``even_zero``:
+    the fraction of members that reach the level even at rate 0 (when it exceeds
+    ``1 - confidence`` the advice is 0 and says so); ``member_rates``: each member's own
+    advised rate (-inf: even rate 0 reaches the level)."""
+
+    made_at: float
+    horizon: float
+    level: int
+    control: str
+    confidence: float
+    rate: float
+    probability: float
+    members: int
+    even_zero: float
+    max_rate: float
+    member_rates: np.ndarray = field(repr=False)
+
+    @property
+    def even_zero_too_likely(self) -> bool:
+        return self.even_zero > 1.0 - self.confidence + 1e-12
+
+    def reaching(self, rate: float) -> float:
+        """The fraction of members that reach the level at constant ``rate``, as far as their
+        own bisections tell (a member reaches it above its own advised rate)."""
+        return float(np.mean(self.member_rates < rate)) if self.members else math.nan
+
+    def describe(self) -> str:
+        name = LEVEL_NAMES[self.level]
+        span = f"{self.horizon / 3600:.3g} h" if self.horizon >= 3600 else f"{self.horizon:.4g} s"
+        allowed = f"{100 * (1 - self.confidence):.3g} %"
+        where = f"ensemble advice at t = {self.made_at:.6g} s ({self.members} members)"
+        if self.even_zero_too_likely:
+            stop = "shut-in" if self.control == "rate" else "overpressure 0"
+            return (f"{where}: even {stop} reaches {name} within {span} in {100 * self.even_zero:.3g} % "
+                    f"of the members, more than {allowed}: the fault may go there whatever the injection does")
+        value = (f"{self.rate * 60e3:.4g} L/min ({self.rate:.4g} m3/s)" if self.control == "rate"
+                 else f"{self.rate / 1e6:.4g} MPa")
+        what = "rate" if self.control == "rate" else "overpressure"
+        return (f"{where}: largest constant {what} with P({name} within {span}) <= {allowed}: {value} "
+                f"(P = {100 * self.probability:.3g} %)")
+
+
+def ensemble_advice(advices: Sequence[Advice], confidence: float) -> EnsembleAdvice:
+    """The ensemble's advice from each successful member's :class:`Advice` made at one time."""
+    if not 0.0 < confidence < 1.0:
+        raise ValueError(f"confidence = {confidence!r}: must be between 0 and 1 (e.g. 0.9)")
+    if not advices:
+        raise ValueError("no member succeeded: no ensemble advice")
+    first = advices[0]
+    rates = np.array([-math.inf if a.even_zero_reaches else a.rate for a in advices])
+    n = rates.size
+    allowed = int(math.floor((1.0 - confidence) * n + 1e-9))   # members that may reach the level
+    ordered = np.sort(rates)
+    rate = max(float(ordered[allowed]), 0.0) if allowed < n else float(first.max_rate)
+    out = EnsembleAdvice(made_at=first.made_at, horizon=first.horizon, level=first.level,
+                         control=first.control, confidence=float(confidence), rate=rate,
+                         probability=math.nan, members=n,
+                         even_zero=float(np.mean(np.isneginf(rates))),
+                         max_rate=float(first.max_rate), member_rates=rates)
+    out.probability = out.reaching(rate)
+    return out
+
+
+def ensemble_rows(made: Sequence[EnsembleForecast]) -> list[dict]:
+    """The forecast.csv rows (COLUMNS + ENSEMBLE_COLUMNS) of ``made``."""
+    return [m.row() for m in made]
+
+
+class LiveEnsemble:
+    """N member simulations stepping with live data, and their forecasts on demand.
+
+    ``scene``: the base scene; ``draws``: one dict of dotted-key overrides (SI) per member
+    (:func:`~fault_screen.calibration.sample_parameters`); ``base``: keep the scene itself
+    stepping too, for the deterministic columns; ``drive``: what drives the members between
+    :meth:`advance` calls that give no volume, and whose ``rate_at`` the plan ``hold`` reads
+    (a live sample buffer or an InjectionLog), None for the scene's schedule; ``start``: the
+    date-time of model time 0; ``advice`` (keywords of :func:`advise`) and ``confidence``: the
+    ensemble advice with every forecast; ``steps``: the look-aheads' ``growth`` and ``dt_max``
+    (default: the scene's own steps). A member whose step fails is set aside with its error and no
+    longer counted (the rows' ``members`` says how many are left).
+
+    :meth:`forecast` is the monitor's forecaster protocol: ``forecast(sim_fork, plans,
+    horizon, now_utc) -> list[dict]``, one row per plan (forecast.csv's columns with the
+    ensemble ones, plus ``made_at_utc``), made on forks of the members (``sim_fork`` is not
+    used: the members carry their own states). It runs in the caller's thread; :meth:`advance`
+    and the forks a forecast starts from are taken under one lock, so a look-ahead worker may
+    call both (stepping N members costs N live steps: keep it off the thread that sends the
+    alerts)."""
+
+    def __init__(self, scene, draws: Sequence[dict], *, base: bool = True, drive=None,
+                 start: Optional[datetime] = None, advice: Optional[dict] = None,
+                 confidence: Optional[float] = None, steps: Optional[dict] = None):
+        from ..ensemble import scene_with
+        from ..screening.stepwise import StepScreening
+        from ..stepper import Simulation
+
+        self.drive, self.start = drive, start
+        self.advice, self.confidence, self.steps = advice, confidence, dict(steps or {})
+        self.failed: list[tuple[int, str]] = []
+        self.members = []     # (index, params, Simulation, StepScreening)
+        self._lock = threading.Lock()
+        entries = ([(-1, {})] if base else []) + list(enumerate(draws))
+        for index, params in entries:
+            sim = Simulation(scene_with(scene, params) if params else scene)
+            fp = sim.disc.fault_points
+            screening = StepScreening.for_scene(sim.scene, fp.s - sim.disc.injection.s, fp.weight)
+            screening.screen_simulation(sim)
+            self.members.append((index, dict(params), sim, screening))
+
+    @property
+    def time(self) -> float:
+        return float(self.members[0][2].time) if self.members else math.nan
+
+    def advance(self, t_next: float, *, volume=None, pressure=None) -> int:
+        """Step every member to ``t_next`` (s) with the same injection (what
+        ``Simulation.advance`` takes), screening every row; returns the steps of the first."""
+        if volume is None and pressure is None and self.drive is not None:
+            volume = self.drive.volume
+        with self._lock:
+            return self._advance(t_next, volume, pressure)
+
+    def _advance(self, t_next, volume, pressure) -> int:
+        taken, alive = None, []
+        for member in self.members:
+            index, params, sim, screening = member
+            try:
+                steps = 0
+                while sim.advance(t_next, volume=volume, pressure=pressure, max_steps=1):
+                    screening.screen_simulation(sim)
+                    steps += 1
+                alive.append(member)
+                taken = steps if taken is None else taken
+            except Exception as exc:  # the member is set aside, with its error
+                self.failed.append((index, f"{type(exc).__name__}: {exc}"))
+        self.members = alive
+        return taken or 0
+
+    def run(self, plans: Sequence[Plan], horizon: float) -> tuple[list[EnsembleForecast], Optional[EnsembleAdvice]]:
+        """The forecasts of every plan over ``horizon`` (s) from now, and the ensemble advice
+        when asked (``advice`` keywords and a ``confidence`` given)."""
+        runs, base, aheads = [], None, []
+        with self._lock:    # every member forked at the same time
+            for index, params, sim, screening in self.members:
+                try:
+                    aheads.append((index, params, LookAhead(sim, screening, drive=self.drive,
+                                                            start=self.start, **self.steps)))
+                except Exception as exc:
+                    aheads.append((index, params, exc))
+        for index, params, ahead in aheads:
+            run = MemberRun(index=index, params=params)
+            wall0, cpu0 = _time.perf_counter(), _time.process_time()
+            try:
+                if isinstance(ahead, Exception):
+                    raise ahead
+                if self.advice is not None and index >= 0:
+                    found = advise(ahead, horizon, **self.advice)
+                    found.forecasts = []
+                    run.advice.append(found)
+                run.forecasts = [_lean(ahead.run(plan, horizon)) for plan in plans]
+                run.ok = True
+            except Exception as exc:
+                run.error = f"{type(exc).__name__}: {exc}"
+            run.wall_s, run.cpu_s = _time.perf_counter() - wall0, _time.process_time() - cpu0
+            if index < 0:
+                base = run
+            else:
+                runs.append(run)
+        failed = [MemberRun(index=i, params={}, error=e) for i, e in self.failed]
+        made = summarise(runs + failed, base)
+        found = None
+        if self.advice is not None and self.confidence is not None:
+            advices = [r.advice[0] for r in runs if r.ok and r.advice]
+            if advices:
+                found = ensemble_advice(advices, self.confidence)
+                for m in made:
+                    m.advised_rate = found.rate
+        return made, found
+
+    def forecast(self, sim_fork, plans: Sequence[Plan], horizon: float, now_utc=None) -> list[dict]:
+        """The forecaster protocol of the monitor's look-ahead worker (see the class docstring)."""
+        made, _ = self.run(plans, horizon)
+        stamp = now_utc.isoformat() if isinstance(now_utc, datetime) else now_utc
+        return [{**m.row(), "made_at_utc": stamp} for m in made]
