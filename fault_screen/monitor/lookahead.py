@@ -40,7 +40,8 @@ from ..forecast import COLUMNS, LookAhead, Plan, advise, parse_plan
 from ..screening import LEVEL_NAMES, YELLOW
 
 __all__ = ["Forecaster", "LookAheadForecaster", "LiveLookAhead", "LiveDrive", "BRACKETS",
-           "LOOKAHEAD_COLUMNS", "bracket", "forecast_alert", "lookahead_streams"]
+           "LOOKAHEAD_COLUMNS", "bracket", "forecast_alert", "forecast_change", "forecast_text",
+           "lookahead_streams"]
 
 log = logging.getLogger("fault_screen.monitor.lookahead")
 
@@ -354,25 +355,28 @@ def forecast_text(rows: List[dict], start: Optional[datetime], advise_level: int
     return "forecast: " + "; ".join(parts)
 
 
-def forecast_alert(*, run_key: str, rows: List[dict], previous: list, start: Optional[datetime],
+def forecast_change(rows: List[dict], previous: list) -> tuple:
+    """What a forecast alert's id is made of: (made_at, the summaries before, after), as text."""
+    before = "; ".join(f"{r['plan']}: {a}, {b}" for r, (a, b) in zip(rows, previous))
+    after = "; ".join(f"{r['plan']}: {a}, {b}" for r, (a, b) in zip(rows, map(summary_of, rows)))
+    return float(rows[0]["made_at"]), before, after
+
+
+def forecast_alert(*, alert_id: str, rows: List[dict], previous: list, start: Optional[datetime],
                    label: str = "", advise_level: int = YELLOW) -> dict:
     """The ``forecast`` alert of a refresh whose summaries changed from ``previous``: the
-    fields of a level-change alert (``id``, ``level``, ``previous_level`` with codes: the first
-    plan's level at the horizon now and before) plus ``kind`` = ``forecast``,
-    ``text``, ``forecasts`` (the rows) and ``summary`` (level at the horizon and time-to-yellow
-    bracket per plan)."""
-    from .stage import LEVELS, alert_id
-
+    fields of a level-change alert (``id``: ``alert_id`` of :func:`forecast_change`; ``level``,
+    ``previous_level`` with codes: the first plan's level at the horizon now and before) plus
+    ``kind`` = ``forecast``, ``text``, ``forecasts`` (the rows) and ``summary`` (level at the
+    horizon and time-to-yellow bracket per plan)."""
     made_at = float(rows[0]["made_at"])
     now = [summary_of(r) for r in rows]
-    before = "; ".join(f"{r['plan']}: {a}, {b}" for r, (a, b) in zip(rows, previous))
-    after = "; ".join(f"{r['plan']}: {a}, {b}" for r, (a, b) in zip(rows, now))
     level, prev_level = now[0][0], previous[0][0]
     text = forecast_text(rows, start, advise_level)
     return {
-        "id": alert_id(run_key, made_at, before, after, "forecast"),
-        "kind": "forecast", "level": level, "level_code": LEVELS.index(level),
-        "previous_level": prev_level, "previous_level_code": LEVELS.index(prev_level),
+        "id": alert_id, "kind": "forecast", "level": level,
+        "level_code": LEVEL_NAMES.index(level), "previous_level": prev_level,
+        "previous_level_code": LEVEL_NAMES.index(prev_level),
         "rule": "forecast", "action": text, "text": text,
         "summary": [list(s) for s in now], "forecasts": [_json_row(r) for r in rows],
         "metrics": {}, "model_time": made_at,

@@ -52,8 +52,8 @@ from ..io.volume import PiecewiseLinearVolume
 from ..stepper import Simulation
 from ..screening import Events, StepScreening, event_metrics, screen_result
 from ..screening.metrics import MetricsTracker
-from .lookahead import (LiveDrive, LiveLookAhead, forecast_alert, lookahead_arrays,
-                        lookahead_record, lookahead_streams, summary_of)
+from .lookahead import (LiveDrive, LiveLookAhead, forecast_alert, forecast_change,
+                        lookahead_arrays, lookahead_record, lookahead_streams, summary_of)
 from .seismicity import SeismicEvent, Site, associate
 
 _log = logging.getLogger("fault_screen.monitor")
@@ -492,9 +492,11 @@ class Stage:
             summary = [summary_of(r) for r in rows]
             alert = None
             if len(summary) == len(la.summary) and summary != la.summary:
-                alert = forecast_alert(run_key=self.run_key, rows=rows, previous=la.summary,
-                                       start=self.start, label=self.label,
-                                       advise_level=la.advise_level)
+                made_at, before, after = forecast_change(rows, la.summary)
+                alert = forecast_alert(alert_id=alert_id(self.run_key, made_at, before, after,
+                                                         "forecast"),
+                                       rows=rows, previous=la.summary, start=self.start,
+                                       label=self.label, advise_level=la.advise_level)
                 upd.forecast_alerts.append(alert)
                 self.alerts_raised += 1
             la.summary = summary
