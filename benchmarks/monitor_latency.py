@@ -18,8 +18,9 @@ step.  Goal: median well under one step's wall time plus the poll interval.
 ``--lookahead`` measures what the live look-ahead costs the live steps: two runs on the same
 log, without and then with look-ahead refreshes (worker thread, forks taken between two steps),
 both screened by the scene's own rules (the look-ahead needs them: no toggle).  The latency of a
-step is then the wall time from the append of the line that completed it to the stage handing
-out its update (its alerts, had it any, go to the outbox at that moment).  Prints median, p95
+step is then the wall time from the append of the line that completed it to the end of its
+screening, when its alerts, had it any, are in the outbox (the stage hands them over as it
+raises them, before the next step or a look-ahead fork).  Prints median, p95
 and max of each run, the forks' wall time on the live thread, the refreshes made and skipped,
 and the load average.
 """
@@ -167,12 +168,15 @@ def step_latencies(a, lookahead):
                             checkpoint_every=10**9, out=Path(tmp) / "live.h5", lookahead=lookahead)
         appended = np.zeros(t.size)
         handed = []
+        service = MonitorService(scene, cfg)
+        stage = service.stage
+        screen_step = stage._screen_step
 
-        def on_update(upd):
-            if upd.steps:
-                handed.append((upd.time, time.perf_counter()))
-        service = MonitorService(scene, cfg, on_update=on_update)
-        la = service.stage.lookahead
+        def timed_screen_step(row, upd):
+            screen_step(row, upd)          # its alerts, had it any, are in the outbox now
+            handed.append((float(row["time"]), time.perf_counter()))
+        stage._screen_step = timed_screen_step
+        la = stage.lookahead
         if la is not None:
             refresh = la.refresh
 

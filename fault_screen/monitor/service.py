@@ -126,7 +126,8 @@ class MonitorService:
             self.stage, _ = Stage.restore(config.state, scene=scene,
                                           simulation_class=simulation_class,
                                           screener=screener, metrics=metrics, site=config.site,
-                                          out=config.out, lookahead=lookahead)
+                                          out=config.out, lookahead=lookahead,
+                                          on_alert=self._raised)
             log.info("resumed from %s at model time %.6g s (%d steps, %d samples)",
                      config.state, self.stage.time, self.stage.steps, self.stage.samples.count)
         else:
@@ -138,7 +139,7 @@ class MonitorService:
             self.stage = Stage(scene, start=config.t0, simulation=sim, screener=screener,
                                metrics=metrics, site=config.site, label=config.label,
                                out=config.out, out_via_temporary=config.state is None,
-                               lookahead=lookahead)
+                               lookahead=lookahead, on_alert=self._raised)
         box = config.outbox
         if box is None and not all_sinks:
             box = ":memory:"           # no alert plugin: nothing to deliver, no file
@@ -155,6 +156,11 @@ class MonitorService:
         self._last_ckpt = self.stage.steps
         self._last_wave_poll = 0.0
         self._last_flush = time.monotonic()
+
+    def _raised(self, alert: dict) -> None:
+        """An alert the stage has just raised: into the outbox at once (its delivery threads
+        send it while the stage goes on with the batch)."""
+        self.outbox.put(alert)
 
     # -- signals ----------------------------------------------------------------------------
     def request_stop(self, reason: str = "stop requested") -> None:
@@ -234,13 +240,12 @@ class MonitorService:
             raise self.decoder.error
 
     def _handle(self, upd, checkpoint: bool = True) -> None:
+        # (the alerts went to the outbox as the stage raised them: _raised)
         for d, alert in zip(upd.transitions, upd.alerts):
-            self.outbox.put(alert)
             log.warning("t = %.6g s: level %s -> %s (%s)%s", d["time"], alert["previous_level"],
                         alert["level"], alert["rule"],
                         f": {alert['action']}" if alert["action"] else "")
         for alert in upd.forecast_alerts:
-            self.outbox.put(alert)
             log.warning("t = %.6g s: %s", alert["model_time"], alert["text"])
         if upd.forecasts and not upd.forecast_alerts:
             log.info("t = %.6g s: %s", upd.forecasts[-1]["made_at"],

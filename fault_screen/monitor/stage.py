@@ -239,12 +239,17 @@ class Stage:
     every, advice, forecaster): forecasts refreshed on forks in a worker thread, collected at
     each call (:meth:`poll_forecasts` between calls), kept in :attr:`forecasts` and ``/lookahead``
     of the results, ``on_forecast(rows, alert or None)`` called with each refresh's rows.
+    ``on_alert(alert)``: called with each alert (level change or forecast) as soon as it is
+    raised, before the stage takes its next step or fork (the service's outbox takes them so:
+    the later steps of a batch and a look-ahead fork never delay an alert); the alerts are in
+    the returned :class:`Update` as well.
     """
 
     def __init__(self, scene, *, start: Optional[datetime] = None, simulation=None,
                  screener=None, metrics=None, site: Optional[Site] = None,
                  event_window: Optional[float] = None, label: str = "", history: int = 16,
-                 out=None, out_via_temporary: bool = False, lookahead=None, on_forecast=None):
+                 out=None, out_via_temporary: bool = False, lookahead=None, on_forecast=None,
+                 on_alert=None):
         if getattr(scene.injection, "control", "rate") != "rate":
             raise ValueError(f"injection.control = {scene.injection.control!r}: the monitor "
                              f"drives the flow rate; use a scene with control = 'rate'")
@@ -285,6 +290,7 @@ class Stage:
                              "it needs the stage's own screening (no screener given)")
         self.lookahead = lookahead
         self.on_forecast = on_forecast
+        self.on_alert = on_alert
         self.largest_rate = 0.0           # m3/s, of the samples received (the advice's bound)
 
     # -- identity ---------------------------------------------------------------------------
@@ -498,6 +504,8 @@ class Stage:
                                        rows=rows, previous=la.summary, start=self.start,
                                        label=self.label, advise_level=la.advise_level)
                 upd.forecast_alerts.append(alert)
+                if self.on_alert is not None:
+                    self.on_alert(alert)
                 self.alerts_raised += 1
             la.summary = summary
             if self.on_forecast is not None:
@@ -576,6 +584,8 @@ class Stage:
                                   start=self.start, label=self.label)
             self.alerts_raised += 1
             upd.alerts.append(alert)
+            if self.on_alert is not None:
+                self.on_alert(alert)
 
     def _associate(self, ev: SeismicEvent):
         geo = self._geometry
@@ -699,7 +709,8 @@ class Stage:
 
     @classmethod
     def restore(cls, path, *, scene=None, simulation_class=None, screener=None, metrics=None,
-                site: Optional[Site] = None, out=None, lookahead=None, on_forecast=None):
+                site: Optional[Site] = None, out=None, lookahead=None, on_forecast=None,
+                on_alert=None):
         """A stage continuing exactly from the checkpoint ``path``; returns ``(stage, extra)``.
         ``simulation_class`` (default ``fault_screen.Simulation``) provides ``restore(path)``.
         A stage that streamed its results continues its result file (``out``, default the one
@@ -732,7 +743,7 @@ class Stage:
         st = cls(scene, start=start, simulation=sim, screener=screener, metrics=metrics,
                  site=site, event_window=state["event_window"], label=state["label"],
                  out=(out if out is not None else state["out"]) if streamed else None,
-                 lookahead=lookahead, on_forecast=on_forecast)
+                 lookahead=lookahead, on_forecast=on_forecast, on_alert=on_alert)
         if lookahead is not None:
             if saved_la is not None:
                 lookahead.restore_state(saved_la)

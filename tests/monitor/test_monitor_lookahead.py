@@ -268,3 +268,28 @@ def test_monitor_lookahead_options_parse_or_say_why(plans, horizon):
     if got is not None:
         assert got["horizon"] > 0 and len(got["plans"]) >= 1
         LiveLookAhead(**got)
+
+
+def test_an_alert_is_handed_over_before_the_fork_of_its_step(scene_file, log):
+    """The yellow at 390 s and a refresh due at 390 s: the alert reaches ``on_alert`` (the
+    service's outbox) before the fork is taken, so the fork's wall time never delays it."""
+    scene = Scene.from_toml(scene_file)
+    order = []
+    slow = Blocking()
+    slow.release.set()
+    stage = Stage(scene, start=log.start, on_alert=lambda a: order.append(("alert", a["model_time"])),
+                  lookahead=LiveLookAhead(plans=["stop"], horizon=30.0, every=FIRST_YELLOW,
+                                          forecaster=slow))
+    fork = stage.sim.fork
+
+    def recorded_fork():
+        order.append(("fork", stage.time))
+        return fork()
+    stage.sim.fork = recorded_fork
+    k = 0
+    while stage.time < FIRST_YELLOW:
+        stage.feed_samples(log.time[k:k + 1], log.flow_rate[k:k + 1])
+        k += 1
+    stage.wait_forecasts(30.0)
+    assert order == [("alert", FIRST_YELLOW), ("fork", FIRST_YELLOW)]
+    assert slow.calls == [FIRST_YELLOW]
