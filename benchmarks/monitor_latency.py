@@ -89,9 +89,7 @@ def main(argv=None):
     logging.getLogger("fault_screen").setLevel(logging.ERROR)   # one alert per step: quiet
 
     scene = Scene.from_toml(ROOT / "configs" / "rustrel-2015-calibrated.toml")
-    log = read_injection_log(ROOT / "configs" / "logs" / "rustrel-2015-standin.csv")
-    t = np.arange(0.0, min(log.duration, a.lines - 1) + 0.5, 1.0)
-    q = log.rate_at(t)
+    t, q = _log_samples(a.lines)
     sim_class = None
     if a.simulation:
         mod, _, name = a.simulation.partition(":")
@@ -116,21 +114,7 @@ def main(argv=None):
                 steps_wall.append((time.perf_counter() - w0) / n)
             return n
         sim.advance = timed_advance
-        appended = np.zeros(t.size)
-
-        def writer():
-            t0 = time.perf_counter()
-            with open(path, "a") as fh:
-                for k in range(t.size):
-                    time.sleep(max(0.0, t0 + k / a.rate - time.perf_counter()))
-                    fh.write(f"{float(t[k])!r},{float(q[k])!r}\n")
-                    fh.flush()
-                    appended[k] = time.perf_counter()
-
-        th = threading.Thread(target=writer)
-        th.start()
-        service.run()
-        th.join()
+        appended = follow_written(service, path, t, q, a.rate)
     lat = []
     for t_step, arrived in hook.arrived.items():
         k = int(np.searchsorted(t, t_step - 1e-9))   # the sample that completed the step
@@ -146,6 +130,27 @@ def main(argv=None):
         print(f"wall time of a model step: median {np.median(steps) * 1e3:.2f} ms "
               f"({steps.size} calls)")
 
+
+
+def follow_written(service, path, t, q, rate):
+    """Run ``service`` while a writer thread appends the samples (t, q) to ``path`` at ``rate``
+    lines per second; returns the wall time (perf_counter) each line was appended."""
+    appended = np.zeros(t.size)
+
+    def writer():
+        t0 = time.perf_counter()
+        with open(path, "a") as fh:
+            for k in range(t.size):
+                time.sleep(max(0.0, t0 + k / rate - time.perf_counter()))
+                fh.write(f"{float(t[k])!r},{float(q[k])!r}\n")
+                fh.flush()
+                appended[k] = time.perf_counter()
+
+    th = threading.Thread(target=writer)
+    th.start()
+    service.run()
+    th.join()
+    return appended
 
 
 def _log_samples(lines):
@@ -166,7 +171,6 @@ def step_latencies(a, lookahead):
         cfg = MonitorConfig(follow=str(path), idle_exit=max(3.0, 5 * a.poll + 2.0 / a.rate),
                             poll_interval=a.poll, outbox=Path(tmp) / "box.sqlite",
                             checkpoint_every=10**9, out=Path(tmp) / "live.h5", lookahead=lookahead)
-        appended = np.zeros(t.size)
         handed = []
         service = MonitorService(scene, cfg)
         stage = service.stage
@@ -187,20 +191,7 @@ def step_latencies(a, lookahead):
                     forks.append(time.perf_counter() - w0)
                 return started
             la.refresh = timed_refresh
-
-        def writer():
-            t0 = time.perf_counter()
-            with open(path, "a") as fh:
-                for k in range(t.size):
-                    time.sleep(max(0.0, t0 + k / a.rate - time.perf_counter()))
-                    fh.write(f"{float(t[k])!r},{float(q[k])!r}\n")
-                    fh.flush()
-                    appended[k] = time.perf_counter()
-
-        th = threading.Thread(target=writer)
-        th.start()
-        service.run()
-        th.join()
+        appended = follow_written(service, path, t, q, a.rate)
     lat = []
     for t_step, wall in handed:
         k = int(np.searchsorted(t, t_step - 1e-9))

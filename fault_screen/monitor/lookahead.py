@@ -232,6 +232,11 @@ class LiveLookAhead:
     def busy(self) -> bool:
         return self._running is not None
 
+    @property
+    def running_since(self) -> Optional[float]:
+        """Model time (s) of the refresh that runs, or None."""
+        return self._running.made_at if self._running is not None else None
+
     def due(self, time: float) -> bool:
         return time >= self.next_due * (1 - 1e-12)
 

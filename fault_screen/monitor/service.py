@@ -35,6 +35,8 @@ log = logging.getLogger("fault_screen.monitor")
 
 #: wall seconds between flushes of the streamed result file (beside those of the checkpoints)
 FLUSH_INTERVAL = 2.0
+#: wall seconds a monitor that ends (source ended, idle) waits for the look-ahead refresh that runs
+LOOKAHEAD_END_WAIT = 60.0
 
 
 class MonitorInputError(ValueError):
@@ -79,7 +81,8 @@ class MonitorService:
     With ``config.lookahead`` the stage refreshes forecasts in a worker thread
     (:mod:`~fault_screen.monitor.lookahead`); their alerts go to the same outbox, their
     refreshes are collected also while no sample comes, and at the end the refresh that runs
-    is waited for (up to ``drain_timeout``).  ``forecaster`` replaces the default one.
+    is waited for (up to ``drain_timeout`` or :data:`LOOKAHEAD_END_WAIT`, the longer; not
+    on SIGINT/SIGTERM).  ``forecaster`` replaces the default one.
 
     ``sinks`` adds alert plugin instances by key besides ``config.alerts`` (used by embedding
     programs and the latency benchmark); ``simulation_class``, ``screener`` and ``metrics`` are
@@ -342,7 +345,12 @@ class MonitorService:
             self._feed(self.decoder.end())
             self._poll_seismicity(force=True)
             if self.stage.lookahead is not None:      # the refresh that runs, if any
-                self._handle(self.stage.wait_forecasts(self.cfg.drain_timeout), checkpoint=False)
+                self._handle(self.stage.wait_forecasts(max(self.cfg.drain_timeout, LOOKAHEAD_END_WAIT)),
+                             checkpoint=False)
+                if self.stage.lookahead.busy:
+                    log.warning("the look-ahead made at t = %.6g s was still running after %g s: "
+                                "not stored", self.stage.lookahead.running_since,
+                                max(self.cfg.drain_timeout, LOOKAHEAD_END_WAIT))
             self.checkpoint()            # the aligned state: a restart continues from here
             self._handle(self.stage.finish(), checkpoint=False)
             self._write_result()

@@ -293,3 +293,48 @@ def test_an_alert_is_handed_over_before_the_fork_of_its_step(scene_file, log):
     stage.wait_forecasts(30.0)
     assert order == [("alert", FIRST_YELLOW), ("fork", FIRST_YELLOW)]
     assert slow.calls == [FIRST_YELLOW]
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--plan", "bogus"], "unknown plan 'bogus'"),
+    (["--plan", "rate:30"], "give the unit"),
+    (["--horizon", "5 parsecs"], "--horizon '5 parsecs': not a duration"),
+    (["--lookahead-every", "0"], "--lookahead-every 0.0: must be a finite duration > 0"),
+])
+def test_monitor_refuses_bad_lookahead_options(args, message, tmp_path):
+    log = tmp_path / "live.csv"
+    log.write_text("elapsed[s],flow_rate[L/min]\n0,10\n")
+    r = CliRunner().invoke(main, ["monitor", str(CONFIGS / "rustrel-2015-impermeable.toml"),
+                                  "--follow", str(log), "--idle-exit", "1", *args])
+    assert r.exit_code == 2 and message in r.output, r.output
+
+
+def test_monitor_command_stores_forecasts_and_alerts_them(scene_file, tmp_path_factory):
+    """The command on a log already written up to 450 s (read at once): the refresh due at
+    120 s is made (the worker is idle then; the later ones may be skipped while it runs),
+    stored in /lookahead and alerted as in the stage above."""
+    import json
+
+    import monitor_env
+    from fault_screen import Result
+
+    d = tmp_path_factory.mktemp("cli")
+    monitor_env.activate(d / "dist")
+    lines = LOG.read_text().splitlines()
+    head = next(i for i, line in enumerate(lines) if line.startswith("time,"))
+    stamps = [line for line in lines[head + 1:] if line.split(",")[0] <= "2015-03-12T10:07:30"]
+    (d / "live.csv").write_text("\n".join(lines[:head + 1] + stamps) + "\n")
+    r = CliRunner().invoke(main, ["monitor", str(scene_file), "--follow", str(d / "live.csv"),
+                                  "--idle-exit", "0.5", "--out", str(d / "live.h5"),
+                                  "--alert", f"jsonl:{d / 'alerts.jsonl'}", "--plan", "scene",
+                                  "--plan", "stop", "--horizon", "5min", "--lookahead-every", "2min"])
+    assert r.exit_code == 0, r.output
+    rows = Result.load(d / "live.h5").extra["lookahead"]
+    first = np.flatnonzero(rows["made_at"] == 120.0)
+    assert [rows["plan"][i].decode() for i in first] == ["scene", "stop"]
+    assert rows["time_to_yellow"][first[0]] == FIRST_YELLOW - 120.0     # the scene's schedule
+    assert math.isnan(rows["time_to_yellow"][first[1]])                 # stop: not within 5 min
+    alerts = [json.loads(line) for line in (d / "alerts.jsonl").read_text().splitlines()]
+    forecast = [a for a in alerts if a.get("kind") == "forecast"]
+    assert forecast[0]["model_time"] == 120.0 and forecast[0]["summary"][0] == ["yellow", "<15 min"]
+    assert [a["model_time"] for a in alerts if a.get("kind") != "forecast"] == [FIRST_YELLOW]
