@@ -387,6 +387,10 @@ class Stage:
                 "monitor_alerts": self.alerts_raised}
         if self.start is not None:
             meta["start"] = self.start.isoformat()
+        la = self.lookahead
+        if la is not None:      # how many refreshes were made, skipped (busy worker), failed
+            meta.update(lookahead=la.settings(), lookahead_made=la.made,
+                        lookahead_skipped=la.skipped, lookahead_failed=la.failed)
         return meta
 
     def feed_events(self, events: Sequence[SeismicEvent]) -> None:
@@ -612,8 +616,8 @@ class Stage:
                                              [_nan(x["magnitude"]) for x in a],
                                              [_nan(x["distance_injection"]) for x in a]))
         meta = dict(getattr(res, "meta", {}) or {})
-        meta.update(monitor_samples=self.samples.count, monitor_ignored_samples=self.ignored,
-                    monitor_alerts=self.alerts_raised)
+        meta.update(self._meta())
+        meta.pop("start", None)
         res.meta = meta
         return res
 

@@ -134,6 +134,8 @@ def test_lookahead_rows_equal_the_forecast_command_at_the_same_time(shared, scen
     assert list(rows) == list(LOOKAHEAD_COLUMNS)
     made = np.unique(rows["made_at"])
     assert list(made) == [k * EVERY for k in range(1, int(END // EVERY) + 1)]
+    meta = stage.result().meta
+    assert (meta["lookahead_made"], meta["lookahead_skipped"], meta["lookahead_failed"]) == (7, 0, 0)
     out = tmp_path / "f.csv"
     res = CliRunner().invoke(main, ["forecast", str(scene_file), "--log", str(LOG), "--at", "180",
                                     "--at", "300", "--horizon", str(HORIZON), "--plan", "hold",
