@@ -340,3 +340,36 @@ def test_monitor_command_stores_forecasts_and_alerts_them(scene_file, tmp_path_f
     forecast = [a for a in alerts if a.get("kind") == "forecast"]
     assert forecast[0]["model_time"] == 120.0 and forecast[0]["summary"][0] == ["yellow", "<15 min"]
     assert [a["model_time"] for a in alerts if a.get("kind") != "forecast"] == [FIRST_YELLOW]
+
+
+def test_refreshes_running_beside_the_live_steps_change_neither(shared, log):
+    """Fed without waiting: the worker runs the plans while the live thread steps (refreshes due
+    meanwhile are skipped). The live arrays are those of the run without look-ahead, and every
+    forecast made equals the shared run's at the same model time (every column but wall_s and
+    made_at_utc): the fork and the live run share the scene, the discretisation and the physics
+    terms and neither writes what the other reads."""
+    scene, waited, _, _ = shared
+    stage = Stage(scene, start=log.start,
+                  lookahead=LiveLookAhead(plans=["hold", "stop"], horizon=HORIZON, every=EVERY))
+    k = 0
+    overlapped = 0
+    while stage.time < END:
+        stage.feed_samples(log.time[k:k + 1], log.flow_rate[k:k + 1])
+        overlapped += stage.lookahead.busy
+        k += 1
+    stage.wait_forecasts(120.0)
+    assert overlapped >= 5                     # steps taken while a refresh ran
+    plain, _ = live_run(scene, log)
+    a, b = _arrays(stage.result()), _arrays(plain.result())
+    for key in a:
+        nan = np.asarray(a[key]).dtype.kind == "f"
+        assert np.array_equal(a[key], b[key], equal_nan=nan), key
+    mine, ref = stage.result().extra["lookahead"], waited.result().extra["lookahead"]
+    assert mine["made_at"].size >= 2
+    for i in range(mine["made_at"].size):
+        j = np.flatnonzero((ref["made_at"] == mine["made_at"][i]) & (ref["plan"] == mine["plan"][i]))
+        assert j.size == 1
+        for c in LOOKAHEAD_COLUMNS:
+            if c not in ("wall_s", "made_at_utc"):
+                nan = ref[c].dtype.kind == "f"
+                assert np.array_equal(mine[c][i], ref[c][j[0]], equal_nan=nan), c
