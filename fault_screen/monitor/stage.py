@@ -713,14 +713,14 @@ class Stage:
 
     @classmethod
     def restore(cls, path, *, scene=None, simulation_class=None, screener=None, metrics=None,
-                site: Optional[Site] = None, out=None, lookahead=None, on_forecast=None,
+                site: Optional[Site] = None, out=None, lookahead="saved", on_forecast=None,
                 on_alert=None):
         """A stage continuing exactly from the checkpoint ``path``; returns ``(stage, extra)``.
         ``simulation_class`` (default ``fault_screen.Simulation``) provides ``restore(path)``.
         A stage that streamed its results continues its result file (``out``, default the one
         it streamed to), cut back to what the checkpoint counts.  ``lookahead``: the
-        look-ahead settings from now on (default: those saved); its forecasts continue from
-        the saved ones (alert summaries, due time)."""
+        look-ahead from now on (a LiveLookAhead; None: none; default ``"saved"``: the saved
+        settings, if any); it continues from the saved forecasts (alert summaries, due time)."""
         state = cls._saved_state(path)
         if state.get("version") != _STATE_VERSION:
             raise ValueError(f"{path}: a monitor state of layout {state.get('version')!r} (this "
@@ -742,8 +742,8 @@ class Stage:
         scene = scene if scene is not None else sim.scene
         start = datetime.fromisoformat(state["start"]) if state["start"] else None
         saved_la = state.get("lookahead")
-        if lookahead is None and saved_la is not None:
-            lookahead = LiveLookAhead(**saved_la["settings"])
+        if isinstance(lookahead, str):
+            lookahead = LiveLookAhead(**saved_la["settings"]) if saved_la is not None else None
         st = cls(scene, start=start, simulation=sim, screener=screener, metrics=metrics,
                  site=site, event_window=state["event_window"], label=state["label"],
                  out=(out if out is not None else state["out"]) if streamed else None,
