@@ -11,8 +11,9 @@ refresh runs and none waits.
 The worker thread runs at a lower scheduling priority (``nice`` +10 on Linux): the numba
 kernels release the GIL, so the worker's arithmetic runs on the other core; when both
 want the same core, the live thread wins.  The worker's Python parts take the GIL in turns
-with the live thread, so on busy cores a refresh lengthens the live steps' wall time (not
-their CPU time); a worker process would avoid that at the cost of sending the fork's state
+with the live thread: at the same priority, on busy cores, a worker lengthens the live steps'
+wall time (not their CPU time); the lower priority keeps it from doing so unless the machine is
+overloaded.  A worker process would avoid the GIL at the cost of sending the fork's state
 across (not done).
 
 Forecast alerts.  Each plan's forecast is summed up as (level at the horizon, bracket of the
