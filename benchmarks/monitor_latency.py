@@ -4,6 +4,7 @@ alert hook.
     python benchmarks/monitor_latency.py [--lines 300] [--rate 1] [--poll 0.5]
     python benchmarks/monitor_latency.py --lookahead [--plan hold --plan stop] [--horizon 3600]
         [--lookahead-every 60] [--rate 5]
+    python benchmarks/monitor_latency.py --beside [--blocks 4]
 
 A writer thread appends the bundled Rustrel stand-in log, resampled to one sample per second of
 log time, at --rate lines per second of wall time (1 = real time) to a file that the monitor
@@ -23,6 +24,12 @@ screening, when its alerts, had it any, are in the outbox (the stage hands them 
 raises them, before the next step or a look-ahead fork).  Prints median, p95
 and max of each run, the forks' wall time on the live thread, the refreshes made and skipped,
 and the load average.
+
+``--beside`` isolates what a worker thread costs the live thread: live steps of the calibrated
+scene (no log, no polling) in alternating blocks alone and with a worker beside them stepping
+forks continuously, once with the worker at the look-ahead's lower priority (nice +10) and once
+at the same priority; prints the live steps' median and p95 wall time and the live thread's
+median CPU time per step (the work, unchanged: what grows is waiting for a core or the GIL).
 """
 from __future__ import annotations
 
@@ -83,7 +90,12 @@ def main(argv=None):
     ap.add_argument("--horizon", type=float, default=3600.0, help="look-ahead horizon, s [3600]")
     ap.add_argument("--lookahead-every", type=float, default=60.0,
                     help="model time between refreshes, s [60]")
+    ap.add_argument("--beside", action="store_true",
+                    help="live steps alone and with a worker thread beside them")
+    ap.add_argument("--blocks", type=int, default=4, help="--beside: blocks of 10 steps [4]")
     a = ap.parse_args(argv)
+    if a.beside:
+        return worker_beside(a.blocks)
     if a.lookahead:
         return compare_lookahead(a)
     logging.getLogger("fault_screen").setLevel(logging.ERROR)   # one alert per step: quiet
@@ -220,6 +232,58 @@ def compare_lookahead(a):
                 else "-")
         print(f"| {name} | {lat.size} | {np.median(lat) * 1e3:.1f} | "
               f"{np.percentile(lat, 95) * 1e3:.1f} | {lat.max() * 1e3:.1f} | {fork} | {made} |")
+
+
+def worker_beside(blocks):
+    import os
+
+    from fault_screen import Simulation
+    from fault_screen.monitor.lookahead import _lower_priority
+    from fault_screen.screening.stepwise import StepScreening
+
+    scene = Scene.from_toml(ROOT / "configs" / "rustrel-2015-calibrated.toml")
+    sim = Simulation(scene)
+    fp = sim.disc.fault_points
+    screening = StepScreening.for_scene(scene, fp.s - sim.disc.injection.s, fp.weight)
+    screening.screen_simulation(sim)
+
+    def steps(n):
+        out = []
+        for _ in range(n):
+            w, c = time.perf_counter(), time.thread_time()
+            sim.advance(sim.time + scene.time.dt, align=True, max_steps=1)
+            screening.screen_simulation(sim)
+            out.append((time.perf_counter() - w, time.thread_time() - c))
+        return out
+
+    def worker(fork, stop, nice):
+        if nice:
+            _lower_priority()
+        while not stop.is_set():
+            f, n = fork.fork(), 0
+            while not stop.is_set() and n < 50 and f.advance(f.time + scene.time.dt, max_steps=1):
+                n += 1
+
+    steps(5)
+    print(f"live steps of the calibrated Rustrel scene, {blocks} blocks of 10 per case; 2 cores, "
+          f"load average {os.getloadavg()[0]:.1f}")
+    print("| worker | live step wall, median (ms) | p95 (ms) | live thread CPU per step, median (ms) |")
+    print("|---|---|---|---|")
+    for nice in (True, False):
+        alone, beside = [], []
+        for _ in range(blocks):
+            alone += steps(10)
+            stop = threading.Event()
+            th = threading.Thread(target=worker, args=(sim.fork(), stop, nice), daemon=True)
+            th.start()
+            time.sleep(0.3)
+            beside += steps(10)
+            stop.set()
+            th.join()
+        for name, v in (("none", alone), ("nice +10" if nice else "same priority", beside)):
+            v = np.array(v)
+            print(f"| {name} | {np.median(v[:, 0]) * 1e3:.1f} | {np.percentile(v[:, 0], 95) * 1e3:.1f} | "
+                  f"{np.median(v[:, 1]) * 1e3:.1f} |")
 
 
 if __name__ == "__main__":
