@@ -238,7 +238,7 @@ def worker_beside(blocks):
     import os
 
     from fault_screen import Simulation
-    from fault_screen.monitor.lookahead import _lower_priority
+    from fault_screen.monitor.lookahead import lower_worker_priority
     from fault_screen.screening.stepwise import StepScreening
 
     scene = Scene.from_toml(ROOT / "configs" / "rustrel-2015-calibrated.toml")
@@ -258,7 +258,7 @@ def worker_beside(blocks):
 
     def worker(fork, stop, nice):
         if nice:
-            _lower_priority()
+            lower_worker_priority()
         while not stop.is_set():
             f, n = fork.fork(), 0
             while not stop.is_set() and n < 50 and f.advance(f.time + scene.time.dt, max_steps=1):

@@ -269,7 +269,7 @@ class LiveLookAhead:
         return True
 
     def _work(self, job: _Job) -> None:
-        _lower_priority()
+        lower_worker_priority()
         try:
             job.rows = list(self.forecaster.forecast(job.sim, self.plans, self.horizon, job.now_utc,
                                                      screening=job.screening, drive=job.drive,
@@ -301,7 +301,8 @@ class LiveLookAhead:
         return out
 
 
-def _lower_priority() -> None:
+def lower_worker_priority() -> None:
+    """The calling thread at :data:`WORKER_NICE` (Linux: per thread), where allowed."""
     try:
         os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), WORKER_NICE)
     except (AttributeError, OSError):    # not Linux, or not allowed: same priority
