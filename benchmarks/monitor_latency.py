@@ -2,6 +2,9 @@
 alert hook.
 
     python benchmarks/monitor_latency.py [--lines 300] [--rate 1] [--poll 0.5]
+    python benchmarks/monitor_latency.py --lookahead [--plan hold --plan stop] [--horizon 3600]
+        [--lookahead-every 60] [--rate 5]
+    python benchmarks/monitor_latency.py --beside [--blocks 4]
 
 A writer thread appends the bundled Rustrel stand-in log, resampled to one sample per second of
 log time, at --rate lines per second of wall time (1 = real time) to a file that the monitor
@@ -12,6 +15,21 @@ every step raises an alert, the screener of this benchmark toggles green/yellow 
 line that completed it (the first sample at or after the step's end) to its alert reaching the
 hook.  Prints the median and 99th percentile with the poll interval and the mean wall time of a
 step.  Goal: median well under one step's wall time plus the poll interval.
+
+``--lookahead`` measures what the live look-ahead costs the live steps: two runs on the same
+log, without and then with look-ahead refreshes (worker thread, forks taken between two steps),
+both screened by the scene's own rules (the look-ahead needs them: no toggle).  The latency of a
+step is then the wall time from the append of the line that completed it to the end of its
+screening, when its alerts, had it any, are in the outbox (the stage hands them over as it
+raises them, before the next step or a look-ahead fork).  Prints median, p95
+and max of each run, the forks' wall time on the live thread, the refreshes made and skipped,
+and the load average.
+
+``--beside`` isolates what a worker thread costs the live thread: live steps of the calibrated
+scene (no log, no polling) in alternating blocks alone and with a worker beside them stepping
+forks continuously, once with the worker at the look-ahead's lower priority (nice +10) and once
+at the same priority; prints the live steps' median and p95 wall time and the live thread's
+median CPU time per step (the work, unchanged: what grows is waiting for a core or the GIL).
 """
 from __future__ import annotations
 
@@ -66,13 +84,24 @@ def main(argv=None):
     ap.add_argument("--poll", type=float, default=0.5, help="poll interval, s [0.5]")
     ap.add_argument("--simulation", default=None,
                     help="MODULE:CLASS of the stepper [fault_screen.Simulation]")
+    ap.add_argument("--lookahead", action="store_true",
+                    help="compare the step latency without and with the live look-ahead")
+    ap.add_argument("--plan", action="append", default=None, help="look-ahead plan [hold, stop]")
+    ap.add_argument("--horizon", type=float, default=3600.0, help="look-ahead horizon, s [3600]")
+    ap.add_argument("--lookahead-every", type=float, default=60.0,
+                    help="model time between refreshes, s [60]")
+    ap.add_argument("--beside", action="store_true",
+                    help="live steps alone and with a worker thread beside them")
+    ap.add_argument("--blocks", type=int, default=4, help="--beside: blocks of 10 steps [4]")
     a = ap.parse_args(argv)
+    if a.beside:
+        return worker_beside(a.blocks)
+    if a.lookahead:
+        return compare_lookahead(a)
     logging.getLogger("fault_screen").setLevel(logging.ERROR)   # one alert per step: quiet
 
     scene = Scene.from_toml(ROOT / "configs" / "rustrel-2015-calibrated.toml")
-    log = read_injection_log(ROOT / "configs" / "logs" / "rustrel-2015-standin.csv")
-    t = np.arange(0.0, min(log.duration, a.lines - 1) + 0.5, 1.0)
-    q = log.rate_at(t)
+    t, q = _log_samples(a.lines)
     sim_class = None
     if a.simulation:
         mod, _, name = a.simulation.partition(":")
@@ -97,21 +126,7 @@ def main(argv=None):
                 steps_wall.append((time.perf_counter() - w0) / n)
             return n
         sim.advance = timed_advance
-        appended = np.zeros(t.size)
-
-        def writer():
-            t0 = time.perf_counter()
-            with open(path, "a") as fh:
-                for k in range(t.size):
-                    time.sleep(max(0.0, t0 + k / a.rate - time.perf_counter()))
-                    fh.write(f"{float(t[k])!r},{float(q[k])!r}\n")
-                    fh.flush()
-                    appended[k] = time.perf_counter()
-
-        th = threading.Thread(target=writer)
-        th.start()
-        service.run()
-        th.join()
+        appended = follow_written(service, path, t, q, a.rate)
     lat = []
     for t_step, arrived in hook.arrived.items():
         k = int(np.searchsorted(t, t_step - 1e-9))   # the sample that completed the step
@@ -126,6 +141,149 @@ def main(argv=None):
     if steps.size:
         print(f"wall time of a model step: median {np.median(steps) * 1e3:.2f} ms "
               f"({steps.size} calls)")
+
+
+
+def follow_written(service, path, t, q, rate):
+    """Run ``service`` while a writer thread appends the samples (t, q) to ``path`` at ``rate``
+    lines per second; returns the wall time (perf_counter) each line was appended."""
+    appended = np.zeros(t.size)
+
+    def writer():
+        t0 = time.perf_counter()
+        with open(path, "a") as fh:
+            for k in range(t.size):
+                time.sleep(max(0.0, t0 + k / rate - time.perf_counter()))
+                fh.write(f"{float(t[k])!r},{float(q[k])!r}\n")
+                fh.flush()
+                appended[k] = time.perf_counter()
+
+    th = threading.Thread(target=writer)
+    th.start()
+    service.run()
+    th.join()
+    return appended
+
+
+def _log_samples(lines):
+    log = read_injection_log(ROOT / "configs" / "logs" / "rustrel-2015-standin.csv")
+    t = np.arange(0.0, min(log.duration, lines - 1) + 0.5, 1.0)
+    return t, log.rate_at(t)
+
+
+def step_latencies(a, lookahead):
+    """One monitor run following the log as it is written, screened by the scene's rules:
+    (step latencies in s, fork wall times in s, the stage)."""
+    scene = Scene.from_toml(ROOT / "configs" / "rustrel-2015-calibrated.toml")
+    t, q = _log_samples(a.lines)
+    forks = []
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "live.csv"
+        path.write_text("elapsed[s],flow_rate[m3/s]\n")
+        cfg = MonitorConfig(follow=str(path), idle_exit=max(3.0, 5 * a.poll + 2.0 / a.rate),
+                            poll_interval=a.poll, outbox=Path(tmp) / "box.sqlite",
+                            checkpoint_every=10**9, out=Path(tmp) / "live.h5", lookahead=lookahead)
+        handed = []
+        service = MonitorService(scene, cfg)
+        stage = service.stage
+        screen_step = stage._screen_step
+
+        def timed_screen_step(row, upd):
+            screen_step(row, upd)          # its alerts, had it any, are in the outbox now
+            handed.append((float(row["time"]), time.perf_counter()))
+        stage._screen_step = timed_screen_step
+        la = stage.lookahead
+        if la is not None:
+            refresh = la.refresh
+
+            def timed_refresh(*args, **kw):
+                w0 = time.perf_counter()
+                started = refresh(*args, **kw)
+                if started:
+                    forks.append(time.perf_counter() - w0)
+                return started
+            la.refresh = timed_refresh
+        appended = follow_written(service, path, t, q, a.rate)
+    lat = []
+    for t_step, wall in handed:
+        k = int(np.searchsorted(t, t_step - 1e-9))
+        if 0 < k < t.size - 1:
+            lat.append(wall - appended[k])
+    return np.array(lat[1:]), np.array(forks), service.stage
+
+
+def compare_lookahead(a):
+    import os
+
+    plans = a.plan or ["hold", "stop"]
+    load = os.getloadavg()[0]
+    runs = [("without look-ahead", None),
+            (f"with look-ahead ({', '.join(plans)}; {a.horizon:g} s ahead every {a.lookahead_every:g} s)",
+             {"plans": plans, "horizon": a.horizon, "every": a.lookahead_every, "advise": False})]
+    print(f"{a.lines} lines at {a.rate:g} line/s, poll {a.poll:g} s; 2 cores, load average "
+          f"{load:.1f} at the start (busy: compare the two rows, not absolute values)")
+    print("| run | steps | median (ms) | p95 (ms) | max (ms) | forks on the live thread (ms, median) "
+          "| refreshes made / skipped |")
+    print("|---|---|---|---|---|---|---|")
+    for name, la in runs:
+        lat, forks, stage = step_latencies(a, la)
+        fork = f"{np.median(forks) * 1e3:.0f}" if forks.size else "-"
+        made = (f"{stage.lookahead.made} / {stage.lookahead.skipped}" if stage.lookahead is not None
+                else "-")
+        print(f"| {name} | {lat.size} | {np.median(lat) * 1e3:.1f} | "
+              f"{np.percentile(lat, 95) * 1e3:.1f} | {lat.max() * 1e3:.1f} | {fork} | {made} |")
+
+
+def worker_beside(blocks):
+    import os
+
+    from fault_screen import Simulation
+    from fault_screen.monitor.lookahead import lower_worker_priority
+    from fault_screen.screening.stepwise import StepScreening
+
+    scene = Scene.from_toml(ROOT / "configs" / "rustrel-2015-calibrated.toml")
+    sim = Simulation(scene)
+    fp = sim.disc.fault_points
+    screening = StepScreening.for_scene(scene, fp.s - sim.disc.injection.s, fp.weight)
+    screening.screen_simulation(sim)
+
+    def steps(n):
+        out = []
+        for _ in range(n):
+            w, c = time.perf_counter(), time.thread_time()
+            sim.advance(sim.time + scene.time.dt, align=True, max_steps=1)
+            screening.screen_simulation(sim)
+            out.append((time.perf_counter() - w, time.thread_time() - c))
+        return out
+
+    def worker(fork, stop, nice):
+        if nice:
+            lower_worker_priority()
+        while not stop.is_set():
+            f, n = fork.fork(), 0
+            while not stop.is_set() and n < 50 and f.advance(f.time + scene.time.dt, max_steps=1):
+                n += 1
+
+    steps(5)
+    print(f"live steps of the calibrated Rustrel scene, {blocks} blocks of 10 per case; 2 cores, "
+          f"load average {os.getloadavg()[0]:.1f}")
+    print("| worker | live step wall, median (ms) | p95 (ms) | live thread CPU per step, median (ms) |")
+    print("|---|---|---|---|")
+    for nice in (True, False):
+        alone, beside = [], []
+        for _ in range(blocks):
+            alone += steps(10)
+            stop = threading.Event()
+            th = threading.Thread(target=worker, args=(sim.fork(), stop, nice), daemon=True)
+            th.start()
+            time.sleep(0.3)
+            beside += steps(10)
+            stop.set()
+            th.join()
+        for name, v in (("none", alone), ("nice +10" if nice else "same priority", beside)):
+            v = np.array(v)
+            print(f"| {name} | {np.median(v[:, 0]) * 1e3:.1f} | {np.percentile(v[:, 0], 95) * 1e3:.1f} | "
+                  f"{np.median(v[:, 1]) * 1e3:.1f} |")
 
 
 if __name__ == "__main__":

@@ -10,6 +10,7 @@ import click
 from ._options import (DIR, FILE, FILE_OR_URL, BadInput, _positive_callback, _t0_callback,
                        _unit_callback, check_size, log_reading_options, reading, version_option)
 from ._common import load_scene
+from .forecast import _duration
 
 
 def _sta_lta_callback(ctx, param, value):
@@ -109,13 +110,27 @@ def _count_callback(ctx, param, value):
               help="Serve Prometheus metrics at http://ADDRESS:PORT/metrics.")
 @click.option("--metrics-address", default="127.0.0.1", show_default=True, metavar="ADDRESS",
               help="Address the metrics are served on (0.0.0.0: every interface).")
+@click.option("--plan", "plans", multiple=True, metavar="P",
+              help="Look ahead under this injection plan (repeatable; the first is the one "
+                   "followed): hold, stop, scene (the scene's schedule), 'rate:30 L/min', "
+                   "'scale:1.2' or a log file. Forecasts are refreshed on forks of the live "
+                   "model in a worker thread, stored in /lookahead of --out and alerted "
+                   "(kind 'forecast') when they change [default with --horizon/--advise: hold, stop].")
+@click.option("--horizon", default=None, metavar="H", callback=_duration("--horizon"),
+              help="How far each look-ahead goes: seconds or a duration (1h, 30 min) [default: 1h].")
+@click.option("--lookahead-every", default=None, metavar="S", callback=_duration("--lookahead-every"),
+              help="Model time between look-ahead refreshes (a refresh still running when the "
+                   "next is due skips it) [default: 60 s].")
+@click.option("--advise", is_flag=True,
+              help="Each refresh also finds the largest constant rate that stays green over "
+                   "the horizon.")
 @click.option("--quiet", "-q", is_flag=True, help="Only warnings and errors on stderr.")
 @version_option
 def monitor(scene_path, follow, events, waveforms, seedlink, seedlink_streams, state, out, overwrite, idle_exit, alerts, source,
             poll_interval, checkpoint_every, outbox, flow_unit, pressure_unit, max_gap, policy,
             log_date, log_tz, time_column, flow_column, pressure_column, time_unit,
             volume_column, cumulative_volume_column, volume_unit, accept_implausible, t0,
-            sta_lta, metrics_port, metrics_address, quiet):
+            sta_lta, metrics_port, metrics_address, plans, horizon, lookahead_every, advise, quiet):
     """Follow a growing injection log with the model of SCENE, screen every step, and alert.
 
     The model advances only as far as the samples allow (whole steps ending at or before the
@@ -166,13 +181,16 @@ def monitor(scene_path, follow, events, waveforms, seedlink, seedlink_streams, s
         if not re.fullmatch(rf"{token}(,{token})*", seedlink_streams.replace(", ", ",")):
             raise BadInput(f"--seedlink-streams {seedlink_streams!r}: expected NET_STA[:SELECTORS],"
                            f"... (e.g. BW_RJOB:EH?)")
+    lookahead = _lookahead(plans, horizon, lookahead_every, advise, dict(
+        flow_unit=flow_unit, pressure_unit=pressure_unit, max_gap=max_gap, policy=policy,
+        date=log_date, tz=log_tz))
     cfg = MonitorConfig(follow=follow, state=state, out=out, events=events, waveforms=waveforms,
                         seedlink=seedlink, seedlink_streams=seedlink_streams or "",
                         idle_exit=idle_exit, alerts=list(alerts), source=source,
                         poll_interval=poll_interval, checkpoint_every=checkpoint_every,
                         outbox=outbox, flow_unit=flow_unit, pressure_unit=pressure_unit,
                         max_gap=max_gap, policy=policy, t0=t0, sta_lta=sta_lta,
-                        label=str(scene_path), overwrite=overwrite,
+                        label=str(scene_path), overwrite=overwrite, lookahead=lookahead,
                         log_options=dict(date=log_date, tz=log_tz, time_column=time_column,
                                          flow_column=flow_column, pressure_column=pressure_column,
                                          time_unit=time_unit, volume_column=volume_column,
@@ -212,3 +230,25 @@ def monitor(scene_path, follow, events, waveforms, seedlink, seedlink_streams, s
                       if summary["pending_alerts"] else "")
                    + (f", {summary['dead_alerts']} refused for good (fault-screen plugins "
                       f"--outbox {summary['outbox']})" if summary["dead_alerts"] else ""))
+
+
+def _lookahead(plans, horizon, every, advise, log_options):
+    """The look-ahead settings (MonitorConfig.lookahead), or None when none was asked for."""
+    if not plans and horizon is None and every is None and not advise:
+        return None
+    from ..forecast import PlanError, parse_plan
+
+    import math
+
+    if horizon is not None and not (math.isfinite(horizon) and horizon > 0):
+        raise BadInput(f"--horizon {horizon!r}: must be a finite duration > 0")
+    if every is not None and not (math.isfinite(every) and every > 0):
+        raise BadInput(f"--lookahead-every {every!r}: must be a finite duration > 0")
+    try:
+        for p in plans:
+            parse_plan(p, log_options=log_options).check("rate")
+    except PlanError as exc:
+        raise BadInput(str(exc)) from None
+    return {"plans": list(plans) or ["hold", "stop"], "horizon": 3600.0 if horizon is None else horizon,
+            "every": 60.0 if every is None else every, "advise": bool(advise),
+            "plan_log_options": log_options}

@@ -9,8 +9,9 @@ the ``fault_screen_`` prefix, base SI units in the name, ``_total`` for counters
 ``fault_screen_<metric>_<unit>``                 each screening metric of the newest step
                                                  (:data:`SCREENING`; NaN when undefined, e.g.
                                                  no event in the step)
-``fault_screen_forecast_time_to_yellow_seconds`` model time left before the forecast reaches
-``fault_screen_forecast_time_to_red_seconds``    yellow / red (NaN until a look-ahead sets it)
+``fault_screen_forecast_time_to_yellow_seconds`` model time left before the forecast of the
+``fault_screen_forecast_time_to_red_seconds``    first ``--plan`` reaches yellow / red (NaN: no
+                                                 look-ahead yet, or not within its horizon)
 ``fault_screen_model_time_seconds``              model time of the newest step
 ``fault_screen_model_lag_seconds``               newest sample's time minus the model time
 ``fault_screen_step_wall_seconds``               histogram of the wall time of each step
@@ -117,6 +118,12 @@ class MetricsExporter:
             if m in upd.metrics:
                 v = upd.metrics[m]
                 gauge.set(math.nan if v is None else float(v) * SCREENING[m][1])
+        forecasts = getattr(upd, "forecasts", ())
+        if forecasts:
+            # each refresh's rows begin with the plan followed: its newest row
+            lead = forecasts[0]["plan"]
+            row = [r for r in forecasts if r["plan"] == lead][-1]
+            self.set_forecast(row["time_to_yellow"], row["time_to_red"])
         svc = self.service
         if svc is None:
             return

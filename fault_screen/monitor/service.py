@@ -26,6 +26,7 @@ from . import plugins
 from .outbox import Outbox
 from .event_service import follower_for
 from .seismicity import SdsDetector, SeedLinkDetector, Site
+from .lookahead import LiveLookAhead, forecast_text
 from .stage import LEVELS, Stage
 
 __all__ = ["MonitorConfig", "MonitorService", "MonitorInputError"]
@@ -34,6 +35,8 @@ log = logging.getLogger("fault_screen.monitor")
 
 #: wall seconds between flushes of the streamed result file (beside those of the checkpoints)
 FLUSH_INTERVAL = 2.0
+#: wall seconds a monitor that ends (source ended, idle) waits for the look-ahead refresh that runs
+LOOKAHEAD_END_WAIT = 60.0
 
 
 class MonitorInputError(ValueError):
@@ -68,10 +71,18 @@ class MonitorConfig:
     drain_timeout: float = 10.0                # s spent on pending alerts at exit
     label: str = ""
     overwrite: bool = False                    # replace an existing --out of an earlier run
+    # look-ahead (None: off): plans (texts), horizon and every (s), advise (bool)
+    lookahead: Optional[dict] = None
 
 
 class MonitorService:
     """Run a :class:`Stage` as a service (see the module docstring).
+
+    With ``config.lookahead`` the stage refreshes forecasts in a worker thread
+    (:mod:`~fault_screen.monitor.lookahead`); their alerts go to the same outbox, their
+    refreshes are collected also while no sample comes, and at the end the refresh that runs
+    is waited for (up to ``drain_timeout`` or :data:`LOOKAHEAD_END_WAIT`, the longer; not
+    on SIGINT/SIGTERM).  ``forecaster`` replaces the default one.
 
     ``sinks`` adds alert plugin instances by key besides ``config.alerts`` (used by embedding
     programs and the latency benchmark); ``simulation_class``, ``screener`` and ``metrics`` are
@@ -81,7 +92,7 @@ class MonitorService:
 
     def __init__(self, scene, config: MonitorConfig, *, sinks: Optional[Dict[str, object]] = None,
                  simulation_class=None, screener=None, metrics=None,
-                 on_update=None):
+                 on_update=None, forecaster=None):
         self.scene, self.cfg = scene, config
         self.on_update = on_update
         self._stop = threading.Event()
@@ -91,6 +102,9 @@ class MonitorService:
         # plugins first: a bad name or option fails before the model is built
         all_sinks = plugins.alert_sinks(config.alerts)
         all_sinks.update(sinks or {})
+        lookahead = None
+        if config.lookahead is not None:
+            lookahead = LiveLookAhead(**config.lookahead, forecaster=forecaster)
         name = config.source or ("stdin" if config.follow == "-" else "hydws" if
                                  config.follow.startswith(("http://", "https://")) else "csv")
         # at once, before the model is built (which takes a while): what is being followed
@@ -115,7 +129,8 @@ class MonitorService:
             self.stage, _ = Stage.restore(config.state, scene=scene,
                                           simulation_class=simulation_class,
                                           screener=screener, metrics=metrics, site=config.site,
-                                          out=config.out)
+                                          out=config.out, lookahead=lookahead,
+                                          on_alert=self._raised)
             log.info("resumed from %s at model time %.6g s (%d steps, %d samples)",
                      config.state, self.stage.time, self.stage.steps, self.stage.samples.count)
         else:
@@ -126,7 +141,8 @@ class MonitorService:
             # without checkpoints nothing continues the file: written as OUT.part, renamed
             self.stage = Stage(scene, start=config.t0, simulation=sim, screener=screener,
                                metrics=metrics, site=config.site, label=config.label,
-                               out=config.out, out_via_temporary=config.state is None)
+                               out=config.out, out_via_temporary=config.state is None,
+                               lookahead=lookahead, on_alert=self._raised)
         box = config.outbox
         if box is None and not all_sinks:
             box = ":memory:"           # no alert plugin: nothing to deliver, no file
@@ -143,6 +159,11 @@ class MonitorService:
         self._last_ckpt = self.stage.steps
         self._last_wave_poll = 0.0
         self._last_flush = time.monotonic()
+
+    def _raised(self, alert: dict) -> None:
+        """An alert the stage has just raised: into the outbox at once (its delivery threads
+        send it while the stage goes on with the batch)."""
+        self.outbox.put(alert)
 
     # -- signals ----------------------------------------------------------------------------
     def request_stop(self, reason: str = "stop requested") -> None:
@@ -222,11 +243,16 @@ class MonitorService:
             raise self.decoder.error
 
     def _handle(self, upd, checkpoint: bool = True) -> None:
+        # (the alerts went to the outbox as the stage raised them: _raised)
         for d, alert in zip(upd.transitions, upd.alerts):
-            self.outbox.put(alert)
             log.warning("t = %.6g s: level %s -> %s (%s)%s", d["time"], alert["previous_level"],
                         alert["level"], alert["rule"],
                         f": {alert['action']}" if alert["action"] else "")
+        for alert in upd.forecast_alerts:
+            log.warning("t = %.6g s: %s", alert["model_time"], alert["text"])
+        if upd.forecasts and not upd.forecast_alerts:
+            log.info("t = %.6g s: %s", upd.forecasts[-1]["made_at"],
+                     forecast_text(_last_refresh(upd.forecasts), self.stage.start))
         if self.on_update is not None:
             self.on_update(upd)
         now = time.monotonic()
@@ -300,6 +326,8 @@ class MonitorService:
             else:
                 self._poll_seismicity()
                 self._feed(samples)              # raises a bad line's error kept meanwhile
+                if self.stage.lookahead is not None:
+                    self._handle(self.stage.poll_forecasts(), checkpoint=False)
             if getattr(self.source, "finished", False):
                 ended = "source ended"
                 break
@@ -316,7 +344,20 @@ class MonitorService:
             self._feed(self.source.flush())
             self._feed(self.decoder.end())
             self._poll_seismicity(force=True)
+            if self.stage.lookahead is not None:      # the refresh that runs, if any
+                self._handle(self.stage.wait_forecasts(max(self.cfg.drain_timeout, LOOKAHEAD_END_WAIT)),
+                             checkpoint=False)
+                if self.stage.lookahead.busy:
+                    log.warning("the look-ahead made at t = %.6g s was still running after %g s: "
+                                "not stored", self.stage.lookahead.running_since,
+                                max(self.cfg.drain_timeout, LOOKAHEAD_END_WAIT))
             self.checkpoint()            # the aligned state: a restart continues from here
             self._handle(self.stage.finish(), checkpoint=False)
             self._write_result()
         return ended
+
+
+def _last_refresh(rows: list) -> list:
+    """The rows of the newest refresh among ``rows`` (those made at the last ``made_at``)."""
+    last = rows[-1]["made_at"]
+    return [r for r in rows if r["made_at"] == last]

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import math
 import os
 from collections import deque
@@ -51,7 +52,11 @@ from ..io.volume import PiecewiseLinearVolume
 from ..stepper import Simulation
 from ..screening import Events, StepScreening, event_metrics, screen_result
 from ..screening.metrics import MetricsTracker
+from .lookahead import (LiveDrive, LiveLookAhead, forecast_alert, forecast_change,
+                        lookahead_arrays, lookahead_record, lookahead_streams, summary_of)
 from .seismicity import SeismicEvent, Site, associate
+
+_log = logging.getLogger("fault_screen.monitor")
 
 __all__ = ["Stage", "Update", "SampleBuffer", "alert_payload", "alert_id", "LEVELS"]
 
@@ -199,7 +204,9 @@ def _transition_dict(tr) -> dict:
 class Update:
     """What one call to the stage did: ``steps`` taken, model ``time`` (s) after them, ``state``
     (the newest recorded row), ``metrics`` of the newest step, level ``transitions`` (dicts) and
-    the ``alerts`` (payload dicts) they raised, ``level`` now."""
+    the ``alerts`` (payload dicts) they raised, ``level`` now; with a look-ahead, the
+    ``forecasts`` (rows of the refreshes finished meanwhile) and the ``forecast_alerts`` they
+    raised."""
 
     steps: int = 0
     time: float = 0.0
@@ -209,6 +216,8 @@ class Update:
     alerts: list = field(default_factory=list)
     level: int = 0
     step_seconds: list = field(default_factory=list)   # wall time of each step taken (s)
+    forecasts: list = field(default_factory=list)      # look-ahead rows collected (dicts)
+    forecast_alerts: list = field(default_factory=list)   # the forecast alerts they raised
 
 
 class Stage:
@@ -226,12 +235,21 @@ class Stage:
     :class:`~fault_screen.monitor.seismicity.Site` to place hypocentres (default: the scene's
     ``[site]``).  ``event_window``: seconds over which
     ``event_rate`` counts events (default: ``[monitor] event_rate_window``).
+    ``lookahead``: a :class:`~fault_screen.monitor.lookahead.LiveLookAhead` (plans, horizon,
+    every, advice, forecaster): forecasts refreshed on forks in a worker thread, collected at
+    each call (:meth:`poll_forecasts` between calls), kept in :attr:`forecasts` and ``/lookahead``
+    of the results, ``on_forecast(rows, alert or None)`` called with each refresh's rows.
+    ``on_alert(alert)``: called with each alert (level change or forecast) as soon as it is
+    raised, before the stage takes its next step or fork (the service's outbox takes them so:
+    the later steps of a batch and a look-ahead fork never delay an alert); the alerts are in
+    the returned :class:`Update` as well.
     """
 
     def __init__(self, scene, *, start: Optional[datetime] = None, simulation=None,
                  screener=None, metrics=None, site: Optional[Site] = None,
                  event_window: Optional[float] = None, label: str = "", history: int = 16,
-                 out=None, out_via_temporary: bool = False):
+                 out=None, out_via_temporary: bool = False, lookahead=None, on_forecast=None,
+                 on_alert=None):
         if getattr(scene.injection, "control", "rate") != "rate":
             raise ValueError(f"injection.control = {scene.injection.control!r}: the monitor "
                              f"drives the flow rate; use a scene with control = 'rate'")
@@ -267,6 +285,13 @@ class Stage:
         # and replay write): an earlier OUT stays intact until then
         self.out_via_temporary = bool(out_via_temporary)
         self.screened = 0                 # rows screened, the in-situ row included
+        if lookahead is not None and screener is not None:
+            raise ValueError("the look-ahead screens its forks with the scene's [monitor] rules: "
+                             "it needs the stage's own screening (no screener given)")
+        self.lookahead = lookahead
+        self.on_forecast = on_forecast
+        self.on_alert = on_alert
+        self.largest_rate = 0.0           # m3/s, of the samples received (the advice's bound)
 
     # -- identity ---------------------------------------------------------------------------
     @property
@@ -310,6 +335,7 @@ class Stage:
                 continue
             pk = None if p is None or p[k] is None else float(p[k])
             self.samples.append(tk, float(q[k]), pk)
+            self.largest_rate = max(self.largest_rate, float(q[k]))
             if writer is not None:
                 rec = {"/log/time": tk, "/log/flow_rate": float(q[k])}
                 if "/log/pressure" in writer.streams["log"]:
@@ -327,6 +353,9 @@ class Stage:
         if with_pressure:
             log["/log/pressure"] = ("<f8", ())
         streams["log"] = log
+        if self.lookahead is not None:
+            streams.update(lookahead_streams())
+            self.lookahead._stream = True
         self.sim.stream_to(self.stream_path, streams=streams, meta=self._meta())
 
     @property
@@ -358,6 +387,10 @@ class Stage:
                 "monitor_alerts": self.alerts_raised}
         if self.start is not None:
             meta["start"] = self.start.isoformat()
+        la = self.lookahead
+        if la is not None:      # how many refreshes were made, skipped (busy worker), failed
+            meta.update(lookahead=la.settings(), lookahead_made=la.made,
+                        lookahead_skipped=la.skipped, lookahead_failed=la.failed)
         return meta
 
     def feed_events(self, events: Sequence[SeismicEvent]) -> None:
@@ -428,10 +461,76 @@ class Stage:
             upd.step_seconds.append(perf_counter() - wall)
             upd.steps += 1
             self.steps += 1
+            self._refresh_lookahead()
         if upd.steps:
             self.samples.drop_before(self.time)
+        self._collect_forecasts(upd)
         upd.time, upd.level = self.time, self.level
         return upd
+
+    # -- look-ahead -------------------------------------------------------------------------
+    def _refresh_lookahead(self) -> None:
+        """After a step: a look-ahead refresh when one is due (the fork is taken here, between
+        two steps; the plans run in the worker)."""
+        la = self.lookahead
+        if la is None or not la.due(self.time):
+            return
+        drive = LiveDrive(self.sim.schedule, self.samples.rate_at(self.time), self.largest_rate,
+                          self.time)
+        la.refresh(self.sim, self.screening, drive, self.time, start=self.start)
+
+    def _collect_forecasts(self, upd: Update) -> None:
+        la = self.lookahead
+        if la is None:
+            return
+        writer = self.sim.writer if self.out is not None and la._stream else None
+        for job in la.collect():
+            if job.error is not None:
+                la.failed += 1
+                _log.error("look-ahead made at t = %.6g s failed (the live monitor goes on):\n%s",
+                           job.made_at, job.error)
+                continue
+            rows = job.rows
+            la.made += 1
+            for row in rows:
+                if writer is not None:
+                    writer.append("lookahead", lookahead_record(row))
+                else:
+                    la.rows.append(row)
+                la.latest[str(row["plan"])] = row
+            upd.forecasts.extend(rows)
+            summary = [summary_of(r) for r in rows]
+            alert = None
+            if len(summary) == len(la.summary) and summary != la.summary:
+                made_at, before, after = forecast_change(rows, la.summary)
+                alert = forecast_alert(alert_id=alert_id(self.run_key, made_at, before, after,
+                                                         "forecast"),
+                                       rows=rows, previous=la.summary, start=self.start,
+                                       label=self.label, advise_level=la.advise_level)
+                upd.forecast_alerts.append(alert)
+                if self.on_alert is not None:
+                    self.on_alert(alert)
+                self.alerts_raised += 1
+            la.summary = summary
+            if self.on_forecast is not None:
+                self.on_forecast(rows, alert)
+
+    @property
+    def forecasts(self) -> dict:
+        """The newest forecast row of each plan (plan name -> row; empty without look-ahead)."""
+        return dict(self.lookahead.latest) if self.lookahead is not None else {}
+
+    def poll_forecasts(self) -> Update:
+        """Collect the look-ahead refreshes finished since the last call, without stepping."""
+        upd = Update(time=self.time, level=self.level)
+        self._collect_forecasts(upd)
+        return upd
+
+    def wait_forecasts(self, timeout: Optional[float] = None) -> Update:
+        """Wait (up to ``timeout`` s) for the refresh that runs, then collect it."""
+        if self.lookahead is not None:
+            self.lookahead.wait(timeout)
+        return self.poll_forecasts()
 
     def _bind(self) -> None:
         """The fault geometry and the per-step screening, at the first row."""
@@ -489,6 +588,8 @@ class Stage:
                                   start=self.start, label=self.label)
             self.alerts_raised += 1
             upd.alerts.append(alert)
+            if self.on_alert is not None:
+                self.on_alert(alert)
 
     def _associate(self, ev: SeismicEvent):
         geo = self._geometry
@@ -515,8 +616,8 @@ class Stage:
                                              [_nan(x["magnitude"]) for x in a],
                                              [_nan(x["distance_injection"]) for x in a]))
         meta = dict(getattr(res, "meta", {}) or {})
-        meta.update(monitor_samples=self.samples.count, monitor_ignored_samples=self.ignored,
-                    monitor_alerts=self.alerts_raised)
+        meta.update(self._meta())
+        meta.pop("start", None)
         res.meta = meta
         return res
 
@@ -548,6 +649,9 @@ class Stage:
             ev = {k: np.array([_nan(v) for v in vals], dtype=float) for k, vals in ev.items()}
             ev["kind"] = np.array([x["kind"] for x in a], dtype="S")
             extra["events"] = ev
+        if self.lookahead is not None and self.lookahead.rows:
+            # the forecasts kept in memory (a result file streams them as they come)
+            extra["lookahead"] = lookahead_arrays(self.lookahead.rows)
         return extra
 
     # -- checkpoints ------------------------------------------------------------------------
@@ -566,6 +670,8 @@ class Stage:
             "event_window": self.event_window, "label": self.label,
             "rows": [_row_json(r) for r in self._rows],
             "screened": self.screened, "out": str(self.stream_path) if self.out is not None else None,
+            "largest_rate": self.largest_rate,
+            "lookahead": None if self.lookahead is None else self.lookahead.state(),
         }
 
     def checkpoint(self, path, extra: Optional[dict] = None) -> Path:
@@ -607,11 +713,14 @@ class Stage:
 
     @classmethod
     def restore(cls, path, *, scene=None, simulation_class=None, screener=None, metrics=None,
-                site: Optional[Site] = None, out=None):
+                site: Optional[Site] = None, out=None, lookahead="saved", on_forecast=None,
+                on_alert=None):
         """A stage continuing exactly from the checkpoint ``path``; returns ``(stage, extra)``.
         ``simulation_class`` (default ``fault_screen.Simulation``) provides ``restore(path)``.
         A stage that streamed its results continues its result file (``out``, default the one
-        it streamed to), cut back to what the checkpoint counts."""
+        it streamed to), cut back to what the checkpoint counts.  ``lookahead``: the
+        look-ahead from now on (a LiveLookAhead; None: none; default ``"saved"``: the saved
+        settings, if any); it continues from the saved forecasts (alert summaries, due time)."""
         state = cls._saved_state(path)
         if state.get("version") != _STATE_VERSION:
             raise ValueError(f"{path}: a monitor state of layout {state.get('version')!r} (this "
@@ -632,9 +741,18 @@ class Stage:
                              f"the scene it was written for, or without --state")
         scene = scene if scene is not None else sim.scene
         start = datetime.fromisoformat(state["start"]) if state["start"] else None
+        saved_la = state.get("lookahead")
+        if isinstance(lookahead, str):
+            lookahead = LiveLookAhead(**saved_la["settings"]) if saved_la is not None else None
         st = cls(scene, start=start, simulation=sim, screener=screener, metrics=metrics,
                  site=site, event_window=state["event_window"], label=state["label"],
-                 out=(out if out is not None else state["out"]) if streamed else None)
+                 out=(out if out is not None else state["out"]) if streamed else None,
+                 lookahead=lookahead, on_forecast=on_forecast, on_alert=on_alert)
+        if lookahead is not None:
+            if saved_la is not None:
+                lookahead.restore_state(saved_la)
+            # a streamed file continued: its /lookahead stream was declared when it was made
+            lookahead._stream = streamed and saved_la is not None
         st.screener = _with_own_state(screener, state["screener"])
         st.metrics_fn = _with_own_state(metrics, state["metrics"])
         if state["screening"] is not None:
@@ -650,6 +768,7 @@ class Stage:
         st.alerts_raised = state["alerts_raised"]
         st._rows.extend(_row_from_json(r) for r in state["rows"])
         st.screened = state.get("screened", st.steps)
+        st.largest_rate = float(state.get("largest_rate", 0.0))
         return st, state.get("extra", {})
 
 
