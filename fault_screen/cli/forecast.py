@@ -55,6 +55,10 @@ def _duration(what):
 @click.option("--max-rate", default=None, metavar="Q",
               help="Largest rate the advice tries, with a unit (e.g. '80 L/min'; pressure "
                    "control: '8 MPa') [default: twice the largest rate so far].")
+@click.option("--ladder", "ladder_dt_max", default=None, metavar="DT_MAX", callback=_duration("--ladder"),
+              help="Look ahead on steps doubling from the run's step up to DT_MAX (seconds or a "
+                   "duration), each size factorised once for all plans: faster, the time to "
+                   "yellow late by up to DT_MAX [default: the scene's own steps, exact].")
 @click.option("--out", "-o", "out", type=FILE, default=Path("forecast.csv"), show_default=True,
               metavar="CSV", help="The forecasts, one row per time and plan.")
 @click.option("--plot", "plot_dir", type=DIR, default=None, metavar="DIR",
@@ -82,7 +86,7 @@ def _duration(what):
 def forecast(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, end, log_date, log_tz,
              time_column, flow_column, pressure_column, time_unit, volume_column,
              cumulative_volume_column, volume_unit, accept_implausible, at, every, horizon, plans,
-             advise, advise_level, max_rate, out, plot_dir, t0, quiet, params_path, members,
+             advise, advise_level, max_rate, ladder_dt_max, out, plot_dir, t0, quiet, params_path, members,
              distribution, seed, free, confidence, workers, scheduler):
     """Forecast what the fault of SCENE does over the next H under injection plans, from one or
     more times of its run (or of the replay of --log LOG, with replay's log options).
@@ -148,8 +152,9 @@ def forecast(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, en
         return _forecast_ensemble(scene, scene_path, drive, start, times, plan_list, horizon, draws,
                                   dict(level=level, max_rate=max_rate_si) if advise else None,
                                   confidence if confidence is not None else 0.9, workers, scheduler,
-                                  out, plot_dir, quiet)
-    made = _forecasts(scene, drive, start, times, plan_list, horizon, advise, level, max_rate_si)
+                                  out, plot_dir, quiet, ladder_dt_max)
+    made = _forecasts(scene, drive, start, times, plan_list, horizon, advise, level, max_rate_si,
+                      ladder_dt_max)
     click.echo(_table([f for f, _ in made], scene.injection.control))
     for line in dict.fromkeys(a.describe() for _, a in made if a is not None):
         click.echo(line)
@@ -219,11 +224,13 @@ def _check_outputs(out, plot_dir):
         plot_dir.mkdir(parents=True, exist_ok=True)
 
 
-def _forecasts(scene, drive, start, times, plans, horizon, advise, level, max_rate):
+def _forecasts(scene, drive, start, times, plans, horizon, advise, level, max_rate, ladder_dt_max=None):
     """Run the scene through the forecast times, screened at every row; at each, the look-aheads
-    of every plan (and the advice). Returns [(Forecast, Advice or None)] in order."""
+    of every plan (and the advice), on one step ladder when ``ladder_dt_max`` is given.
+    Returns [(Forecast, Advice or None)] in order."""
     from ..screening.stepwise import StepScreening
     from ..forecast import LookAhead
+    from ..forecast.lookahead import StepLadder
     from ..forecast import advise as find_advice
     from ..stepper import Simulation
 
@@ -232,11 +239,12 @@ def _forecasts(scene, drive, start, times, plans, horizon, advise, level, max_ra
     screening = StepScreening.for_scene(scene, fp.s - sim.disc.injection.s, fp.weight)
     screening.screen_simulation(sim)
     volume = drive.volume if drive is not None else None
+    ladder = StepLadder(ladder_dt_max) if ladder_dt_max is not None else None
     made = []
     for t in times:
         while sim.advance(t, volume=volume, align=True, max_steps=1):
             screening.screen_simulation(sim)
-        ahead = LookAhead(sim, screening, drive=drive, start=start)
+        ahead = LookAhead(sim, screening, drive=drive, start=start, ladder=ladder)
         advice = find_advice(ahead, horizon, level=level, max_rate=max_rate) if advise else None
         for plan in plans:
             f = ahead.run(plan, horizon)
@@ -321,7 +329,7 @@ def _draws(scene, params_path, members, distribution, seed, free, confidence, ad
 
 
 def _forecast_ensemble(scene, scene_path, drive, start, times, plans, horizon, draws, advice,
-                       confidence, workers, scheduler, out, plot_dir, quiet):
+                       confidence, workers, scheduler, out, plot_dir, quiet, ladder_dt_max=None):
     """The scene's own forecasts and every member's, as tasks on the ensemble runner; the
     table, the CSV (the ensemble columns added) and the figure."""
     from ..forecast import COLUMNS
@@ -330,8 +338,10 @@ def _forecast_ensemble(scene, scene_path, drive, start, times, plans, horizon, d
     from ._options import RunFailed
 
     scene_dict = scene.to_dict()
-    calls = [(i, scene_dict, d, times, plans, horizon, drive, start, advice) for i, d in enumerate(draws)]
-    calls.append((-1, scene_dict, {}, times, plans, horizon, drive, start, None))   # the scene itself
+    steps = dict(ladder=ladder_dt_max) if ladder_dt_max is not None else None   # a ladder per member
+    calls = [(i, scene_dict, d, times, plans, horizon, drive, start, advice, steps)
+             for i, d in enumerate(draws)]
+    calls.append((-1, scene_dict, {}, times, plans, horizon, drive, start, None, steps))   # the scene itself
     if not quiet:
         click.echo(f"ensemble: {len(draws)} members and the scene itself, "
                    f"{'in this process' if workers == 0 and scheduler is None else scheduler or f'{workers} workers'}")

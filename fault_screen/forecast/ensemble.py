@@ -77,12 +77,25 @@ class MemberRun:
     cpu_s: float = math.nan
 
 
+def member_steps(steps: Optional[dict]) -> dict:
+    """The keywords of :class:`LookAhead` for one member's look-aheads: ``growth``/``dt_max`` as
+    given, or ``ladder`` (dt_max in s) made into a :class:`StepLadder` of the member's own (a
+    ladder keeps factorisations of one run's discretisation, so members never share one)."""
+    steps = dict(steps or {})
+    if steps.get("ladder") is not None:
+        from .lookahead import StepLadder
+
+        steps["ladder"] = StepLadder(steps["ladder"])
+    return steps
+
+
 def lookaheads(scene, times: Sequence[float], drive=None, start: Optional[datetime] = None,
                steps: Optional[dict] = None):
     """Run ``scene`` from time 0, screened at every row, and yield a :class:`LookAhead` at the
     last step ending by each of ``times`` (s, ascending). ``drive``: what drives the run (an
     InjectionLog), None for the scene's schedule; ``start``: date-time of model time 0;
-    ``steps``: the look-aheads' ``growth`` and ``dt_max`` (default: the scene's own steps)."""
+    ``steps``: the look-aheads' ``growth`` and ``dt_max``, or ``ladder`` (its dt_max, s)
+    (default: the scene's own steps)."""
     from ..screening.stepwise import StepScreening
     from ..stepper import Simulation
 
@@ -91,10 +104,11 @@ def lookaheads(scene, times: Sequence[float], drive=None, start: Optional[dateti
     screening = StepScreening.for_scene(scene, fp.s - sim.disc.injection.s, fp.weight)
     screening.screen_simulation(sim)
     volume = drive.volume if drive is not None else None
+    keywords = member_steps(steps)
     for t in times:
         while sim.advance(t, volume=volume, align=True, max_steps=1):
             screening.screen_simulation(sim)
-        yield LookAhead(sim, screening, drive=drive, start=start, **(steps or {}))
+        yield LookAhead(sim, screening, drive=drive, start=start, **keywords)
 
 
 def run_member(index: int, scene_dict: dict, overrides: dict, times: Sequence[float], plans: Sequence[Plan],
@@ -311,6 +325,7 @@ class LiveEnsemble:
 
         self.drive, self.start = drive, start
         self.advice, self.confidence, self.steps = advice, confidence, dict(steps or {})
+        self._keywords = {}   # member index -> its look-ahead keywords (its own ladder)
         self.failed: list[tuple[int, str]] = []
         self.members = []     # (index, params, Simulation, StepScreening)
         self._lock = threading.Lock()
@@ -321,6 +336,11 @@ class LiveEnsemble:
             screening = StepScreening.for_scene(sim.scene, fp.s - sim.disc.injection.s, fp.weight)
             screening.screen_simulation(sim)
             self.members.append((index, dict(params), sim, screening))
+
+    def _member_keywords(self, index: int) -> dict:
+        if index not in self._keywords:
+            self._keywords[index] = member_steps(self.steps)
+        return self._keywords[index]
 
     @property
     def time(self) -> float:
@@ -357,8 +377,8 @@ class LiveEnsemble:
         with self._lock:    # every member forked at the same time
             for index, params, sim, screening in self.members:
                 try:
-                    aheads.append((index, params, LookAhead(sim, screening, drive=self.drive,
-                                                            start=self.start, **self.steps)))
+                    aheads.append((index, params, LookAhead(sim, screening, drive=self.drive, start=self.start,
+                                                            **self._member_keywords(index))))
                 except Exception as exc:
                     aheads.append((index, params, exc))
         for index, params, ahead in aheads:

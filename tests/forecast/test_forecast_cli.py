@@ -120,3 +120,20 @@ def test_any_horizon_text_is_accepted_or_refused_with_exit_2(text):
     assert res.exit_code == 2, res.output
     assert "Error:" in res.output
     assert ("--horizon" in res.output) or ("after the end of the run" in res.output) or ("> 0" in res.output)
+
+
+def test_a_step_ladder_finds_yellow_late_by_at_most_its_largest_step(tmp_path):
+    """--ladder 40: steps doubling from the run's 10 s up to 40 s, so the forecast's first
+    yellow (exactly 90 s after 300 s on the scene's own steps) comes at most 40 s late and
+    never early; shut-in stays green either way (a ladder that reused one size's factors for
+    another, or skipped the horizon's end, would miss these)."""
+    out = tmp_path / "ladder.csv"
+    res = CliRunner().invoke(main, ["forecast", IMPERMEABLE, "--at", "5min", "--horizon", "10 min",
+                                    "--plan", "scene", "--plan", "stop", "--ladder", "40",
+                                    "--out", str(out), "-q"])
+    assert res.exit_code == 0, res.output
+    _, rows = _rows(out)
+    by_plan = {r["plan"]: r for r in rows}
+    assert 90.0 <= float(by_plan["scene"]["time_to_yellow"]) <= 90.0 + 40.0
+    assert by_plan["stop"]["max_level"] == "green" and by_plan["stop"]["time_to_yellow"] == ""
+    assert float(by_plan["stop"]["horizon"]) == 600.0
