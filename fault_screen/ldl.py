@@ -396,7 +396,24 @@ def _numeric(indptr, indices, data, n_linear, first, width, row_at, srows, tpare
                 panel_t[c * m + k] = d * front[k * m + c] if k > c else (d if k == c else 0.0)
         # the rows below: L21 = F21 (D L11^T)^-1, a row at a time, each by forward substitution
         # in axpy form (contiguous in panel_t)
-        for i in range(w, m):
+        i = w
+        while i + 4 <= m:   # four rows at a time: each row of panel_t read once for four
+            row0, row1, row2, row3 = i * m, (i + 1) * m, (i + 2) * m, (i + 3) * m
+            for c in range(w):
+                pc = c * m
+                pivot = panel_t[_u(pc + c)]
+                x0, x1 = front[_u(row0 + c)] / pivot, front[_u(row1 + c)] / pivot
+                x2, x3 = front[_u(row2 + c)] / pivot, front[_u(row3 + c)] / pivot
+                front[_u(row0 + c)], front[_u(row1 + c)] = x0, x1
+                front[_u(row2 + c)], front[_u(row3 + c)] = x2, x3
+                for k in range(c + 1, w):
+                    entry = panel_t[_u(pc + k)]
+                    front[_u(row0 + k)] -= x0 * entry
+                    front[_u(row1 + k)] -= x1 * entry
+                    front[_u(row2 + k)] -= x2 * entry
+                    front[_u(row3 + k)] -= x3 * entry
+            i += 4
+        for i in range(i, m):
             row = i * m
             for c in range(w):
                 x = front[row + c] / panel_t[c * m + c]
