@@ -21,9 +21,11 @@ last: the bordered design) and factorised by
   solve time the forward sweep, that LU's solve and the backward sweep.
 
 S is the symmetric form where the solver uses it (a poroelastic bulk, whose factors change with
-the step size); an elastic bulk (the fine 30-degree scene) is factorised as it is, M, whose bulk
-is symmetric already (the fault's flow rows times -dt would not be: asym 2 in the last table,
-and qdldl's elimination tree failed on that unsymmetric input).
+the step size); an elastic bulk (the fine 30-degree scene) is factorised as it is, M. There the
+bulk's rows and columns are symmetric (``ldl`` factorises them) but the fault block N x N is
+not (asym 2: the fault's flow rows against its opening), so S is not symmetric as a whole:
+qdldl, which reads the whole matrix from its upper triangle, fails there (its error is in the
+note), and the bordered ``ldl`` leaves that block to the dense Schur complement.
 
 Columns: factor time, solve time (one right-hand side), the factors' memory (values and indices),
 and the relative residual |M x - b| / |b| of the solve on the unsymmetric M, b random. The
