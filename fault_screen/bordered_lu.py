@@ -37,7 +37,9 @@ import scipy.sparse.linalg as spla
 from scipy.linalg.blas import dgemm as _gemm
 from scipy.linalg.lapack import dgetrs as _getrs
 
+from . import ldl
 from ._jit import helper, kernel, sweep_kernel
+from .ldl import NotQuasiDefinite, _u  # noqa: F401  (_u: the sweeps' unsigned index)
 
 
 @functools.cache
@@ -127,14 +129,6 @@ def _pack(indptr, indices, data, n, for_backward):
             for k in range(c, m):
                 values[v0 + k * w + c] = data[col + k]
     return first, width, row_at, value_at, rows, values
-
-
-@helper
-def _u(i):
-    """An index known to be non-negative, as unsigned: numba then drops the wraparound of
-    negative indices, whose select keeps LLVM from vectorising the sweeps' loops over a block
-    row (it gathered instead: the sweeps took 1.7 times as long)."""
-    return np.uint64(i)
 
 
 @sweep_kernel
@@ -244,6 +238,13 @@ class _Packed:
         _check_diagonal_first(indptr, indices, n)
         self.arrays = _pack(indptr, indices, data, n, for_backward)
 
+    @classmethod
+    def of(cls, arrays):
+        """Factors already packed (``_pack``'s arrays)."""
+        packed = cls.__new__(cls)
+        packed.arrays = arrays
+        return packed
+
 
 class PivotingAcrossBlocks(RuntimeError):
     """The factorisation swapped a row of the linear block with a condensed one: the trailing
@@ -267,12 +268,20 @@ class BorderedLU:
     sweep then reads L and D, and U is not held (half the factors' memory). U's trailing block
     still gives the Schur complement."""
 
-    def __init__(self, M, n_linear: int):
+    quasi_definite = False   # factorised by ldl.factorise (else by SuperLU)
+
+    def __init__(self, M, n_linear: int, analyses=None):
         if callable(M):
             M = M()
         n = M.shape[0]
         nB = n_linear
+        self.n, self.n_linear = n, nB
         symmetric = _linear_rows_symmetric(M, nB)
+        if analyses is not None and symmetric:
+            try:
+                return self._quasi_definite(M, analyses)
+            except NotQuasiDefinite:
+                pass
         lu = None
         # SuperLU keeps the given column order (NATURAL) and, with SymmetricMode, prefers the
         # diagonal pivot; the scaled block's diagonal dominates, so rows stay within their block.
@@ -288,7 +297,6 @@ class BorderedLU:
         else:
             raise PivotingAcrossBlocks("the linear block's factorisation pivoted on a condensed row")
         del M
-        self.n, self.n_linear = n, nB
         # SuperLU's own storage is freed as soon as the factors are copied out of it: perm_r is a
         # view into that object (a slice of it kept alive the whole factorisation, ~340 MB on
         # Rustrel 200 x 201), so it is copied too. scipy makes L and U together at the first
@@ -321,6 +329,19 @@ class BorderedLU:
             U = U.tocsr()   # (a transpose: sorted whatever the order of U's rows)
             self._U = _Packed(U.indptr, U.indices, U.data, nB, for_backward=True)
         del U
+
+    def _quasi_definite(self, M, analyses):
+        """The factors by ``ldl.factorise`` (M symmetric, its linear block quasi-definite): the
+        symbolic analysis of M's pattern from ``analyses``, no pivoting, so the rows keep their
+        order and U = D L^T."""
+        (first, width, row_at, value_at, rows, values), self._D, self.schur, nnz = \
+            ldl.factorise(M, self.n_linear, analyses)
+        self.quasi_definite = True
+        self.nnz = 2 * nnz   # (as L + U)
+        self._row_B = np.arange(self.n_linear)
+        self._row_N = np.arange(self.n - self.n_linear)
+        self._L = _Packed.of((first, width, row_at, value_at, rows, values))
+        self._U = None
 
     def forward(self, r_linear, r_condensed):
         """(L11^-1 P r_B, r_N - L_NB B^-1 r_B): the swept linear right-hand side (to hand back to
@@ -381,13 +402,15 @@ def _linear_rows_symmetric(M, nB):
 SPLIT_ABOVE = 50_000
 
 
-def bordered_lu(M, n_linear: int, split=None):
+def bordered_lu(M, n_linear: int, split=None, analyses=None):
     """``BorderedLU`` of ``M`` (or a function returning it), or ``SplitBorderedLU`` when the
     linear block is larger than SPLIT_ABOVE and ``split`` (the sizes of its parts, then of its
-    separators: see ``split_layout``) is given."""
+    separators: see ``split_layout``) is given. ``analyses`` (``ldl.SymbolicAnalyses``): a
+    symmetric M is factorised as L D L^T on the symbolic analysis of its pattern kept there
+    (numeric work only from the second matrix of a pattern on), SuperLU where a pivot fails."""
     if split is not None and n_linear > SPLIT_ABOVE and min(split[:-1]) > 0:
-        return SplitBorderedLU(M, n_linear, split)
-    return BorderedLU(M, n_linear)
+        return SplitBorderedLU(M, n_linear, split, analyses)
+    return BorderedLU(M, n_linear, analyses)
 
 
 class SplitBorderedLU:
@@ -414,7 +437,7 @@ class SplitBorderedLU:
     the swept right hand side handed from ``forward`` to ``backward`` is
     [c_1, ..., c_k, R_SS^-1 g_S]."""
 
-    def __init__(self, M, n_linear: int, split):
+    def __init__(self, M, n_linear: int, split, analyses=None):
         if callable(M):
             M = M()
         M = M.tocsc()
@@ -441,7 +464,7 @@ class SplitBorderedLU:
         eliminated = []   # each part's - W_i B_i^-1 E_i, on its border
         for part, border in zip(parts, self._borders):
             release_freed_memory()  # (what the last part's factorisation freed, before the next)
-            lu = BorderedLU(blocks.pop(0), len(part))   # (the block goes with its factorisation)
+            lu = BorderedLU(blocks.pop(0), len(part), analyses)   # (the block goes with its factorisation)
             own = M_WW[border][:, border].tocoo()
             np.subtract.at(lu.schur, (own.row, own.col), own.data)
             eliminated.append(lu.schur)

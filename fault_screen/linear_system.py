@@ -26,6 +26,7 @@ import scipy.sparse as sp
 
 from ._jit import helper, kernel
 from .bordered_lu import bordered_lu, lu_solve, release_freed_memory, split_layout
+from .ldl import SymbolicAnalyses
 from .ordering import nested_dissection
 
 
@@ -56,8 +57,10 @@ class CondensedSystem:
     A bulk that depends on the step size (rock pore pressure) is factorised in its symmetric
     form: with its flow rows multiplied by -dt the scaled poroelastic block is symmetric and
     quasi-definite (stiffness positive definite, storage plus dt times conduction positive
-    definite), so SuperLU keeps its diagonal pivots, and with them the fill-reducing order, at
-    every step size. Factorised as it is, its pivoting grew with dt (the flow rows' diagonal,
+    definite), so it has an L D L^T in the fill-reducing order without pivoting, at every step
+    size: ``ldl.py``, whose symbolic analysis (``_analyses``) is made at the first step and
+    serves every later step size, which pays the numeric factorisation only (SuperLU, keeping
+    its diagonal pivots, where a pivot fails). Factorised as it is, its pivoting grew with dt (the flow rows' diagonal,
     storage over dt, shrinks against the coupling): on the paper-units Rustrel scene the factors
     took 3.7 times the memory and 5-6 times the time at dt = 60-600 s that they take at 5 s
     (benchmarks/factorisation.py). The row factors are undone on the right-hand side and on the
@@ -75,6 +78,7 @@ class CondensedSystem:
     lu = None
     P = None
     _row_factor = None   # per free unknown in the factors' order: -dt (flow), 1 (mechanics)
+    _analyses = None     # the LDL^T's symbolic analyses of the symmetric form (ldl.py)
 
     def __init__(self, A, C, Hf, time_weight, free, fixed, condensed, coordinates, mechanical):
         self.A, self.C, self.Hf = A, C, Hf
@@ -205,9 +209,11 @@ class CondensedSystem:
             if not self.factors_any_dt:   # the symmetric form (see the class docstring)
                 self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
                 held[0].data *= self._row_factor[held[0].indices]
+                if self._analyses is None:
+                    self._analyses = SymbolicAnalyses()
             self.lu = None  # the old factors go before the new ones are made (peak memory)
             release_freed_memory()
-            self.lu = bordered_lu(held.pop, len(B), self._split)
+            self.lu = bordered_lu(held.pop, len(B), self._split, self._analyses)
             self.factorizations += 1
             if self._row_factor is not None:   # (the Schur complement of the rows as they are)
                 self.lu.schur /= self._row_factor[len(B):, None]

@@ -1,0 +1,547 @@
+"""Quasi-definite LDL^T of the bulk with the fault unknowns as its border, numeric part redone
+per step size on a symbolic analysis made once per pattern.
+
+With its flow rows multiplied by -dt, the scaled poroelastic free block is symmetric, and its
+bulk B is quasi-definite (stiffness positive definite, storage plus dt times conduction positive
+definite): B = L D L^T exists in any symmetric order without pivoting, so the order and the
+structure of L depend on the pattern alone. ``LDLSymbolic`` holds them (elimination tree, the
+rows of each column of L, the supernodes, the assembly tree and its relative indices);
+``factorise`` makes the numbers for a matrix of that pattern: a multifrontal elimination over
+the supernodes in postorder, each front a dense block holding the supernode's columns, the rows
+below them and the updates of its children.
+
+The condensed unknowns N (ordered last) are rows of the fronts but are not eliminated: the
+updates reaching them add up to the Schur complement S = M_NN - M_NB B^-1 M_BN, dense, and L's
+rows there are L21 = M_NB L^-T D^-1. The factors are packed in ``bordered_lu``'s supernode layout,
+so that its sweeps serve: forward with L (giving L21 L^-1 r_B), backward with D L^T and
+U12 = D L21^T (the symmetric form has M_BN = M_NB^T).
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from ._jit import helper, kernel
+
+
+@helper
+def _u(i):
+    """An index known to be non-negative, as unsigned: numba then drops the wraparound of
+    negative indices, whose select keeps LLVM from vectorising a loop along a block row."""
+    return np.uint64(i)
+
+
+class NotQuasiDefinite(ArithmeticError):
+    """A pivot of the LDL^T was zero or not finite: the block is not quasi-definite in this
+    order (the caller falls back to a pivoting LU)."""
+
+
+@kernel
+def _etree(indptr, indices, n_linear):
+    """Elimination tree of the first ``n_linear`` columns of a symmetric matrix given by its
+    upper triangle (CSC: column k lists the rows i <= k): parent of each column, -1 at a root
+    (a column whose first off-diagonal entry of L is a condensed row or none)."""
+    parent = np.full(n_linear, -1, dtype=np.int64)
+    ancestor = np.full(n_linear, -1, dtype=np.int64)
+    for k in range(n_linear):
+        for p in range(indptr[k], indptr[k + 1]):
+            i = indices[p]
+            while i != -1 and i < k:
+                following = ancestor[i]
+                ancestor[i] = k
+                if following == -1:
+                    parent[i] = k
+                i = following
+    return parent
+
+
+@kernel
+def _structure(indptr, indices, n, n_linear, parent):
+    """The rows of each of the first ``n_linear`` columns of L (CSC, sorted, diagonal first),
+    from the upper triangle (column i lists the rows k <= i): row i of L is the union of the
+    tree paths from each k with an entry in row i up to i (or to a root, for a condensed row)."""
+    count = np.ones(n_linear, dtype=np.int64)
+    mark = np.full(n_linear, -1, dtype=np.int64)
+    for i in range(n):
+        for p in range(indptr[i], indptr[i + 1]):
+            j = indices[p]
+            while j != -1 and j < i and j < n_linear and mark[j] != i:
+                mark[j] = i
+                count[j] += 1
+                j = parent[j]
+    col_ptr = np.zeros(n_linear + 1, dtype=np.int64)
+    for j in range(n_linear):
+        col_ptr[j + 1] = col_ptr[j] + count[j]
+    rows = np.empty(col_ptr[n_linear], dtype=np.int64)
+    fill = col_ptr[:n_linear].copy()
+    for j in range(n_linear):
+        rows[fill[j]] = j
+        fill[j] += 1
+        mark[j] = -1
+    for i in range(n):
+        for p in range(indptr[i], indptr[i + 1]):
+            j = indices[p]
+            while j != -1 and j < i and j < n_linear and mark[j] != i:
+                mark[j] = i
+                rows[fill[j]] = i
+                fill[j] += 1
+                j = parent[j]
+    return col_ptr, rows
+
+
+@kernel
+def _supernode_tree(col_ptr, rows, parent, n_linear):
+    """Supernodes (columns with one row pattern, then amalgamated: ``_amalgamate``), the
+    assembly tree over them in postorder, and the relative indices.
+
+    Returns, per supernode in postorder: first column, width, its rows (its own columns, then
+    the rows below them of its last column's pattern: ``srows[row_at[t]:row_at[t + 1]]``), its
+    parent's position in the postorder (-1: its update goes to the Schur complement), its
+    number of children, and for the update rows (the rows after its own columns) their positions
+    in the parent's rows (``relative``, from ``row_at[t] + width[t]``), or in N for a root."""
+    fundamental = np.empty(n_linear + 1, dtype=np.int64)
+    count = 0
+    for j in range(n_linear):   # (column j joins j - 1 when it is its parent with its rows less j)
+        if not (j > 0 and parent[j - 1] == j
+                and col_ptr[j + 1] - col_ptr[j] == col_ptr[j] - col_ptr[j - 1] - 1):
+            fundamental[count] = j
+            count += 1
+    fundamental[count] = n_linear
+    starts = _amalgamate(fundamental[:count + 1], col_ptr, parent)
+    n_sn = len(starts) - 1
+    node_of = np.empty(n_linear, dtype=np.int64)
+    for s in range(n_sn):
+        for j in range(starts[s], starts[s + 1]):
+            node_of[j] = s
+    sparent = np.full(n_sn, -1, dtype=np.int64)
+    for s in range(n_sn):
+        p = parent[starts[s + 1] - 1]
+        if p != -1:
+            sparent[s] = node_of[p]
+    # postorder: children lists, then a depth-first walk from each root (in column order)
+    head = np.full(n_sn, -1, dtype=np.int64)
+    following = np.full(n_sn, -1, dtype=np.int64)
+    for s in range(n_sn - 1, -1, -1):
+        q = sparent[s]
+        if q != -1:
+            following[s] = head[q]
+            head[q] = s
+    post = np.empty(n_sn, dtype=np.int64)
+    stack = np.empty(n_sn, dtype=np.int64)
+    k = 0
+    for root in range(n_sn):
+        if sparent[root] != -1:
+            continue
+        top = 0
+        stack[0] = root
+        while top >= 0:
+            s = stack[top]
+            c = head[s]
+            if c == -1:
+                post[k] = s
+                k += 1
+                top -= 1
+            else:
+                head[s] = following[c]   # (the list is consumed: each child once)
+                top += 1
+                stack[top] = c
+    position = np.empty(n_sn, dtype=np.int64)
+    for t in range(n_sn):
+        position[post[t]] = t
+    first = np.empty(n_sn, dtype=np.int64)
+    width = np.empty(n_sn, dtype=np.int64)
+    tparent = np.empty(n_sn, dtype=np.int64)
+    children = np.zeros(n_sn, dtype=np.int64)
+    row_at = np.zeros(n_sn + 1, dtype=np.int64)
+    for t in range(n_sn):
+        s = post[t]
+        first[t] = starts[s]
+        width[t] = starts[s + 1] - starts[s]
+        tparent[t] = -1 if sparent[s] == -1 else position[sparent[s]]
+        last = starts[s + 1] - 1
+        row_at[t + 1] = row_at[t] + width[t] + col_ptr[last + 1] - col_ptr[last] - 1
+    for t in range(n_sn):
+        if tparent[t] != -1:
+            children[tparent[t]] += 1
+    srows = np.empty(row_at[n_sn], dtype=np.int64)
+    for t in range(n_sn):
+        w = width[t]
+        for k in range(w):
+            srows[row_at[t] + k] = first[t] + k
+        a = col_ptr[first[t] + w - 1] + 1   # (the last column's rows below its diagonal)
+        for k in range(w, row_at[t + 1] - row_at[t]):
+            srows[row_at[t] + k] = rows[a + k - w]
+    relative = np.empty(row_at[n_sn], dtype=np.int64)
+    where = np.full(n_linear, -1, dtype=np.int64)
+    for t in range(n_sn):
+        q = tparent[t]
+        if q != -1:
+            for k in range(row_at[q], row_at[q + 1]):
+                r = srows[k]
+                if r < n_linear:
+                    where[r] = k - row_at[q]
+        n_q_linear = 0
+        if q != -1:
+            for k in range(row_at[q], row_at[q + 1]):
+                if srows[k] < n_linear:
+                    n_q_linear += 1
+        for k in range(row_at[t] + width[t], row_at[t + 1]):
+            r = srows[k]
+            if q == -1:
+                relative[k] = r - n_linear
+            elif r < n_linear:
+                relative[k] = where[r]
+            else:   # (a condensed row: the parent's rows hold them after its linear ones, sorted)
+                relative[k] = -1
+        if q != -1:   # the condensed rows by a merge of the two sorted lists
+            a = row_at[q] + n_q_linear
+            for k in range(row_at[t] + width[t], row_at[t + 1]):
+                r = srows[k]
+                if r >= n_linear:
+                    while srows[a] != r:
+                        a += 1
+                    relative[k] = a - row_at[q]
+    return first, width, row_at, srows, tparent, children, relative
+
+
+#: amalgamation: a supernode is merged into its parent (the next columns) when the merged one
+#: is at most this wide, ... (``_amalgamate``)
+RELAX_WIDTHS = (4, 16, 48)
+#: ... and at most this fraction of its block are zeros (any fraction up to the first width)
+RELAX_ZEROS = (1.0, 0.8, 0.1, 0.05)
+
+
+@helper
+def _block_size(m, w):
+    """Entries of a supernode's block: m rows, w columns, none above the diagonal."""
+    return m * w - w * (w - 1) // 2
+
+
+@helper
+def _amalgamate(fundamental, col_ptr, parent):
+    """Starts of the supernodes made by merging each run of fundamental ones into its parent
+    while that is the next columns and the merged block holds few zeros (RELAX_WIDTHS,
+    RELAX_ZEROS, which are CHOLMOD's defaults): the dense work then runs on wider blocks (the
+    nested-dissection leaves alone are 1-8 columns wide), for some zeros stored and
+    multiplied. The merged supernode's rows are its columns and the rows below its last
+    column."""
+    n_f = len(fundamental) - 1
+    starts = np.empty(n_f + 1, dtype=np.int64)
+    count = 0
+    width = entries = 0
+    for f in range(n_f):
+        j0, j1 = fundamental[f], fundamental[f + 1]
+        w = j1 - j0
+        m = col_ptr[j0 + 1] - col_ptr[j0]
+        own = _block_size(m, w)
+        if count > 0 and parent[j0 - 1] == j0:
+            merged_w = width + w
+            merged = _block_size(width + m, merged_w)
+            zeros = (merged - entries - own) / merged
+            if merged_w <= RELAX_WIDTHS[0]:
+                limit = RELAX_ZEROS[0]
+            elif merged_w <= RELAX_WIDTHS[1]:
+                limit = RELAX_ZEROS[1]
+            elif merged_w <= RELAX_WIDTHS[2]:
+                limit = RELAX_ZEROS[2]
+            else:
+                limit = RELAX_ZEROS[3]
+            if zeros <= limit:
+                width, entries = merged_w, merged
+                continue
+        starts[count] = j0
+        count += 1
+        width, entries = w, own
+    starts[count] = fundamental[n_f]
+    return starts[:count + 1]
+
+
+@helper
+def _update_row(front, panel_t, m, w, i, k0):
+    """Row i of the front's trailing block, columns k0..i: F[i, k] -= sum_c L[i, c] (D L^T)[c, k],
+    four columns c of the panel at a time."""
+    row = i * m
+    c = 0
+    while c + 4 <= w:
+        l0, l1 = front[_u(row + c)], front[_u(row + c + 1)]
+        l2, l3 = front[_u(row + c + 2)], front[_u(row + c + 3)]
+        p0 = c * m
+        for k in range(k0, i + 1):
+            front[_u(row + k)] -= ((l0 * panel_t[_u(p0 + k)] + l1 * panel_t[_u(p0 + m + k)])
+                                   + (l2 * panel_t[_u(p0 + 2 * m + k)]
+                                      + l3 * panel_t[_u(p0 + 3 * m + k)]))
+        c += 4
+    for c in range(c, w):
+        lic = front[_u(row + c)]
+        pc = c * m
+        for k in range(k0, i + 1):
+            front[_u(row + k)] -= lic * panel_t[_u(pc + k)]
+
+
+@helper
+def _update_rows4(front, panel_t, m, w, i):
+    """Rows i..i+3 of the trailing block (``_update_row``): columns w..i of the four together,
+    four columns c at a time (a block of 4 x 4 multipliers: each load of the panel serves four
+    rows), then the rest of each row's triangle."""
+    r0, r1, r2, r3 = i * m, (i + 1) * m, (i + 2) * m, (i + 3) * m
+    c = 0
+    while c + 4 <= w:
+        a0, a1 = front[_u(r0 + c)], front[_u(r0 + c + 1)]
+        a2, a3 = front[_u(r0 + c + 2)], front[_u(r0 + c + 3)]
+        b0, b1 = front[_u(r1 + c)], front[_u(r1 + c + 1)]
+        b2, b3 = front[_u(r1 + c + 2)], front[_u(r1 + c + 3)]
+        e0, e1 = front[_u(r2 + c)], front[_u(r2 + c + 1)]
+        e2, e3 = front[_u(r2 + c + 2)], front[_u(r2 + c + 3)]
+        g0, g1 = front[_u(r3 + c)], front[_u(r3 + c + 1)]
+        g2, g3 = front[_u(r3 + c + 2)], front[_u(r3 + c + 3)]
+        p0 = c * m
+        for k in range(w, i + 1):
+            q0, q1 = panel_t[_u(p0 + k)], panel_t[_u(p0 + m + k)]
+            q2, q3 = panel_t[_u(p0 + 2 * m + k)], panel_t[_u(p0 + 3 * m + k)]
+            front[_u(r0 + k)] -= (a0 * q0 + a1 * q1) + (a2 * q2 + a3 * q3)
+            front[_u(r1 + k)] -= (b0 * q0 + b1 * q1) + (b2 * q2 + b3 * q3)
+            front[_u(r2 + k)] -= (e0 * q0 + e1 * q1) + (e2 * q2 + e3 * q3)
+            front[_u(r3 + k)] -= (g0 * q0 + g1 * q1) + (g2 * q2 + g3 * q3)
+        c += 4
+    for c in range(c, w):
+        a, b, e, g = front[_u(r0 + c)], front[_u(r1 + c)], front[_u(r2 + c)], front[_u(r3 + c)]
+        pc = c * m
+        for k in range(w, i + 1):
+            q = panel_t[_u(pc + k)]
+            front[_u(r0 + k)] -= a * q
+            front[_u(r1 + k)] -= b * q
+            front[_u(r2 + k)] -= e * q
+            front[_u(r3 + k)] -= g * q
+    for t in range(1, 4):   # the triangle's rest: row i + t, columns i + 1 .. i + t
+        _update_row(front, panel_t, m, w, i + t, i + 1)
+
+
+@kernel
+def _numeric(indptr, indices, data, n_linear, first, width, row_at, srows, tparent, children,
+             relative, schur):
+    """The multifrontal LDL^T over the supernodes in postorder (see the module docstring).
+
+    ``indptr, indices, data``: the lower triangle of the first n_linear columns (CSC, rows >= the
+    column). ``schur`` holds M_NN on entry and the Schur complement on return. Returns the
+    packed L (``bordered_lu._pack``'s layout: row-major m x w blocks, unit diagonal), D, and the
+    smallest |d| / largest |d| (0 or NaN: not quasi-definite)."""
+    n_sn = len(first)
+    value_at = np.zeros(n_sn + 1, dtype=np.int64)
+    largest_front = 0
+    for t in range(n_sn):
+        m = row_at[t + 1] - row_at[t]
+        value_at[t + 1] = value_at[t] + m * width[t]
+        largest_front = max(largest_front, m)
+    values = np.zeros(value_at[n_sn])
+    diagonal = np.empty(n_linear)
+    front = np.empty(largest_front * largest_front)
+    panel_t = np.empty(largest_front * max(1, np.max(width)) if n_sn else 1)
+    where = np.full(n_linear + schur.shape[0], -1, dtype=np.int64)
+    column_d = np.empty(max(1, np.max(width)) if n_sn else 1)
+    # the update matrices waiting for their parent, stacked (postorder: a parent's are on top)
+    stack_size = 0   # (its peak, found by a dry run of the pushes and pops below)
+    held = np.zeros(n_sn + 1, dtype=np.int64)
+    depth = 0
+    for t in range(n_sn):
+        depth -= children[t]
+        if tparent[t] != -1:
+            u = row_at[t + 1] - row_at[t] - width[t]
+            held[depth + 1] = held[depth] + u * u
+            stack_size = max(stack_size, held[depth + 1])
+            depth += 1
+    stack = np.empty(stack_size)
+    stack_at = np.empty(n_sn + 1, dtype=np.int64)
+    stack_node = np.empty(n_sn, dtype=np.int64)
+    depth = 0
+    stack_at[0] = 0
+    for t in range(n_sn):
+        j0, w = first[t], width[t]
+        r0 = row_at[t]
+        m = row_at[t + 1] - r0
+        for a in range(m * m):
+            front[a] = 0.0
+        for k in range(m):
+            where[srows[r0 + k]] = k
+        for c in range(w):   # the matrix's own entries of the supernode's columns
+            for p in range(indptr[j0 + c], indptr[j0 + c + 1]):
+                front[where[indices[p]] * m + c] += data[p]
+        for _ in range(children[t]):   # extend-add of each child's update (lower triangles)
+            depth -= 1
+            child = stack_node[depth]
+            base = stack_at[depth]
+            cw = width[child]
+            c0 = row_at[child] + cw
+            u = row_at[child + 1] - c0
+            for a in range(u):
+                ra = relative[c0 + a] * m
+                for b in range(a + 1):
+                    front[ra + relative[c0 + b]] += stack[base + a * u + b]
+        # the supernode's pivots: F11 = L11 D L11^T, right-looking, each pivot's column (d l)
+        # kept in column_d so that the rows' updates run along contiguous memory
+        for c in range(w):
+            d = front[c * m + c]
+            diagonal[j0 + c] = d
+            for k in range(c + 1, w):
+                column_d[k] = front[k * m + c]
+                front[k * m + c] = column_d[k] / d
+            for i in range(c + 1, w):
+                li = front[_u(i * m + c)]
+                row = i * m
+                for k in range(c + 1, i + 1):
+                    front[_u(row + k)] -= li * column_d[_u(k)]
+        # L11^T D, transposed into panel_t (w rows of m): panel_t[c, k] = d_c L[k, c]
+        for c in range(w):
+            d = diagonal[j0 + c]
+            for k in range(w):
+                panel_t[c * m + k] = d * front[k * m + c] if k > c else (d if k == c else 0.0)
+        # the rows below: L21 = F21 (D L11^T)^-1, a row at a time, each by forward substitution
+        # in axpy form (contiguous in panel_t)
+        i = w
+        while i + 4 <= m:   # four rows at a time: each row of panel_t read once for four
+            row0, row1, row2, row3 = i * m, (i + 1) * m, (i + 2) * m, (i + 3) * m
+            for c in range(w):
+                pc = c * m
+                pivot = panel_t[_u(pc + c)]
+                x0, x1 = front[_u(row0 + c)] / pivot, front[_u(row1 + c)] / pivot
+                x2, x3 = front[_u(row2 + c)] / pivot, front[_u(row3 + c)] / pivot
+                front[_u(row0 + c)], front[_u(row1 + c)] = x0, x1
+                front[_u(row2 + c)], front[_u(row3 + c)] = x2, x3
+                for k in range(c + 1, w):
+                    entry = panel_t[_u(pc + k)]
+                    front[_u(row0 + k)] -= x0 * entry
+                    front[_u(row1 + k)] -= x1 * entry
+                    front[_u(row2 + k)] -= x2 * entry
+                    front[_u(row3 + k)] -= x3 * entry
+            i += 4
+        for i in range(i, m):
+            row = i * m
+            for c in range(w):
+                x = front[row + c] / panel_t[c * m + c]
+                front[row + c] = x
+                for k in range(c + 1, w):
+                    front[row + k] -= x * panel_t[c * m + k]
+        # D L21^T into panel_t's columns w..m-1, then the update F22 -= L21 D L21^T (lower)
+        for c in range(w):
+            d = diagonal[j0 + c]
+            for k in range(w, m):
+                panel_t[c * m + k] = d * front[k * m + c]
+        i = w
+        while i + 4 <= m:   # four rows at a time (each column of panel_t read once for four)
+            _update_rows4(front, panel_t, m, w, i)
+            i += 4
+        for i in range(i, m):
+            _update_row(front, panel_t, m, w, i, w)
+        # the packed factor: rows 0..m-1, columns 0..w-1, unit diagonal, zeros above it
+        v0 = value_at[t]
+        for k in range(m):
+            for c in range(w):
+                if c < k:
+                    values[v0 + k * w + c] = front[k * m + c]
+                elif c == k:
+                    values[v0 + k * w + c] = 1.0
+        # the update: to the parent's stack entry, or (a root) into the Schur complement
+        u = m - w
+        q = tparent[t]
+        if q == -1:
+            for a in range(u):
+                ra = relative[r0 + w + a]
+                for b in range(a + 1):
+                    rb = relative[r0 + w + b]
+                    v = front[(w + a) * m + w + b]
+                    schur[ra, rb] += v
+                    if ra != rb:
+                        schur[rb, ra] += v
+        else:
+            base = stack_at[depth]
+            for a in range(u):
+                for b in range(a + 1):
+                    stack[base + a * u + b] = front[(w + a) * m + w + b]
+            stack_node[depth] = t
+            depth += 1
+            stack_at[depth] = base + u * u
+    smallest, largest = np.inf, 0.0
+    for j in range(n_linear):
+        a = abs(diagonal[j])
+        if not a < np.inf or a != a:
+            return values, value_at, diagonal, np.nan
+        smallest = min(smallest, a)
+        largest = max(largest, a)
+    ratio = smallest / largest if largest > 0.0 else (1.0 if n_linear == 0 else 0.0)
+    return values, value_at, diagonal, ratio
+
+
+class LDLSymbolic:
+    """The symbolic analysis of a pattern: made once, it serves every matrix of that pattern
+    (``factorise``). ``lower``: the lower triangle of the first ``n_linear`` columns of the
+    symmetric matrix in its elimination order (``_lower``), those the unknowns eliminated."""
+
+    def __init__(self, lower, n_linear: int):
+        self.n, self.n_linear = lower.shape[0], n_linear
+        self.indptr, self.indices = lower.indptr, lower.indices
+        upper = lower.T.tocsc()
+        upper.sort_indices()
+        parent = _etree(upper.indptr, upper.indices.astype(np.int64), n_linear)
+        col_ptr, rows = _structure(upper.indptr, upper.indices.astype(np.int64), self.n,
+                                   n_linear, parent)
+        self.nnz = int(col_ptr[-1])   # L's entries
+        self.tree = _supernode_tree(col_ptr, rows, parent, n_linear)
+        self.rows = self.tree[3].astype(np.int32)   # (the sweeps' index type, SuperLU's)
+
+    def matches(self, lower) -> bool:
+        """Is ``lower`` (``_lower``) of this pattern?"""
+        return (lower.shape == (self.n, self.n_linear)
+                and np.array_equal(lower.indptr, self.indptr)
+                and np.array_equal(lower.indices, self.indices))
+
+
+class SymbolicAnalyses:
+    """The symbolic analyses made so far, one per pattern (a bulk factorised in parts has one
+    per part): a new step size finds its pattern's here and pays the numeric part only."""
+
+    def __init__(self):
+        self._held = []
+
+    def of(self, lower, n_linear):
+        for symbolic in self._held:
+            if symbolic.n_linear == n_linear and symbolic.matches(lower):
+                return symbolic
+        symbolic = LDLSymbolic(lower, n_linear)
+        self._held.append(symbolic)
+        return symbolic
+
+
+def _lower(M, n_linear):
+    """The lower triangle of M's first n_linear columns (CSC, sorted; explicit zeros kept: the
+    pattern is the assembly's, the same at every step size)."""
+    n = M.shape[0]
+    first = M[:, :n_linear].tocoo()
+    keep = first.row >= first.col
+    lower = sp.csc_matrix((first.data[keep], (first.row[keep], first.col[keep])),
+                          shape=(n, n_linear))
+    lower.sort_indices()
+    return lower
+
+
+#: the smallest pivot relative to the largest that the factorisation accepts; below it (a
+#: block not quasi-definite in this order, or singular to working precision) the caller
+#: takes the pivoting LU
+PIVOT_RATIO = 1e-14
+
+
+def factorise(M, n_linear: int, analyses: SymbolicAnalyses):
+    """(packed L, D, Schur complement on N, L's entries) of the symmetric ``M`` (sparse, the
+    first ``n_linear`` unknowns eliminated), on the symbolic analysis of its pattern from
+    ``analyses`` (made there at the first matrix of a pattern). Raises NotQuasiDefinite when a
+    pivot is zero, not finite or below PIVOT_RATIO of the largest."""
+    M = sp.csc_matrix(M)
+    lower = _lower(M, n_linear)
+    symbolic = analyses.of(lower, n_linear)
+    schur = M[n_linear:, n_linear:].toarray()
+    first, width, row_at, srows, tparent, children, relative = symbolic.tree
+    values, value_at, diagonal, ratio = _numeric(
+        lower.indptr, lower.indices, lower.data, n_linear, first, width, row_at, srows,
+        tparent, children, relative, schur)
+    if not ratio >= PIVOT_RATIO:
+        raise NotQuasiDefinite(f"LDL^T pivot ratio {ratio:.1e} below {PIVOT_RATIO:.0e}")
+    packed = (first, width, row_at, value_at, symbolic.rows, values)
+    return packed, diagonal, schur, symbolic.nnz

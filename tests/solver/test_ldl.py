@@ -1,0 +1,181 @@
+"""The quasi-definite LDL^T (fault_screen/ldl.py) against numpy's dense linear algebra on real
+blocks of each kind: an elastic bulk, a poroelastic one in its symmetric form at a small and a
+large step size (5 s and 600 s), each with the fault's unknowns as its border; and its numeric
+refactorisation at a new step size against a fresh factorisation.
+
+Tolerances: the Schur complement, the swept right-hand sides and the solution to 1e-11
+relative to the reference's largest entry (tests/solver/test_bordered_lu.py's check), the solve of the whole system
+to a normwise backward error |M x - r| / (|M| |x| + |r|) (infinity norms) below 1e-15 (measured
+2e-17 and less), which a wrong factor entry anywhere exceeds by orders of magnitude."""
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from fault_screen import Scene, ldl
+from fault_screen.bordered_lu import BorderedLU, SplitBorderedLU
+from fault_screen.discretisation import discretise
+from fault_screen.solver import NewtonSolver
+
+from conftest import CONFIGS, VERIFICATION
+from test_bordered_lu import _check_against_dense as check_against_dense
+
+TOL = 1e-11   # (the same as test_bordered_lu's)
+BACKWARD_ERROR = 1e-15
+
+
+def _solver(scene):
+    solver = NewtonSolver(discretise(scene))
+    x = np.zeros(solver.disc.n_dofs)
+    contact = solver.disc.physics.contact
+    solver._prepare(scene.time.dt, x, contact.initial_history(solver.disc) if contact else None)
+    return solver
+
+
+def _free_block(solver, dt, symmetric_form):
+    """The scaled free block at ``dt`` in the factors' order; in the symmetric form its flow
+    rows times -dt (what linear_system factorises for a poroelastic bulk)."""
+    system = solver.system
+    D = sp.diags(system.scale)
+    M = (D @ system._linear_jacobian(dt) @ D).tocsr()[system.order][:, system.order]
+    if symmetric_form:
+        mechanical = system._mechanical[system.order]
+        M = sp.diags(np.where(mechanical, 1.0, -dt)) @ M
+    return M.tocsc(), len(system.B)
+
+
+@pytest.fixture(scope="module")
+def poroelastic():
+    """The Newton solver of a permeable-rock scene (mass balance verification, 24 x 25)."""
+    return _solver(Scene.from_toml(CONFIGS / "verification" / "mass-balance.toml"))
+
+
+@pytest.fixture(scope="module")
+def elastic():
+    """A coarse inclined-fault scene in impermeable rock (1575 unknowns)."""
+    scene = Scene.from_toml(VERIFICATION / "fluid-driven-slip-T0.4-dip30.toml")
+    m = scene.mesh
+    return _solver(scene.replace(mesh=replace(m, refinement=replace(m.refinement, size=4.0,
+                                                                              growth=1.5))))
+
+
+def _rel(a, b):
+    return np.max(np.abs(a - b)) / np.max(np.abs(b))
+
+
+def _check_against_dense(lu, M, nB, seed):
+    """Schur complement, forward and backward sweeps against numpy (``test_bordered_lu``'s
+    check), and the backward error of the whole solve."""
+    M = M.toarray()
+    check_against_dense(lu, M, nB, seed)
+    r = np.random.default_rng(seed).standard_normal(M.shape[0])
+    swept, condensed = lu.forward(r[:nB], r[nB:])
+    xN = np.linalg.solve(lu.schur, condensed)
+    x = np.concatenate([lu.backward(swept, xN), xN])
+    backward_error = (np.abs(M @ x - r).max()
+                      / (np.abs(M).sum(axis=1).max() * np.abs(x).max() + np.abs(r).max()))
+    assert backward_error < BACKWARD_ERROR
+
+
+@pytest.mark.parametrize("dt", [5.0, 600.0])
+def test_poroelastic_block_against_dense(poroelastic, dt):
+    M, nB = _free_block(poroelastic, dt, symmetric_form=True)
+    assert M.shape[0] - nB > 50   # a real border: the fault's unknowns
+    lu = BorderedLU(M, nB, ldl.SymbolicAnalyses())
+    assert lu.quasi_definite
+    # quasi-definite: the stiffness pivots positive, the flow ones (times -dt) negative
+    mechanical = poroelastic.system._mechanical[poroelastic.system.order][:nB]
+    assert np.all(lu._D[mechanical] > 0) and np.all(lu._D[~mechanical] < 0)
+    _check_against_dense(lu, M, nB, 1)
+
+
+def test_elastic_block_against_dense(elastic):
+    M, nB = _free_block(elastic, elastic.system.dt, symmetric_form=False)
+    lu = BorderedLU(M, nB, ldl.SymbolicAnalyses())
+    assert lu.quasi_definite and np.all(lu._D > 0)   # (positive definite)
+    _check_against_dense(lu, M, nB, 2)
+
+
+def test_split_block_against_dense(elastic):
+    """Each half of a split bulk on its own symbolic analysis."""
+    M, nB = _free_block(elastic, elastic.system.dt, symmetric_form=False)
+    analyses = ldl.SymbolicAnalyses()
+    lu = SplitBorderedLU(M, nB, elastic.system.split, analyses)
+    assert all(part.quasi_definite for part in lu._parts) and len(analyses._held) == 2
+    _check_against_dense(lu, M, nB, 3)
+
+
+def test_refactorisation_at_a_new_step_size_equals_a_fresh_one(poroelastic):
+    """The numeric factorisation at 600 s on the analysis made at 5 s: bit for bit the one made
+    from scratch at 600 s, with no second analysis."""
+    analyses = ldl.SymbolicAnalyses()
+    BorderedLU(*_free_block(poroelastic, 5.0, True), analyses)
+    held = analyses._held[0]
+    M, nB = _free_block(poroelastic, 600.0, True)
+    again = BorderedLU(M, nB, analyses)
+    assert analyses._held == [held]
+    fresh = BorderedLU(M, nB, ldl.SymbolicAnalyses())
+    assert np.array_equal(again.schur, fresh.schur) and np.array_equal(again._D, fresh._D)
+    for a, b in zip(again._L.arrays, fresh._L.arrays):
+        assert np.array_equal(a, b)
+
+
+def test_the_amalgamated_supernodes_hold_every_column_pattern(poroelastic):
+    """Each supernode's rows hold the pattern of L in each of its columns (from a dense LDL^T of
+    the bulk), and each child's update rows are among its parent's rows."""
+    M, nB = _free_block(poroelastic, 5.0, True)
+    first, width, row_at, rows, parent, children, relative = \
+        ldl.SymbolicAnalyses().of(ldl._lower(M, nB), nB).tree
+    assert np.sum(width) == nB and len(first) < nB / 4   # (supernodes, not columns)
+    Md = M.toarray()
+    # the pattern of L by a dense symbolic elimination of the bulk's pattern
+    pattern = Md != 0
+    for j in range(nB):
+        below = np.flatnonzero(pattern[j + 1:, j]) + j + 1
+        pattern[np.ix_(below[below < M.shape[0]], below[below < M.shape[0]])] |= True
+    for t in range(len(first)):
+        own = rows[row_at[t]:row_at[t + 1]]
+        for j in range(first[t], first[t] + width[t]):
+            assert set(np.flatnonzero(pattern[j:, j]) + j) <= set(own)
+        if parent[t] >= 0:
+            update = own[width[t]:]
+            held = rows[row_at[parent[t]]:row_at[parent[t] + 1]]
+            assert np.array_equal(held[relative[row_at[t] + width[t]:row_at[t + 1]]], update)
+    assert np.bincount(parent[parent >= 0], minlength=len(first)).tolist() == children.tolist()
+
+
+def test_a_zero_pivot_falls_back_to_superlu():
+    """A symmetric block that needs pivoting (a zero diagonal entry): not factorised as LDL^T,
+    the pivoting LU solves it."""
+    rng = np.random.default_rng(4)
+    n, nB = 12, 9
+    A = rng.standard_normal((n, n))
+    A = A + A.T + 10.0 * np.eye(n)
+    A[0, 0], A[0, 1], A[1, 0] = 0.0, 5.0, 5.0   # (row 1 is the pivot of column 0)
+    lu = BorderedLU(sp.csc_matrix(A), nB, ldl.SymbolicAnalyses())
+    assert not lu.quasi_definite
+    _check_against_dense(lu, sp.csc_matrix(A), nB, 5)
+
+
+def test_the_solver_refactorises_a_poroelastic_bulk_on_one_analysis(poroelastic):
+    """A step-size change: the bulk's new factors are the LDL^T on the analysis of the first,
+    and its Schur complement matches numpy's at the new step size; an elastic bulk (factorised
+    once for every step size) keeps SuperLU."""
+    system = poroelastic.system
+    assert system.lu.quasi_definite and not system.factors_any_dt
+    held, count = list(system._analyses._held), system.factorizations
+    dt = 2.5 * system.dt
+    system.prepare(dt, None)
+    assert system.factorizations == count + 1 and system._analyses._held == held
+    M, nB = _free_block(poroelastic, dt, symmetric_form=False)
+    M = M.toarray()
+    exact = M[nB:, nB:] - M[nB:, :nB] @ np.linalg.solve(M[:nB, :nB], M[:nB, nB:])
+    rows, cols, vals = system._LNN_entries
+    L_NN = np.zeros_like(exact)
+    L_NN[rows, cols] = vals
+    assert _rel(L_NN - system.P, exact) < TOL
+
+
+def test_an_elastic_bulk_keeps_superlu(elastic):
+    assert elastic.system.factors_any_dt and not elastic.system.lu.quasi_definite
