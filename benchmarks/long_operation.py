@@ -191,7 +191,8 @@ def case(name: str, tmp: Path, basel: Path = BASEL) -> dict:
     return dict(name=name, est=est, **r, **file_facts(out))
 
 
-def cases_main(names: list, write_docs: bool, basel: Path = BASEL) -> None:
+def cases_main(names: list, page: str | None, basel: Path = BASEL) -> None:
+    """Run the cases ``names``; ``page``: the docs/performance page to write (None: print only)."""
     load0 = os.getloadavg()[0]
     head = (f"{'case':>13} {'steps':>8} {'est.':>8} {'wall (s)':>9} {'est.':>7} {'peak RSS (MB)':>13} "
             f"{'est.':>6} {'x rustrel':>9} {'file (MB)':>9} {'est.':>7} {'profiles':>8} {'days':>5}")
@@ -217,11 +218,11 @@ def cases_main(names: list, write_docs: bool, basel: Path = BASEL) -> None:
                       f"{ratio:.2f} | {r['size']:.1f} ({fmt(e.get('size'), '.1f')}) | {r['profiles']:,} | "
                       f"{r['present']} of {r['days']} |")
             rows.append(r)
-            if write_docs:          # after every case: a long series leaves the rows it has
-                _write_docs(md, load0)
+            if page:                # after every case: a long series leaves the rows it has
+                _write_docs(page, md, load0)
 
 
-def _write_docs(md: list, load0: float) -> None:
+def _write_docs(page: str, md: list, load0: float) -> None:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from doc_tables import write
 
@@ -236,7 +237,7 @@ def _write_docs(md: list, load0: float) -> None:
              "brackets: the estimate the run prints at its start (`scene check` prints the "
              "same). Targets: peak memory at most 1.5 x the `rustrel` run; result file at most "
              "50 MB (3 days) and 100 MB (Basel); every day of the run in the series.")
-    write("long-operations", "Long operations at default settings", intro, md, load0)
+    write(page, "Long operations at default settings", intro, md, load0)
 
 
 def main(argv=None):
@@ -244,13 +245,14 @@ def main(argv=None):
     ap.add_argument("--cases", default=",".join(CASES), help="comma-separated, of " + ", ".join(CASES))
     ap.add_argument("--basel", type=Path, default=BASEL, help="the Basel 2006 log (CSV)")
     ap.add_argument("--write-docs", action="store_true",
-                    help="write the table to docs/performance/long-operations.md")
+                    help="write the table to docs/performance/<--page>.md")
+    ap.add_argument("--page", default="long-operations", help="the page --write-docs writes")
     ap.add_argument("--durations", default=None, help="the older sweep: e.g. 1h,1d,3d,30d")
     ap.add_argument("--nx", type=int, default=20, help="elements across the mesh")
     ap.add_argument("--dt-max", type=float, default=60.0, help="largest model step (s)")
     args = ap.parse_args(argv)
     if args.durations is None:
-        cases_main(args.cases.split(","), args.write_docs, args.basel)
+        cases_main(args.cases.split(","), args.page if args.write_docs else None, args.basel)
         return
     print(f"mesh {args.nx} x {args.nx + 1}, steps 5 s growing by 1.2 to {args.dt_max:g} s, samples every "
           f"{SAMPLE:g} s, profiles every hour; load: {os.getloadavg()[0]:.2f} (1-min average), "

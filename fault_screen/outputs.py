@@ -4,8 +4,10 @@ The HDF5 writer, the README's results table (``python -m fault_screen.outputs``)
 figures' axis units all read this table, so a unit lives in one place. Shapes: ``(time, x)``
 along the fault's Gauss points at every output time, ``(time,)`` one value per output time,
 ``(x,)`` and ``(x, 2)`` fixed along the fault. The ``(time, x)`` profiles are recorded at the
-times ``/fault/time``: by the automatic rule below (:func:`automatic_profile_due`) unless the
-scene's ``[output]`` says how often.
+times ``/fault/time``: as the scene's ``[output]`` says; without it, every output time of a
+result kept in memory (``fault_screen.simulate``) and the automatic rule below
+(:func:`automatic_profile_due`) for a result written as the run goes (run, replay, monitor,
+``Simulation.stream_to``).
 
 The automatic rule, for results of any length written as they go (a row already in the file is
 never removed, so the rule can only space out the rows still to come): every step's profile for

@@ -496,9 +496,9 @@ class Recorder:
     """One row of outputs per accepted step (and the in-situ state at t = 0), kept in memory
     (``rows``) or streamed to a result file (:meth:`stream`: then only the newest row is kept).
 
-    Full fault profiles are kept at the rows the scene's ``[output]`` asks for (without it, by
-    the automatic rule of :mod:`fault_screen.outputs`, so a run of any length writes a result of
-    bounded size), the first row, the last row of a result and every row a caller marks
+    Full fault profiles are kept at the rows the scene's ``[output]`` asks for (without it: at
+    every row in memory, and by the automatic rule of :mod:`fault_screen.outputs` once streaming,
+    so a run of any length writes a result of bounded size), the first row, the last row of a result and every row a caller marks
     (:meth:`keep_profile`, e.g. at a change of the screening level); the per-step series at
     every row. The newest row stays open to such a mark until the next row or a flush commits
     it to the file."""
@@ -566,7 +566,8 @@ class Recorder:
         if t_before is None:
             return True
         if every is None and interval is None:
-            return automatic_profile_due(k)
+            # in memory every profile is held anyway: the rule is for results written as they go
+            return self.writer is None or automatic_profile_due(k)
         return ((every is not None and k % every == 0)
                 or (interval is not None and math.floor(t / interval) > math.floor(t_before / interval)))
 

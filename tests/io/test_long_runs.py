@@ -71,6 +71,20 @@ def test_streamed_long_run_keeps_the_series_whole_and_profiles_by_the_rule(tmp_p
     assert got.fault["slip"].shape[0] == 1148
 
 
+def test_a_result_in_memory_keeps_every_profile():
+    """The rule is for streamed results: in memory (fault_screen.simulate) every row is held
+    anyway, and in-memory screening reads the profiles of every step."""
+    from fault_screen.stepper import Simulation
+
+    sim = Simulation(Scene.from_dict(TINY))
+    point = fault_at_rest(sim.disc, sim.x)
+    for k in range(1, 600):
+        sim.recorder.record(5.0 * k, sim.x, point, slip_rate=0.0, flow_rate=0.0, volume=0.0,
+                            leaked=0.0, iterations=1, cuts=0, dt=5.0)
+    res = sim.result()
+    assert res.fault_time is None and res.fault["slip"].shape[0] == len(res.time) == 600
+
+
 def test_user_output_table_wins_over_the_automatic_rule(tmp_path):
     got = _synthetic_stream(tmp_path / "r.h5", 1200, output={"profile_every": 1})
     assert len(got.profile_time) == 1200               # every step, as asked
