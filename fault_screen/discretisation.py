@@ -537,25 +537,48 @@ def estimate_size(scene: Scene) -> tuple[int, int, float]:
     close they come to the built model)."""
     m, switched_on = scene.mesh, effects_on(scene)
     on = {name: name in switched_on for name in ("mechanics", "poroelastic", "fault", "leak_off", "fault_flow")}
-    bound = (_line_bound(m.lx, m.nx, m.refinement), _line_bound(m.ly, m.ny, m.refinement))
-    lines = None
-    if max(bound) <= LINES_BUILT:
-        mesh = model_mesh(scene, terms_for(scene))
-        nx, ny, lines = mesh.nx, mesh.ny, (mesh.x_lines, mesh.y_lines)
-    else:
-        nx, ny = bound
+    nx, ny, lines = _size_lines(scene)
     nodes = (nx + 1) * (ny + 1)
     unknowns = 2 * on["mechanics"] * nodes + on["poroelastic"] * nodes
     if on["fault"]:
-        unknowns += _fault_unknowns(scene, on, nx, ny, lines)
+        unknowns += _fault_unknowns(scene, on, _cut_elements(scene, nx, ny, lines))
     return nx * ny, unknowns, BASE_MEMORY + BYTES_PER_UNKNOWN_LOG * unknowns * math.log2(max(unknowns, 2))
 
 
-def _fault_unknowns(scene: Scene, on: dict, nx: int, ny: int, lines) -> int:
-    """Unknowns of the nodes the fault enriches, its own pressure line and the pressure-control
-    multiplier: the stretch of fault line in the model (along s from the fault point, within the
-    box and, for a finite fault, within its length) crosses one more element at each node line
-    it passes, a staircase of cut elements with two more nodes each."""
+def estimate_cut_elements(scene: Scene) -> int:
+    """Elements the fault cuts, as :func:`estimate_size` counts them (0 without a fault)."""
+    if "fault" not in effects_on(scene):
+        return 0
+    return _cut_elements(scene, *_size_lines(scene))
+
+
+def _size_lines(scene: Scene) -> tuple:
+    """(nx, ny, node lines or None) of the mesh as built, or bounds on nx, ny beyond
+    ``LINES_BUILT`` lines."""
+    m = scene.mesh
+    bound = (_line_bound(m.lx, m.nx, m.refinement), _line_bound(m.ly, m.ny, m.refinement))
+    if max(bound) <= LINES_BUILT:
+        mesh = model_mesh(scene, terms_for(scene))
+        return mesh.nx, mesh.ny, (mesh.x_lines, mesh.y_lines)
+    return bound[0], bound[1], None
+
+
+def _fault_unknowns(scene: Scene, on: dict, cut: int) -> int:
+    """Unknowns of the nodes the fault enriches (``cut`` elements: a staircase with two more
+    nodes each), its own pressure line and the pressure-control multiplier."""
+    enriched = 2 * (cut + 1)
+    finite = scene.fault.length is not None
+    # a finite fault's jump closes at its tips: the nodes of the edge through each tip carry none
+    unknowns = (enriched - 4 * finite) * 2 * on["mechanics"] + enriched * on["leak_off"]
+    if on["fault_flow"] and not on["leak_off"]:
+        unknowns += cut + 1  # the fault's own pressure line
+    return unknowns + (scene.injection.control == "pressure")
+
+
+def _cut_elements(scene: Scene, nx: int, ny: int, lines) -> int:
+    """Elements the fault cuts: the stretch of fault line in the model (along s from the fault
+    point, within the box and, for a finite fault, within its length) crosses one more element
+    at each node line it passes."""
     m = scene.mesh
     angle = scene.fault.angle % 180.0
     along = 0 if min(angle, 180.0 - angle) < 1e-9 else (1 if abs(angle - 90.0) < 1e-9 else None)
@@ -582,9 +605,4 @@ def _fault_unknowns(scene: Scene, on: dict, nx: int, ny: int, lines) -> int:
             return int(np.count_nonzero((inner >= lo - tol) & (inner <= hi + tol)))
 
         cut = 1 + crossed(lines[0], px + s0 * ca, px + s1 * ca) + crossed(lines[1], py + s0 * sa, py + s1 * sa)
-    enriched = 2 * (cut + 1)
-    # a finite fault's jump closes at its tips: the nodes of the edge through each tip carry none
-    unknowns = (enriched - 4 * finite) * 2 * on["mechanics"] + enriched * on["leak_off"]
-    if on["fault_flow"] and not on["leak_off"]:
-        unknowns += cut + 1  # the fault's own pressure line
-    return unknowns + (scene.injection.control == "pressure")
+    return cut

@@ -4,10 +4,22 @@ The HDF5 writer, the README's results table (``python -m fault_screen.outputs``)
 figures' axis units all read this table, so a unit lives in one place. Shapes: ``(time, x)``
 along the fault's Gauss points at every output time, ``(time,)`` one value per output time,
 ``(x,)`` and ``(x, 2)`` fixed along the fault. The ``(time, x)`` profiles are recorded at the
-times ``/fault/time`` (every output time by default; the scene's ``[output]`` may thin them).
+times ``/fault/time``: as the scene's ``[output]`` says; without it, every output time of a
+result kept in memory (``fault_screen.simulate``) and the automatic rule below
+(:func:`automatic_profile_due`) for a result written as the run goes (run, replay, monitor,
+``Simulation.stream_to``).
+
+The automatic rule, for results of any length written as they go (a row already in the file is
+never removed, so the rule can only space out the rows still to come): every step's profile for
+the first ``AUTO_PROFILE_STEPS`` steps, then one in 2 steps until step 2 x that, one in 4 until
+4 x that, and so on, the spacing doubling each time the run doubles. A run of ``n`` steps keeps
+about ``AUTO_PROFILE_STEPS x (1 + log2(n / AUTO_PROFILE_STEPS) / 2)`` profiles
+(:func:`automatic_profile_count`), besides those always kept: the first and the last step and
+every change of the screening level. The series (``(time,)`` arrays) keep every step.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from .rules import METRICS
@@ -90,6 +102,32 @@ SCHEMA += (
     Output("events", "distance_to_injection", "(events,)", "m", "distance to the injection point ([site])"),
     Output("events", "distance_to_fault", "(events,)", "m", "distance to the modelled fault plane ([site])"),
 )
+
+#: steps recorded with their profile before the automatic rule starts spacing them out
+AUTO_PROFILE_STEPS = 512
+
+
+def automatic_profile_due(k: int, first: int = AUTO_PROFILE_STEPS) -> bool:
+    """Whether row ``k`` (0: the in-situ state) keeps its profile under the automatic rule:
+    every row below ``first``; below ``first * 2**j`` (j >= 1), every ``2**j``-th row."""
+    if k < first:
+        return True
+    stride = 1 << (k // first).bit_length()
+    return k % stride == 0
+
+
+def automatic_profile_count(rows: int, first: int = AUTO_PROFILE_STEPS) -> int:
+    """Rows among ``0 .. rows - 1`` :func:`automatic_profile_due` keeps (the last row, kept
+    as well, and the level changes not counted)."""
+    n = min(rows, first)
+    j = 1
+    while first << (j - 1) < rows:
+        lo, hi = first << (j - 1), min(rows, first << j)
+        stride = 1 << j
+        n += (hi - 1) // stride - (lo - 1) // stride
+        j += 1
+    return n
+
 
 #: unit of each named dataset (the same name means the same unit in every group)
 UNITS = {o.name: o.unit for o in SCHEMA}

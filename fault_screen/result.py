@@ -143,3 +143,234 @@ class Result:
         if not growing:
             out.check_lengths()
         return out
+
+
+# ---------------------------------------------------------------------------------------------
+# bounded reads: what the summary, the verdict and the figures need from a result of any length
+# ---------------------------------------------------------------------------------------------
+#: rows of a growing dataset read at once
+READ_ROWS = 65536
+#: points per series in a view (:meth:`ResultFile.view`): min/max pairs of buckets of rows
+VIEW_POINTS = 10000
+#: fault profiles in a view
+VIEW_PROFILES = 400
+#: groups whose (time,) arrays follow /time (the log has its own time axis)
+_SERIES_GROUPS = ("injection", "balance", "solver", "screening")
+
+
+class ResultFile:
+    """A result file read in pieces of at most ``read_rows`` rows, so memory does not grow with
+    the length of the run: reductions over whole datasets (:meth:`maximum`,
+    :meth:`profile_reduce`) and a :class:`Result` small enough to plot (:meth:`view`). A file
+    still being streamed is read as its single-writer/multiple-reader reader sees it."""
+
+    def __init__(self, path, read_rows: int = READ_ROWS):
+        import tomllib
+
+        self.path = Path(path)
+        self.read_rows = int(read_rows)
+        self.largest_read = 0          # rows of the largest single read so far
+        self.h5 = _open_for_reading(path)
+        try:
+            self.scene = Scene.from_dict(tomllib.loads(self.h5.attrs["scene"]))
+            self.meta = json.loads(self.h5.attrs["meta"])
+            self.rows = int(self.h5["time"].shape[0])
+            self.profiles = int(self.h5["fault/slip"].shape[0])
+            self.growing = bool(self.h5.swmr_mode)   # a writer may be between two flushes
+        except BaseException:
+            self.h5.close()
+            raise
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self) -> None:
+        self.h5.close()
+
+    # -- reads -------------------------------------------------------------------------------
+    def _read(self, path: str, index):
+        """Rows ``index`` (a slice or increasing integer array) of dataset ``path``: the one
+        place rows are read, so :attr:`largest_read` holds the largest read."""
+        ds = self.h5[path]
+        n = len(range(*index.indices(ds.shape[0]))) if isinstance(index, slice) else len(index)
+        self.largest_read = max(self.largest_read, n)
+        return ds[index]
+
+    def blocks(self, path: str):
+        """(first row, rows) of dataset ``path`` in blocks of at most ``read_rows`` rows."""
+        n = self.h5[path].shape[0]
+        for i0 in range(0, n, self.read_rows):
+            yield i0, self._read(path, slice(i0, min(n, i0 + self.read_rows)))
+
+    def last(self, path: str):
+        """The last row of dataset ``path``."""
+        n = self.h5[path].shape[0]
+        return self._read(path, slice(n - 1, n))[0]
+
+    def maximum(self, path: str) -> float:
+        """The largest value of dataset ``path`` (NaN ignored; NaN if there is none)."""
+        best = np.nan
+        for _, block in self.blocks(path):
+            if block.size and np.any(~np.isnan(block)):
+                best = np.fmax(best, np.nanmax(block))
+        return float(best)
+
+    def profile_reduce(self, name: str, transform, ufunc=np.maximum) -> np.ndarray:
+        """``ufunc`` over time of ``transform(rows)`` of the fault profile ``name``: one value per
+        fault point (e.g. the largest |slip| of each point: ``profile_reduce("slip", np.abs)``)."""
+        path = f"fault/{name}"
+        rows = max(1, self.read_rows // max(1, self.h5[path].shape[1]))
+        out = None
+        n = self.h5[path].shape[0]
+        for i0 in range(0, n, rows):
+            part = ufunc.reduce(transform(self._read(path, slice(i0, min(n, i0 + rows)))), axis=0)
+            out = part if out is None else ufunc(out, part)
+        return out if out is not None else np.zeros(self.h5[path].shape[1])
+
+    # -- a view to plot ----------------------------------------------------------------------
+    def view(self, points: int = VIEW_POINTS, profiles: int = VIEW_PROFILES) -> Result:
+        """The result with every series reduced to about ``points`` values and at most
+        ``profiles`` fault profiles, read in bounded pieces. A result with fewer rows is read
+        as it is. Longer series keep their first and last rows and, for each bucket of rows
+        between, the bucket's smallest and largest value in the order they came, at the
+        bucket's first and last time: the envelope, so no peak is lost. The profiles are
+        spread evenly over the run, the first and last among them."""
+        h5 = self.h5
+        series = {g: [k for k in h5[g] if h5[g][k].ndim == 1 and h5[g][k].dtype.names is None]
+                  for g in _SERIES_GROUPS if g in h5}
+        if not self.growing:
+            self._check_shapes(series)
+        paths = ["time"] + [f"{g}/{k}" for g, ks in series.items() for k in ks]
+        values = self._envelope(paths, self.rows, points)
+        groups = {g: {k: values[f"{g}/{k}"] for k in ks} for g, ks in series.items()}
+        extra = {}
+        for g in h5:
+            if g in ("time", "fault", "injection", "balance", "solver"):
+                continue
+            arrays = dict(groups.get(g, {}))
+            if g == "log" and "time" in h5[g]:
+                n_log = h5[g]["time"].shape[0]
+                log_paths = [f"log/{k}" for k in h5[g] if h5[g][k].shape[:1] == (n_log,)]
+                arrays.update({p.split("/", 1)[1]: v for p, v in
+                               self._envelope(log_paths, n_log, points).items()})
+            for k in h5[g]:               # the rest (events, level changes): small, read whole
+                if k not in arrays:
+                    arrays[k] = h5[g][k][()]
+            extra[g] = arrays
+        kept = self._profile_rows(profiles)
+        fault = {k: self._rows_of(f"fault/{k}", kept) for k in h5["fault"]
+                 if k not in ("x", "xy", "weight", "time")}
+        # files before [output] have a profile per output time and no /fault/time
+        ft = self._rows_of("fault/time" if "time" in h5["fault"] else "time", kept)
+        return Result(scene=self.scene, time=values["time"], fault_x=h5["fault/x"][()],
+                      fault_xy=h5["fault/xy"][()], fault_weights=h5["fault/weight"][()], fault=fault,
+                      injection=groups.get("injection", {}), balance=groups.get("balance", {}),
+                      solver=groups.get("solver", {}), meta=dict(self.meta), extra=extra,
+                      fault_time=ft)
+
+    def _check_shapes(self, series: dict) -> None:
+        """ValueError (one line) unless every series has a row per output time and every
+        profile a row per profile time and a column per fault point (as Result.check_lengths)."""
+        h5, n_x = self.h5, self.h5["fault/x"].shape[0]
+        for g, keys in series.items():
+            for k in keys:
+                if h5[g][k].shape[0] != self.rows:
+                    raise ValueError(f"damaged result: /{g}/{k} has {h5[g][k].shape[0]} rows for "
+                                     f"{self.rows} output times")
+        for k in h5["fault"]:
+            shape = h5["fault"][k].shape
+            if k not in ("x", "xy", "weight", "time") and shape != (self.profiles, n_x):
+                raise ValueError(f"damaged result: /fault/{k} has shape {shape} for "
+                                 f"{self.profiles} times and {n_x} fault points")
+
+    def _profile_rows(self, profiles: int) -> np.ndarray:
+        n = self.profiles
+        if n <= profiles:
+            return np.arange(n)
+        return np.unique(np.round(np.linspace(0, n - 1, profiles)).astype(np.int64))
+
+    def _rows_of(self, path: str, rows: np.ndarray) -> np.ndarray:
+        """Rows ``rows`` (increasing) of ``path``, read at most ``read_rows`` values at once."""
+        ds = self.h5[path]
+        width = int(np.prod(ds.shape[1:], dtype=np.int64)) or 1
+        step = max(1, self.read_rows // width)
+        parts = [self._read(path, rows[i:i + step]) for i in range(0, len(rows), step)]
+        return np.concatenate(parts) if parts else np.zeros((0, *ds.shape[1:]), ds.dtype)
+
+    def _envelope(self, paths: list, n: int, points: int) -> dict:
+        """path -> the envelope of :meth:`view` of datasets of ``n`` rows."""
+        if n <= max(points, 2):
+            return {p: np.concatenate([b for _, b in self.blocks(p)]) if n else self.h5[p][()]
+                    for p in paths}
+        inner = n - 2                                     # rows 1 .. n - 2 go into buckets
+        size = -(-inner // max(1, points // 2))           # rows per bucket
+        buckets = -(-inner // size)
+        out = {}
+        for p in paths:
+            ds = self.h5[p]
+            env = np.empty(2 * buckets + 2, dtype=ds.dtype)
+            env[0], env[-1] = self._read(p, slice(0, 1))[0], self.last(p)
+            # the times increase: their envelope is each bucket's first and last time
+            for b0, pair in self._bucket_extremes(p, n, size):
+                env[1 + 2 * b0:1 + 2 * b0 + pair.size] = pair
+            out[p] = env
+        return out
+
+    def _bucket_extremes(self, path: str, n: int, size: int):
+        """(first bucket, its [min, max] pairs in time order, flattened), block by block."""
+        per_read = max(1, self.read_rows // size)         # whole buckets per read
+        r = 1
+        b0 = 0
+        while r < n - 1:
+            if size <= self.read_rows:
+                r1 = min(n - 1, r + per_read * size)
+                block = self._read(path, slice(r, r1)).astype(float)
+            else:                                         # a bucket spans reads: one at a time
+                r1 = min(n - 1, r + size)
+                block, pairs = None, None
+                for i0 in range(r, r1, self.read_rows):
+                    part = self._read(path, slice(i0, min(r1, i0 + self.read_rows))).astype(float)
+                    lo, i_lo, hi, i_hi = _bucket_pair(part[None, :])
+                    piece = (lo, i_lo + (i0 - r), hi, i_hi + (i0 - r))
+                    pairs = piece if pairs is None else _merge_pair(pairs, piece)
+            if block is not None:
+                k = -(-block.size // size)
+                padded = np.full(k * size, np.nan)
+                padded[:block.size] = block
+                pairs = _bucket_pair(padded.reshape(k, size))
+            else:
+                k = 1
+            yield b0, _ordered(pairs)
+            b0 += k
+            r = r1
+
+
+def _bucket_pair(a: np.ndarray):
+    """Per row of ``a``: (min, position, max, position), NaN ignored (all NaN: NaN)."""
+    finite = ~np.isnan(a)
+    i_lo = np.argmin(np.where(finite, a, np.inf), axis=1)
+    i_hi = np.argmax(np.where(finite, a, -np.inf), axis=1)
+    rows = np.arange(a.shape[0])
+    some = finite.any(axis=1)
+    lo = np.where(some, a[rows, i_lo], np.nan)
+    hi = np.where(some, a[rows, i_hi], np.nan)
+    return lo, i_lo, hi, i_hi
+
+
+def _merge_pair(first, second):
+    """The (min, position, max, position) of two consecutive pieces of one bucket."""
+    (lo1, il1, hi1, ih1), (lo2, il2, hi2, ih2) = first, second
+    take_lo = np.isnan(lo1) | (lo2 < lo1)
+    take_hi = np.isnan(hi1) | (hi2 > hi1)
+    return (np.where(take_lo, lo2, lo1), np.where(take_lo, il2, il1),
+            np.where(take_hi, hi2, hi1), np.where(take_hi, ih2, ih1))
+
+
+def _ordered(pairs) -> np.ndarray:
+    """[first, second] per bucket: its min and max in the order they came, flattened."""
+    lo, i_lo, hi, i_hi = pairs
+    low_first = i_lo <= i_hi
+    return np.column_stack([np.where(low_first, lo, hi), np.where(low_first, hi, lo)]).ravel()

@@ -418,7 +418,10 @@ class OutputSpec:
     """How often the full fault profiles ((time, x) arrays under ``/fault``) are recorded
     (``[output]``). The injection-point series, the fluid balance, the solver record and the
     screening metrics are recorded at every step whatever this says. With neither key set
-    (the default) profiles are recorded at every step; with one or both, a profile is recorded
+    (the default) profiles are recorded at every step of a result kept in memory, and by the
+    automatic rule of :mod:`fault_screen.outputs` in a result streamed to its file (run,
+    replay, monitor: every step for the first 512 steps, then ever more sparsely;
+    ``profile_every = 1`` keeps every step); with one or both, a profile is recorded
     when either is due, and always at the first and the last step and at every change of the
     screening level (run, replay, monitor). ``/fault/time`` holds the profiles' own times."""
     profile_every: int | None = None

@@ -29,7 +29,7 @@ import numpy as np
 from . import __version__
 from .discretisation import Discretisation, discretise
 from .kernels.contact import H_SLIP
-from .outputs import SCHEMA
+from .outputs import SCHEMA, automatic_profile_due
 from .result import Result, atomic_hdf5
 from .scene import Scene
 from .schedule import StepSchedule
@@ -491,10 +491,12 @@ class Recorder:
     """One row of outputs per accepted step (and the in-situ state at t = 0), kept in memory
     (``rows``) or streamed to a result file (:meth:`stream`: then only the newest row is kept).
 
-    Full fault profiles are kept at the rows the scene's ``[output]`` asks for, the first row,
-    the last row of a result and every row a caller marks (:meth:`keep_profile`, e.g. at a
-    change of the screening level); the per-step series at every row. The newest row stays
-    open to such a mark until the next row or a flush commits it to the file."""
+    Full fault profiles are kept at the rows the scene's ``[output]`` asks for (without it: at
+    every row in memory, and by the automatic rule of :mod:`fault_screen.outputs` once streaming,
+    so a run of any length writes a result of bounded size), the first row, the last row of a result and every row a caller marks
+    (:meth:`keep_profile`, e.g. at a change of the screening level); the per-step series at
+    every row. The newest row stays open to such a mark until the next row or a flush commits
+    it to the file."""
 
     def __init__(self, disc: Discretisation, scene: Scene):
         self.disc = disc
@@ -552,11 +554,15 @@ class Recorder:
             self._open = True
 
     def _profile_due(self, k: int, t: float, t_before: float | None) -> bool:
-        """On a fixed grid (rows 0, N, 2N...; the first row at or after each multiple of T), so
-        the rows kept do not depend on where the level changed or the run was restarted."""
+        """On a fixed grid (rows 0, N, 2N...; the first row at or after each multiple of T; or
+        the automatic rule's rows), so the rows kept do not depend on where the level changed
+        or the run was restarted."""
         every, interval = self.profile_every, self.profile_interval
-        if (every is None and interval is None) or t_before is None:
+        if t_before is None:
             return True
+        if every is None and interval is None:
+            # in memory every profile is held anyway: the rule is for results written as they go
+            return self.writer is None or automatic_profile_due(k)
         return ((every is not None and k % every == 0)
                 or (interval is not None and math.floor(t / interval) > math.floor(t_before / interval)))
 

@@ -78,9 +78,10 @@ def events_report(catalog, t0: float, t1: float, start) -> list[str]:
 HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 
 
-def load_result(path: Path):
-    """A saved result, or one line saying why the file is not one (exit 2)."""
-    from ..result import Result
+def load_result(path: Path, *, view: bool = False):
+    """A saved result, or one line saying why the file is not one (exit 2). ``view``: the
+    bounded view to plot (:meth:`fault_screen.result.ResultFile.view`), not the whole file."""
+    from ..result import Result, ResultFile
 
     if not path.exists():
         raise BadInput(f"file not found: {path}")
@@ -92,6 +93,9 @@ def load_result(path: Path):
         raise BadInput(f"{path}: not a fault_screen result (not an HDF5 file); results are "
                        f"written by 'fault-screen run' or 'replay'")
     try:
+        if view:
+            with ResultFile(path) as rf:
+                return rf.view()
         return Result.load(path)
     except OSError:
         raise BadInput(f"{path}: truncated or damaged HDF5 file (was the run or the copy "

@@ -22,6 +22,10 @@ def plot(result_path, out_dir, events, t0):
     (<stem>-injection-point.png), space-time maps along the fault (<stem>-space-time.png) and,
     for a screened result, the screening metrics and levels (<stem>-screening.png).
 
+    A result of any length is read in bounded pieces: a long series is drawn as its envelope
+    (the smallest and largest value of each of about 5,000 spans, so no peak is lost), and at
+    most 400 of the fault profiles, spread over the run.
+
     Events from --events are placed relative to --t0, else to the start stored in the result
     (the log's first stamp of a replay), else to the first event.  Without --events, events
     stored in the result by run/replay --events are drawn.  With a start time the figures show
@@ -30,7 +34,7 @@ def plot(result_path, out_dir, events, t0):
     from ..plotting import plot_result
 
     result_path = Path(result_path)
-    result = load_result(result_path)
+    result = load_result(result_path, view=True)   # bounded: long series as envelopes
     start = t0
     if start is None and result.meta.get("start"):
         start = parse_iso(result.meta["start"], f"{result_path}: meta start")

@@ -176,13 +176,27 @@ def show(path):
 
 
 # ---- check ---------------------------------------------------------------------------------
+def _estimate_lines(scene, log) -> list[str]:
+    """The run's cost (:mod:`fault_screen.run_estimate`): with the scene's own log, to the
+    end the run would take (``time.end``), as ``fault-screen run`` plans it."""
+    from ..run_estimate import estimate_run
+
+    samples = 0
+    if log is not None:
+        from ..io.replay import plan_replay
+
+        plan = plan_replay(scene, log, scene.time.end, end_name="time.end")
+        scene, samples = plan.scene, len(plan.log_arrays.get("time", ()))
+    return estimate_run(scene, log_samples=samples).lines()
+
+
 @scene.command()
 @click.argument("path", type=FILE)
 def check(path):
     """Validate a scene: keys, values and their physical ranges, units, switch combinations,
     the memory it needs, its injection log (if any) and the geometry (fault in the domain,
     injection point on the fault, in-situ equilibrium). Prints what it would simulate."""
-    from ..discretisation import discretise, estimate_size
+    from ..discretisation import discretise
 
     sc = load_scene(path)
     check_size(sc, str(path))
@@ -198,11 +212,12 @@ def check(path):
         if issubclass(w.category, SceneWarning):
             click.echo(f"Warning: {path}: {w.message}", err=True)
     counts = ", ".join(f"{k} {v}" for k, v in model.dof_counts().items() if v)
-    _, _, memory = estimate_size(sc)
     click.echo(f"{path}: ok -- {sc.title}")
     click.echo(f"  mesh {model.mesh.nx} x {model.mesh.ny} elements, fault cuts "
                f"{len(model.cut_elements)} of them")
-    click.echo(f"  unknowns {model.n_dofs} ({counts}); memory about {memory / 1e6:.0f} MB")
+    click.echo(f"  unknowns {model.n_dofs} ({counts})")
+    for line in _estimate_lines(sc, log):
+        click.echo(f"  {line}")
     click.echo(f"  physics terms: {', '.join(model.physics.names())}")
     for line in fault_state_lines(model):
         click.echo(("  " if not line.startswith("notice") else "") + line)

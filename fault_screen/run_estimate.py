@@ -1,0 +1,140 @@
+"""What a run will cost before it starts: steps, wall time, result file and peak memory.
+
+Made from the scene alone (a replay's scene already ends at its log's end: ``plan_replay``),
+without building the model (:func:`fault_screen.discretisation.estimate_size` counts the
+unknowns). The models and their accuracy against measured runs are in the docs
+(docs/performance/long-operations.md); in short:
+
+* steps: the scene's step sequence (``time.dt`` growing by ``time.growth`` up to
+  ``time.dt_max``) to ``time.end``; step cuts and the contact's step limit only add steps, so
+  this is a lower bound;
+* file: every step's series row (in whole chunks), the profiles the ``[output]`` table or the
+  automatic rule (:func:`fault_screen.outputs.automatic_profile_count`) keeps, the log's
+  samples;
+* memory: the model's (``estimate_size``), plus the figures' when ``--plot`` is given (the
+  results are streamed and read back in bounded pieces, so the run's length does not count);
+* wall time: a fixed cost per step plus one per unknown, on an idle machine.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from .discretisation import estimate_size
+from .outputs import SCHEMA, automatic_profile_count, automatic_profile_due
+from .scene import Scene
+
+#: model wall time of a step (s) ~ STEP_SECONDS + STEP_SECONDS_PER_UNKNOWN x unknowns: fitted to
+#: the calibrated Rustrel scene at 50 x 51 (9,792 unknowns: the Basel replay's 111,708 steps
+#: at 6.4-7.5 ms a step) and at 200 x 201 (123,012 unknowns: ~45 ms a step), idle machine
+STEP_SECONDS = 4.0e-3
+STEP_SECONDS_PER_UNKNOWN = 3.3e-7
+#: start-up of a process (imports, cached kernels, the model), s
+START_SECONDS = 4.0
+#: bytes of a stored profile per raw byte (gzip gains little on these float arrays)
+PROFILE_COMPRESSION = 0.87
+#: rows of a chunk of a (time,) dataset (result_stream: 4,096 rows of 8 bytes); the series are
+#: not compressed, so every started chunk takes its full size
+SERIES_CHUNK_ROWS = 4096
+#: memory the figures add (matplotlib and a figure being drawn), bytes
+PLOT_MEMORY = 80e6
+#: when the advice says how to thin or coarsen
+LARGE_FILE = 1e9
+LONG_RUN = 3600.0
+
+#: per-step (time,) datasets of a screened run: /time, injection, balance, solver, screening
+_SERIES = sum(1 for o in SCHEMA if o.shape == "(time,)"
+              and o.group in ("", "injection", "balance", "solver", "screening"))
+#: (time, x) fault profiles
+_PROFILES = sum(1 for o in SCHEMA if o.group == "fault" and o.shape == "(time, x)")
+
+
+@dataclass(frozen=True)
+class RunEstimate:
+    """A run's cost before it starts (see the module docstring)."""
+    steps: int
+    """Model steps to the end (a lower bound: cuts add steps) (-)."""
+    profiles: int
+    """Fault profiles the result keeps (-)."""
+    unknowns: int
+    """Unknowns of the model (-)."""
+    file_bytes: float
+    """Size of the result file (bytes)."""
+    memory_bytes: float
+    """Peak resident memory of the process (bytes)."""
+    wall_seconds: float
+    """Wall time of the whole command on an idle machine (s)."""
+
+    def lines(self) -> list[str]:
+        """What a run will cost, and, when large, how to thin or coarsen it."""
+        out = [f"estimate: {self.steps:,} steps, about {_duration(self.wall_seconds)} on an idle "
+               f"machine, result file about {_size(self.file_bytes)} ({self.profiles:,} fault "
+               f"profiles), peak memory about {_size(self.memory_bytes)}"]
+        if self.file_bytes > LARGE_FILE:
+            out.append("advice: the result file is large: keep fewer fault profiles with "
+                       "[output] profile_interval (e.g. \"1 h\") or profile_every")
+        if self.wall_seconds > LONG_RUN:
+            out.append("advice: the run is long: let the steps grow ([time] growth = 1.2 and "
+                       "dt_max, e.g. 600 s) or coarsen the mesh ([mesh] nx, ny)")
+        return out
+
+
+def step_count(scene: Scene) -> int:
+    """Steps of the scene's step sequence from 0 to ``time.end`` (the last one shortened)."""
+    ts = scene.time
+    dt, end = ts.dt, ts.end
+    dt_max = ts.dt_max if ts.dt_max is not None else dt
+    t, n = 0.0, 0
+    while dt < dt_max and t + dt < end * (1 - 1e-12):   # the growing steps, one by one
+        t, n, dt = t + dt, n + 1, min(dt * ts.growth, dt_max) if ts.growth > 1 else dt_max
+    return n + max(1, math.ceil((end - t) / dt * (1 - 1e-12))) if end > t else n
+
+
+def profile_count(scene: Scene, steps: int) -> int:
+    """Profiles kept of ``steps`` steps (the level changes not counted)."""
+    rows = steps + 1
+    out = scene.output
+    if out.profile_every is None and out.profile_interval is None:
+        return automatic_profile_count(rows) + (not automatic_profile_due(rows - 1))
+    n = 1
+    if out.profile_every is not None:
+        n += steps // out.profile_every
+    if out.profile_interval is not None:
+        n += int(scene.time.end // out.profile_interval)
+    return min(rows, n + 1)
+
+
+def estimate_run(scene: Scene, *, plot: bool = False, log_samples: int = 0) -> RunEstimate:
+    """The cost of running ``scene`` to its end (``plot``: with figures; ``log_samples``: the
+    replayed log's samples, stored with the result)."""
+    _, unknowns, model_memory = estimate_size(scene)
+    steps = step_count(scene)
+    profiles = profile_count(scene, steps)
+    points = fault_points(scene)
+    chunks = math.ceil((steps + 1) / SERIES_CHUNK_ROWS)
+    file_bytes = (8.0 * _SERIES * SERIES_CHUNK_ROWS * chunks + 8.0 * 3 * log_samples
+                  + PROFILE_COMPRESSION * 8.0 * _PROFILES * points * profiles)
+    memory = model_memory + (PLOT_MEMORY if plot else 0.0)
+    wall = START_SECONDS + steps * (STEP_SECONDS + STEP_SECONDS_PER_UNKNOWN * unknowns)
+    return RunEstimate(steps=steps, profiles=profiles, unknowns=unknowns, file_bytes=file_bytes,
+                       memory_bytes=memory, wall_seconds=wall)
+
+
+def fault_points(scene: Scene) -> int:
+    """Fault Gauss points (columns of the profiles): four per element the fault cuts."""
+    from .discretisation import estimate_cut_elements
+
+    return 4 * estimate_cut_elements(scene)
+
+
+def _size(n: float) -> str:
+    for unit, f in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if n >= f:
+            return f"{n / f:.3g} {unit}"
+    return f"{n:.0f} B"
+
+
+def _duration(s: float) -> str:
+    if s >= 3600:
+        return f"{s / 3600:.3g} h"
+    return f"{s / 60:.2g} min" if s >= 120 else f"{s:.0f} s"
