@@ -33,3 +33,23 @@ def write(name: str, title: str, intro: str, table: list[str], load_start: float
     path = DOCS / f"{name}.md"
     path.write_text("\n".join(page), encoding="utf-8")
     return path
+
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def write_readme(name: str, table: list[str], load_start: float) -> Path:
+    """Put ``table`` into README.md between ``<!-- table: NAME -->`` and ``<!-- /table: NAME -->``
+    (the markers stay; what is between them is replaced), with the command and the load, so the
+    README's figures come from the same run as the docs page's."""
+    command = "python " + " ".join(["benchmarks/" + Path(sys.argv[0]).name, *sys.argv[1:]])
+    begin, end = f"<!-- table: {name} -->", f"<!-- /table: {name} -->"
+    text = README.read_text(encoding="utf-8")
+    if begin not in text or end not in text:
+        raise SystemExit(f"README.md has no {begin} ... {end} markers")
+    head, rest = text.split(begin, 1)
+    _, tail = rest.split(end, 1)
+    body = [f"Written by `{command}` on {os.cpu_count()} cores, load average {load_start:.1f} at the "
+            f"start and {os.getloadavg()[0]:.1f} at the end.", "", *table]
+    README.write_text(head + begin + "\n" + "\n".join(body) + "\n" + end + tail, encoding="utf-8")
+    return README

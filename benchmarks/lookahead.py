@@ -184,7 +184,7 @@ def main(argv=None):
                         PLANS, LADDERS))
     print(t2, flush=True)
     if not args.no_doc:
-        from doc_tables import write
+        from doc_tables import write, write_readme
 
         intro = (f"Look-ahead from t = {args.at:g} s on `configs/{DEFAULT_SCENE.name}` (the scene "
                  f"`fault-screen run` runs), horizon {horizon:g} s. Wall times on a busy machine are "
@@ -193,6 +193,7 @@ def main(argv=None):
                  "## Step ladders against the scene's own steps", "", *t2.splitlines(), "",
                  "## What the modes mean", "", *NOTES.splitlines()]
         write("lookahead", "Look-ahead speed and accuracy", intro, lines, load0)
+        write_readme("lookahead", t1.splitlines(), load0)
     return 0
 
 
