@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import math
+import threading
 import time as _time
 import tomllib
 from pathlib import Path
@@ -34,6 +35,13 @@ from .result import Result, atomic_hdf5
 from .scene import Scene
 from .schedule import StepSchedule
 from .solver import NewtonSolver, StepFailed, fault_at_rest
+
+#: One solver step at a time in the process. A fork shares its parent's factors and constant
+#: matrices (read-only by design), and the monitor steps a fork in a worker thread beside the
+#: live run: two steps at once inside the shared linear algebra aborted the process (seen in the
+#: monitor's look-ahead tests). The steps mostly hold the interpreter lock anyway, so serialising
+#: them costs the live run at most one look-ahead step of waiting.
+_STEP_LOCK = threading.RLock()
 
 CHECKPOINT_FORMAT = 1
 
@@ -173,7 +181,8 @@ class Simulation:
                 t1 = t + dt_try
                 step_value = value(t, t1)
                 try:
-                    out = self._step(dt_try, step_value)
+                    with _STEP_LOCK:
+                        out = self._step(dt_try, step_value)
                     break
                 except StepFailed as exc:
                     cuts += 1
