@@ -115,6 +115,8 @@ def forecast(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, en
         raise BadInput("give the forecast times: --at T (repeatable) or --every S, not both")
     if not horizon > 0:
         raise BadInput("--horizon must be > 0")
+    if ladder_dt_max is not None and not ladder_dt_max > 0:
+        raise BadInput("--ladder must be > 0 (the largest look-ahead step)")
     scene_path = Path(scene_path) if scene_path is not None else default_scene_path()
     scene = load_scene(scene_path)
     check_size(scene, str(scene_path))

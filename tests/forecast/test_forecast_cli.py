@@ -101,6 +101,7 @@ def test_a_log_drives_the_run_and_the_times_fall_on_its_steps(tmp_path):
     (["--at", "60", "--every", "60", "--horizon", "60"], "not both"),
     (["--at", "60", "--horizon", "2 kg"], "--horizon"),
     (["--at", "60", "--horizon", "0"], "--horizon must be > 0"),
+    (["--at", "60", "--horizon", "60", "--ladder", "0"], "--ladder must be > 0"),
     (["--at", "2h", "--horizon", "60"], "after the end of the run"),
     (["--at", "60", "--horizon", "60", "--plan", "faster"], "unknown plan"),
     (["--at", "60", "--horizon", "60", "--plan", "pressure:3 MPa"], "pressure plan"),
