@@ -12,10 +12,21 @@ from pathlib import Path
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "performance"
 
 
+def _command() -> str:
+    """The command line of the running benchmark script, as a reader would type it from the
+    repository root (a script in a folder under benchmarks/ keeps its folder)."""
+    script = Path(sys.argv[0]).resolve()
+    try:
+        name = script.relative_to(DOCS.parents[1]).as_posix()
+    except ValueError:      # run from a copy elsewhere: its name under benchmarks/
+        name = "benchmarks/" + script.name
+    return "python " + " ".join([name, *sys.argv[1:]])
+
+
 def write(name: str, title: str, intro: str, table: list[str], load_start: float) -> Path:
     """Write ``docs/performance/<name>.md``: a title, the command that made it, the machine's
     cores and load, ``intro`` and the table's lines."""
-    command = "python " + " ".join(["benchmarks/" + Path(sys.argv[0]).name, *sys.argv[1:]])
+    command = _command()
     page = [
         f"# {title}",
         "",
@@ -42,7 +53,7 @@ def write_readme(name: str, table: list[str], load_start: float) -> Path:
     """Put ``table`` into README.md between ``<!-- table: NAME -->`` and ``<!-- /table: NAME -->``
     (the markers stay; what is between them is replaced), with the command and the load, so the
     README's figures come from the same run as the docs page's."""
-    command = "python " + " ".join(["benchmarks/" + Path(sys.argv[0]).name, *sys.argv[1:]])
+    command = _command()
     begin, end = f"<!-- table: {name} -->", f"<!-- /table: {name} -->"
     text = README.read_text(encoding="utf-8")
     if begin not in text or end not in text:

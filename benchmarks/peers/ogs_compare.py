@@ -225,10 +225,6 @@ def main(argv=None) -> int:
         from doc_tables import write
 
         path = write("peers", "Side by side with OpenGeoSys", intro(args, version, at_rest), lines, load0)
-        # doc_tables names the script as benchmarks/<file name>: this one lives one folder down
-        page = path.read_text(encoding="utf-8")
-        path.write_text(page.replace("benchmarks/ogs_compare.py", "benchmarks/peers/ogs_compare.py", 1),
-                        encoding="utf-8")
         print(f"written {path.relative_to(ROOT)}")
     return 0
 
