@@ -66,8 +66,13 @@ def release_freed_memory():
 
 def lu_solve(factors, b):
     """``scipy.linalg.lu_solve(factors, b)`` without its batching wrapper (the same LAPACK getrs,
-    the same result bits; 20 us less per call, a thousand calls a Rustrel run)."""
-    x, info = _getrs(factors[0], factors[1], b)
+    the same result bits; 20 us less per call, a thousand calls a Rustrel run).
+
+    The pivots go in as a copy: scipy's getrs wrapper makes them 1-based in place for the call
+    (and back after it, without the interpreter lock), so two threads solving with the same
+    factors at once (a run and its fork) shifted them twice: wrong rows swapped, or a pivot
+    out of range and a crash. The factors themselves are only read."""
+    x, info = _getrs(factors[0], factors[1].copy(), b)
     if info != 0:
         raise ValueError(f"getrs: illegal argument {-info}")
     return x

@@ -19,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import copy
 import functools
+import threading
 
 import numpy as np
 import scipy.linalg
@@ -43,6 +44,57 @@ def _blas_controller():
     from threadpoolctl import ThreadpoolController
 
     return ThreadpoolController()
+
+
+class _SingleThreadBlas:
+    """One BLAS thread while any holder is inside, for the whole process (BLAS's thread count is
+    process-wide): the first holder in limits it, the last one out restores what it was. Two
+    runs stepping in two threads (a run and its fork) each limiting and restoring on their own
+    would interleave: the first out restored the threads under the other, and the last out
+    restored the limit it had found, one thread, for good. And threadpoolctl lets only one
+    thread change OpenBLAS's threads (the first that did, while it lives) and silently ignores
+    the others: a fork stepping in a worker thread beside a run on the main thread had two BLAS
+    threads, and its pressures differed in round-off (5e-10 of 4 MPa) from the same fork's
+    stepped alone. So each change here takes that control for itself and hands it back."""
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._holders = 0
+        self._limiter = None
+
+    @staticmethod
+    @contextlib.contextmanager
+    def _in_control():
+        from threadpoolctl import OpenBLASController
+
+        release = getattr(OpenBLASController, "clear_controlling_thread", None)
+        if release is not None:
+            release(force=True)
+        try:
+            yield
+        finally:
+            if release is not None:
+                release(force=True)
+
+    @contextlib.contextmanager
+    def held(self):
+        with self._lock:
+            if self._holders == 0:
+                with self._in_control():
+                    self._limiter = _blas_controller().limit(limits=1, user_api="blas")
+            self._holders += 1
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._holders -= 1
+                if self._holders == 0:
+                    with self._in_control():
+                        self._limiter.restore_original_limits()
+                    self._limiter = None
+
+
+_SINGLE_THREAD_BLAS = _SingleThreadBlas()
 
 
 class CondensedSystem:
@@ -327,13 +379,14 @@ class CondensedSystem:
         machine, spin against the other processes (a 3-14x slow-down measured, issue 15). A
         caller that takes many steps holds this around all of them: limiting and restoring the
         threads at every step cost a BLAS thread spinning beside the run (CPU 1.8x the wall
-        time on the T = 0.4 scene). Re-entrant."""
+        time on the T = 0.4 scene). Re-entrant, and safe from several threads (``_SingleThreadBlas``:
+        a large system stepping beside a small one then has one thread too)."""
         if len(self.N) > SINGLE_THREAD_BLAS_UP_TO or self._blas_limited:
             yield
             return
         self._blas_limited = True
         try:
-            with _blas_controller().limit(limits=1, user_api="blas"):
+            with _SINGLE_THREAD_BLAS.held():
                 yield
         finally:
             self._blas_limited = False
@@ -597,8 +650,10 @@ class CondensedSolver:
 
     def fork(self) -> "CondensedSolver":
         """The same solver for a fork: the factors shared read-only, the columns of the inverse
-        solved for so far (filled in place, page by page) copied."""
+        solved for so far (filled in place, page by page) copied, and the block's pattern its
+        own (it remembers the arrays it last matched)."""
         twin = copy.copy(self)
+        twin._pattern = copy.copy(self._pattern)
         for name in ("_Z", "_Z1", "_have", "_have1"):
             value = getattr(self, name, None)
             if value is not None:

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import json
 import math
-import threading
 import time as _time
 import tomllib
 from pathlib import Path
@@ -35,13 +34,6 @@ from .result import Result, atomic_hdf5
 from .scene import Scene
 from .schedule import StepSchedule
 from .solver import NewtonSolver, StepFailed, fault_at_rest
-
-#: One solver step at a time in the process. A fork shares its parent's factors and constant
-#: matrices (read-only by design), and the monitor steps a fork in a worker thread beside the
-#: live run: two steps at once inside the shared linear algebra aborted the process (seen in the
-#: monitor's look-ahead tests). The steps mostly hold the interpreter lock anyway, so serialising
-#: them costs the live run at most one look-ahead step of waiting.
-_STEP_LOCK = threading.RLock()
 
 CHECKPOINT_FORMAT = 1
 
@@ -181,8 +173,7 @@ class Simulation:
                 t1 = t + dt_try
                 step_value = value(t, t1)
                 try:
-                    with _STEP_LOCK:
-                        out = self._step(dt_try, step_value)
+                    out = self._step(dt_try, step_value)
                     break
                 except StepFailed as exc:
                     cuts += 1
@@ -352,7 +343,8 @@ class Simulation:
         current factorisations are shared: the steps only read them, and a fork that needs new
         factors makes its own (``NewtonSolver.fork``). The fork keeps its rows in memory,
         starting with this run's newest row (a look-ahead; this run may stream to a file).
-        Call it between steps of this run."""
+        Call it between steps of this run; after that, this run and the fork may step at the
+        same time in two threads (what either writes is its own)."""
         twin = object.__new__(type(self))
         twin.__dict__.update(self.__dict__)     # the counters and step-sequence state: scalars
         twin.solver = self._forked_solver()
