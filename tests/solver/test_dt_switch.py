@@ -6,32 +6,24 @@ comparison), because each value is made by the same operations in the same order
 growing steps on the poroelastic scene then equals, bit for bit, the same run with each new step
 size's matrix built the general way, on one symbolic analysis and one fixed pattern."""
 import dataclasses
-from dataclasses import replace
 
 import numpy as np
 import pytest
 import scipy.sparse as sp
 
 from fault_screen import Scene, bordered_lu, ldl
-from fault_screen.discretisation import discretise
 from fault_screen.fixed_pattern import FixedBulk
 from fault_screen.linear_system import CondensedSystem
 from fault_screen.simulate import simulate
-from fault_screen.solver import NewtonSolver
 
-from conftest import CONFIGS, VERIFICATION
+from conftest import CONFIGS
+# (the scenes: a permeable-rock one with a damage zone, mass balance verification, and a coarse
+# inclined fault in impermeable rock)
+from test_ldl import _solver, elastic, poroelastic  # noqa: F401  (fixtures)
 
 #: the Schur complement of the split bulk against numpy's dense one (relative to its largest
 #: entry; test_ldl's tolerance)
 TOL = 1e-11
-
-
-def _solver(scene, dt=None):
-    solver = NewtonSolver(discretise(scene))
-    x = np.zeros(solver.disc.n_dofs)
-    contact = solver.disc.physics.contact
-    solver._prepare(dt or scene.time.dt, x, contact.initial_history(solver.disc) if contact else None)
-    return solver
 
 
 def _general_way(system, dt):
@@ -58,21 +50,6 @@ def _assert_same(new, old):
 
 def _mass_balance():
     return Scene.from_toml(CONFIGS / "verification" / "mass-balance.toml")
-
-
-@pytest.fixture(scope="module")
-def poroelastic():
-    """A permeable-rock scene with a damage zone (mass balance verification)."""
-    return _solver(_mass_balance())
-
-
-@pytest.fixture(scope="module")
-def elastic():
-    """A coarse inclined-fault scene in impermeable rock."""
-    scene = Scene.from_toml(VERIFICATION / "fluid-driven-slip-T0.4-dip30.toml")
-    m = scene.mesh
-    return _solver(scene.replace(mesh=replace(m, refinement=replace(m.refinement, size=4.0,
-                                                                              growth=1.5))))
 
 
 @pytest.mark.parametrize("dt", [7.3, 600.0])
