@@ -39,6 +39,11 @@ def _scaled_values(indptr, indices, at_a, at_c, at_h, a, c, h, scale, row_factor
             out[p] = ((scale[i] * ((va + vc * inv_dt) + vh * theta)) * s_j) * row_factor[i]
 
 
+def _index_type(n):
+    """int32 for positions in n values where they fit, else int64."""
+    return np.int32 if n < np.iinfo(np.int32).max else np.int64
+
+
 def _index(counts):
     """A CSC/CSR index pointer from the entries per column (row), in scipy's index type."""
     indptr = np.concatenate([[0], np.cumsum(counts)])
@@ -131,16 +136,16 @@ class FixedBulk:
         self.indptr = _index(np.bincount(cols, minlength=n))
         rows = (union % n).astype(self.indptr.dtype)
         self.indices = rows
-        self._at = []
-        for X, at in placed:
-            where = np.full(len(union), -1, dtype=np.int64)
+        self._at = []   # (int32 where they fit: four bytes an entry and block held all run)
+        for (X, at), values in zip(placed, self._data):
+            where = np.full(len(union), -1, dtype=_index_type(len(values)))
             where[at] = X.data.astype(np.int64) - 1
             self._at.append(where)
         self._scale = np.ascontiguousarray(scale[order])
         self._flow = None if flow is None else np.asarray(flow, dtype=bool)
         # the lower triangle of the first n_linear columns, and the condensed block
         lower = (rows >= cols) & (cols < n_linear)
-        self._lower_at = np.flatnonzero(lower)
+        self._lower_at = np.flatnonzero(lower).astype(_index_type(len(union)))
         self.lower_indptr = _index(np.bincount(cols[lower], minlength=n_linear)).astype(rows.dtype)
         self.lower_indices = rows[lower]
         on_N = (rows >= n_linear) & (cols >= n_linear)
