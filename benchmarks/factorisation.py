@@ -18,7 +18,12 @@ last: the bordered design) and factorised by
   (``fault_screen/ldl.py``, what the solver runs for a poroelastic bulk), its symbolic analysis
   made at the first step size (its time in the note) and reused at the others, which pay the
   numeric factorisation only; factor time includes the dense LU of the Schur complement on N,
-  solve time the forward sweep, that LU's solve and the backward sweep.
+  solve time the forward sweep, that LU's solve and the backward sweep. Its note also gives the
+  CPU time of making the matrix of that step size as the solver hands it to the factorisation:
+  "summed", by sparse sums and products (A + C/dt + theta Hf scaled, permuted, its rows times
+  E), its symmetry checked, its lower triangle and condensed block taken, as the solver did
+  before the fixed pattern; "fixed", written into the pattern fixed at the first step size
+  (``fault_screen/fixed_pattern.py``: one pass over the values), as the solver does now.
 
 S is the symmetric form where the solver uses it (a poroelastic bulk, whose factors change with
 the step size); an elastic bulk (the fine 30-degree scene) is factorised as it is, M. There the
@@ -98,7 +103,33 @@ def free_matrices(scene, step_sizes):
         M = (D @ system._linear_jacobian(dt) @ D).tocsr()[order][:, order].tocsc()
         E = np.ones(len(order)) if system.factors_any_dt else np.where(mech[order], 1.0, -dt)
         out.append((M, E, len(system.B)))
-    return out, disc.n_dofs
+    return out, disc.n_dofs, _builds(system, mech[order])
+
+
+def _builds(system, mechanical):
+    """dt -> (CPU time of the matrix summed, in the fixed pattern) (``_best`` of 3 each)."""
+    from fault_screen import ldl
+    from fault_screen.bordered_lu import _linear_rows_symmetric
+    from fault_screen.fixed_pattern import FixedBulk
+
+    order, nB = system.order, len(system.B)
+    D = sp.diags(system.scale)
+    flow = None if system.factors_any_dt else ~mechanical
+    bulk = FixedBulk((system.A, system.C, system.Hf), system.time_weight, order, system.scale,
+                     flow, nB)
+
+    def summed(dt):
+        M = (D @ system._linear_jacobian(dt) @ D).tocsr()[order][:, order].tocsc()
+        if flow is not None:
+            M.data *= np.where(flow, -dt, 1.0)[M.indices]
+        _linear_rows_symmetric(M, nB)
+        return ldl._lower(M, nB), M[nB:, nB:].toarray()
+
+    def fixed(dt):
+        values = bulk.values(dt)
+        return bulk.lower(values), bulk.condensed(values)
+
+    return lambda dt: (_best(lambda: summed(dt), 3)[0], _best(lambda: fixed(dt), 3)[0])
 
 
 def _best(fn, repeat):
@@ -121,7 +152,7 @@ def measure(key, repeat):
 
     from fault_screen.bordered_lu import SYMMETRIC_PIVOT_THRESHOLD, _linear_rows_symmetric
 
-    mats, n_dofs = free_matrices(_scene(key), STEP_SIZES)
+    mats, n_dofs, builds = free_matrices(_scene(key), STEP_SIZES)
     rows = []
     ldl = None
     analyses = []
@@ -149,7 +180,11 @@ def measure(key, repeat):
             rows.append(dict(base, method=name, factor=t_fact, solve=t_solve, memory=memory,
                              residual=_residual(M, x, b), note=""))
             lu = None
-        rows.append(_ldl_row(base, S, E, M, b, nB, analyses, repeat))
+        row = _ldl_row(base, S, E, M, b, nB, analyses, repeat)
+        t_summed, t_fixed = builds(dt)
+        row["note"] += (f"; matrix of this dt summed {1e3 * t_summed:.1f} ms, "
+                        f"fixed {1e3 * t_fixed:.1f} ms")
+        rows.append(row)
         upper = sp.triu(S, format="csc")
         try:
             if ldl is None:

@@ -275,7 +275,14 @@ class BorderedLU:
 
     quasi_definite = False   # factorised by ldl.factorise (else by SuperLU)
 
-    def __init__(self, M, n_linear: int, analyses=None):
+    def __init__(self, M, n_linear: int, analyses=None, symmetric_parts=None):
+        if symmetric_parts is not None:   # (M's linear rows known to be symmetric)
+            lower, condensed = symmetric_parts()
+            self.n, self.n_linear = lower.shape[0], n_linear
+            try:
+                return self._quasi_definite_parts(lower, condensed, analyses)
+            except NotQuasiDefinite:
+                pass
         if callable(M):
             M = M()
         n = M.shape[0]
@@ -339,8 +346,15 @@ class BorderedLU:
         """The factors by ``ldl.factorise`` (M symmetric, its linear block quasi-definite): the
         symbolic analysis of M's pattern from ``analyses``, no pivoting, so the rows keep their
         order and U = D L^T."""
-        (first, width, row_at, value_at, rows, values), self._D, self.schur, nnz = \
-            ldl.factorise(M, self.n_linear, analyses)
+        self._take(*ldl.factorise(M, self.n_linear, analyses))
+
+    def _quasi_definite_parts(self, lower, condensed, analyses):
+        """``_quasi_definite`` given the parts of M that it reads: the lower triangle of the
+        linear columns and the dense condensed block (``ldl.factorise_lower``)."""
+        self._take(*ldl.factorise_lower(lower, condensed, self.n_linear, analyses))
+
+    def _take(self, packed, diagonal, schur, nnz):
+        (first, width, row_at, value_at, rows, values), self._D, self.schur = packed, diagonal, schur
         self.quasi_definite = True
         self.nnz = 2 * nnz   # (as L + U)
         self._row_B = np.arange(self.n_linear)
@@ -407,15 +421,19 @@ def _linear_rows_symmetric(M, nB):
 SPLIT_ABOVE = 50_000
 
 
-def bordered_lu(M, n_linear: int, split=None, analyses=None):
+def bordered_lu(M, n_linear: int, split=None, analyses=None, symmetric_parts=None):
     """``BorderedLU`` of ``M`` (or a function returning it), or ``SplitBorderedLU`` when the
     linear block is larger than SPLIT_ABOVE and ``split`` (the sizes of its parts, then of its
     separators: see ``split_layout``) is given. ``analyses`` (``ldl.SymbolicAnalyses``): a
     symmetric M is factorised as L D L^T on the symbolic analysis of its pattern kept there
-    (numeric work only from the second matrix of a pattern on), SuperLU where a pivot fails."""
+    (numeric work only from the second matrix of a pattern on), SuperLU where a pivot fails.
+    ``symmetric_parts``: M's linear rows are known to be symmetric, and this function returns
+    the parts of M that the L D L^T reads (the lower triangle of the linear columns, the dense
+    condensed block): no symmetry check, and M (best a function, then) is made only for SuperLU
+    or a split (which ignores them)."""
     if split is not None and n_linear > SPLIT_ABOVE and min(split[:-1]) > 0:
         return SplitBorderedLU(M, n_linear, split, analyses)
-    return BorderedLU(M, n_linear, analyses)
+    return BorderedLU(M, n_linear, analyses, symmetric_parts)
 
 
 class SplitBorderedLU:

@@ -501,6 +501,11 @@ class SymbolicAnalyses:
     def __init__(self):
         self._held = []
 
+    @property
+    def made(self) -> int:
+        """How many symbolic analyses were made (one per pattern)."""
+        return len(self._held)
+
     def of(self, lower, n_linear):
         for symbolic in self._held:
             if symbolic.n_linear == n_linear and symbolic.matches(lower):
@@ -534,9 +539,15 @@ def factorise(M, n_linear: int, analyses: SymbolicAnalyses):
     ``analyses`` (made there at the first matrix of a pattern). Raises NotQuasiDefinite when a
     pivot is zero, not finite or below PIVOT_RATIO of the largest."""
     M = sp.csc_matrix(M)
-    lower = _lower(M, n_linear)
+    return factorise_lower(_lower(M, n_linear), M[n_linear:, n_linear:].toarray(), n_linear,
+                           analyses)
+
+
+def factorise_lower(lower, schur, n_linear: int, analyses: SymbolicAnalyses):
+    """``factorise`` given the lower triangle of M's first ``n_linear`` columns (``_lower``'s
+    form: CSC, sorted) and M's dense block on the condensed unknowns (``schur``, overwritten
+    with the Schur complement)."""
     symbolic = analyses.of(lower, n_linear)
-    schur = M[n_linear:, n_linear:].toarray()
     first, width, row_at, srows, tparent, children, relative = symbolic.tree
     values, value_at, diagonal, ratio = _numeric(
         lower.indptr, lower.indices, lower.data, n_linear, first, width, row_at, srows,

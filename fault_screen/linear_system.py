@@ -26,7 +26,9 @@ import scipy.linalg
 import scipy.sparse as sp
 
 from ._jit import helper, kernel
-from .bordered_lu import bordered_lu, lu_solve, release_freed_memory, split_layout
+from .bordered_lu import (_linear_rows_symmetric, bordered_lu, lu_solve, release_freed_memory,
+                          split_layout)
+from .fixed_pattern import FixedBulk, FixedSum
 from .ldl import SymbolicAnalyses
 from .ordering import nested_dissection
 
@@ -112,8 +114,10 @@ class CondensedSystem:
     definite), so it has an L D L^T in the fill-reducing order without pivoting, at every step
     size: ``ldl.py``, whose symbolic analysis (``_analyses``) is made at the first step and
     serves every later step size, which pays the numeric factorisation only (SuperLU, keeping
-    its diagonal pivots, where a pivot fails). Factorised as it is, its pivoting grew with dt (the flow rows' diagonal,
-    storage over dt, shrinks against the coupling): on the paper-units Rustrel scene the factors
+    its diagonal pivots, where a pivot fails); the matrix of a new step size is written into
+    the pattern fixed at the first (``fixed_pattern``), not summed, scaled and permuted anew.
+    Factorised as it is, its pivoting grew with dt (the flow rows' diagonal, storage over dt,
+    shrinks against the coupling): on the paper-units Rustrel scene the factors
     took 3.7 times the memory and 5-6 times the time at dt = 60-600 s that they take at 5 s
     (benchmarks/factorisation.py). The row factors are undone on the right-hand side and on the
     Schur complement (``_row_factor``)."""
@@ -131,6 +135,10 @@ class CondensedSystem:
     P = None
     _row_factor = None   # per free unknown in the factors' order: -dt (flow), 1 (mechanics)
     _analyses = None     # the LDL^T's symbolic analyses of the symmetric form (ldl.py)
+    _bulk = None         # the symmetric form's fixed pattern (fixed_pattern.FixedBulk)
+    _bulk_symmetric = False
+    bulk_patterns = 0    # FixedBulk patterns made (one a run)
+    _sum_NN = _sum_fixed = _sum_rows_N_fixed = None   # fixed patterns of L's other parts
 
     def __init__(self, A, C, Hf, time_weight, free, fixed, condensed, coordinates, mechanical):
         self.A, self.C, self.Hf = A, C, Hf
@@ -225,7 +233,12 @@ class CondensedSystem:
             return
         self._L = None   # (the last step size's L goes first)
         factorise = self.lu is None or not self.factors_any_dt
-        L = self._linear_jacobian(dt) if factorise or self.scale is None else None
+        # the Jacobian summed the general way: for the scaling and the order (first step) and an
+        # elastic bulk's one factorisation; a poroelastic bulk's values at later step sizes are
+        # written into its fixed pattern (``_bulk``)
+        L = (self._linear_jacobian(dt)
+             if self.scale is None or self._order is None or (factorise and self.factors_any_dt)
+             else None)
         if self.scale is None:
             diag = np.abs(L.diagonal())
             rows, cols, vals = nonlinear_tangent()
@@ -243,29 +256,29 @@ class CondensedSystem:
         # complement L_NN - P is not held: one n_N x n_N array less), and P is made with them
         self._LNN_entries = self._linear_entries(dt)
         if factorise:
-            D = sp.diags(self.scale)
-            Ls = (D @ L @ D).tocsr()
             if self._order is None:  # the pattern of B is that of every step size
+                D = sp.diags(self.scale)
+                Ls = (D @ L @ D).tocsr()
                 inner, split, quarters = nested_dissection(
                     Ls[B][:, B], self._coordinates()[B], return_split=True,
                     return_quarters=True)
+                del Ls
                 layout, self._split = split_layout(len(B), split, quarters)
                 if layout is not None:
                     inner = inner[layout]
                 self._order = np.concatenate([B[inner], N])
-            # the factorisation's peak (SuperLU's storage and the factors copied out of it) is
-            # reached holding neither L nor the matrix factorised
-            held = [Ls[self._order][:, self._order].tocsc()]
-            del Ls, L
             self._row_factor = None
-            if not self.factors_any_dt:   # the symmetric form (see the class docstring)
-                self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
-                held[0].data *= self._row_factor[held[0].indices]
-                if self._analyses is None:
-                    self._analyses = SymbolicAnalyses()
             self.lu = None  # the old factors go before the new ones are made (peak memory)
             release_freed_memory()
-            self.lu = bordered_lu(held.pop, len(B), self._split, self._analyses)
+            if self.factors_any_dt:
+                # the factorisation's peak (SuperLU's storage and the factors copied out of it)
+                # is reached holding neither L nor the matrix factorised
+                D = sp.diags(self.scale)
+                held = [(D @ L @ D).tocsr()[self._order][:, self._order].tocsc()]
+                del L
+                self.lu = bordered_lu(held.pop, len(B), self._split, self._analyses)
+            else:   # the symmetric form (see the class docstring)
+                self.lu = self._factorise_symmetric(dt)
             self.factorizations += 1
             if self._row_factor is not None:   # (the Schur complement of the rows as they are)
                 self.lu.schur /= self._row_factor[len(B):, None]
@@ -280,12 +293,48 @@ class CondensedSystem:
         if self._blocks_fixed is None:  # rows of the fixed unknowns on the linear ones, in order
             self._blocks_fixed = [M[self._fixed].tocsc()[:, self.linear_order()].tocsr()
                                   for M in (self.A, self.C, self.Hf)]
-        self._L_fixed_B = self._combine(self._blocks_fixed, dt)
+        self._L_fixed_B = self._fixed_sum("_sum_fixed", self._blocks_fixed).matrix(dt)
         if self._blocks_rows_N_fixed is None:  # the rows a residual with a pending bulk needs
             self._rows_N_fixed = np.concatenate([N, self._fixed])
             self._blocks_rows_N_fixed = [M[self._rows_N_fixed] for M in (self.A, self.C, self.Hf)]
-        self._L_rows_N_fixed = self._combine(self._blocks_rows_N_fixed, dt)
+        self._L_rows_N_fixed = self._fixed_sum("_sum_rows_N_fixed",
+                                               self._blocks_rows_N_fixed).matrix(dt)
         self.dt = dt
+
+    def _fixed_sum(self, name, blocks):
+        """The ``FixedSum`` of these blocks, made at the first step and kept as ``name``."""
+        made = getattr(self, name)
+        if made is None:
+            made = FixedSum(blocks, self.time_weight)
+            setattr(self, name, made)
+        return made
+
+    def _factorise_symmetric(self, dt):
+        """The bulk's factors at step size dt in the symmetric form, its values written into
+        the fixed pattern (``fixed_pattern.FixedBulk``, made with its symmetry check at the
+        first step: every later matrix is X + dt Y + Z / dt of the same three parts, so it is
+        symmetric, to their round-off, when they are)."""
+        nB = len(self.B)
+        if self._bulk is None:
+            self._bulk = FixedBulk((self.A, self.C, self.Hf), self.time_weight, self._order,
+                                   self.scale, ~self._mechanical[self._order], nB)
+            self._bulk_symmetric = all(_linear_rows_symmetric(X, nB)
+                                       for X in self._bulk.components())
+            self.bulk_patterns += 1
+        if self._analyses is None:
+            self._analyses = SymbolicAnalyses()
+        self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
+        bulk = self._bulk
+        values = [bulk.values(dt)]
+
+        def parts():
+            return bulk.lower(values[0]), bulk.condensed(values[0])
+
+        def matrix():   # (for SuperLU or a split bulk: the values go with the call)
+            return bulk.matrix(values.pop())
+
+        return bordered_lu(matrix, nB, self._split, self._analyses,
+                           symmetric_parts=parts if self._bulk_symmetric else None)
 
     @property
     def order(self):
@@ -416,8 +465,7 @@ class CondensedSystem:
 
     def _linear_entries(self, dt):
         """L_NN's entries at step size dt (scaled; rows, columns, values)."""
-        LNN = self._combine(self._blocks_NN, dt).tocoo()
-        return LNN.row.astype(np.int64), LNN.col.astype(np.int64), LNN.data
+        return self._fixed_sum("_sum_NN", self._blocks_NN).entries(dt)
 
 
 class PendingBulk:

@@ -1,0 +1,208 @@
+"""The linear Jacobian A + C / dt + theta Hf at a new step size, written straight into a pattern
+fixed once: the blocks are constant and only dt changes, so the positions of every entry (in the
+factors' order, scaled, with the row factors of the symmetric form) are found once per pattern and
+a new step size is one pass over the values.
+
+``FixedSum``: a few rows or the condensed block, A + C / dt + theta Hf in a fixed CSR pattern
+(the union of the three blocks' patterns). ``FixedBulk``: the scaled free block in the factors'
+order, D (A + C / dt + theta Hf) D with its flow rows times -dt (the symmetric form, see
+``linear_system.CondensedSystem``), as CSC, with the lower triangle of its first ``n_linear``
+columns and the dense block on the condensed unknowns (what ``ldl.factorise_lower`` reads).
+
+Each value is computed with the operations, in the order, of the sparse sums and products that
+built it before ((a + c (1/dt)) + h theta, then times the row's scale, the column's scale, the row
+factor), so it is the same number to the last bit. The pattern is the union of the blocks'
+nonzero entries (a stored zero is left out, as a sparse sum drops it); where their sum cancels
+to zero the position holds an explicit zero, which adds nothing wherever it is read.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from ._jit import kernel
+
+
+@kernel
+def _scaled_values(indptr, indices, at_a, at_c, at_h, a, c, h, scale, row_factor, inv_dt, theta,
+                   out):
+    """out[p] = ((scale_i ((a + c inv_dt) + h theta)) scale_j) row_factor_i at each entry p (row
+    i, column j) of a CSC pattern; at_x[p]: the entry's position in x's values, -1 if x has
+    none there."""
+    for j in range(len(indptr) - 1):
+        s_j = scale[j]
+        for p in range(indptr[j], indptr[j + 1]):
+            i = indices[p]
+            va = a[at_a[p]] if at_a[p] >= 0 else 0.0
+            vc = c[at_c[p]] if at_c[p] >= 0 else 0.0
+            vh = h[at_h[p]] if at_h[p] >= 0 else 0.0
+            out[p] = ((scale[i] * ((va + vc * inv_dt) + vh * theta)) * s_j) * row_factor[i]
+
+
+def _index_type(n):
+    """int32 for positions in n values where they fit, else int64."""
+    return np.int32 if n < np.iinfo(np.int32).max else np.int64
+
+
+def _index(counts):
+    """A CSC/CSR index pointer from the entries per column (row), in scipy's index type."""
+    indptr = np.concatenate([[0], np.cumsum(counts)])
+    return indptr.astype(np.int32) if indptr[-1] < np.iinfo(np.int32).max else indptr
+
+
+def _positions(blocks, shape):
+    """The union pattern of ``blocks`` (sparse, one shape) as sorted keys column * rows + row
+    (CSC order), and per block the position in the union of each of its entries (CSC order)."""
+    n_rows = shape[0]
+    keyed = []
+    for X in blocks:
+        X = sp.csc_matrix(X)
+        X.sum_duplicates()
+        cols = np.repeat(np.arange(X.shape[1], dtype=np.int64), np.diff(X.indptr))
+        keyed.append((X, cols * n_rows + X.indices.astype(np.int64)))
+    union = np.unique(np.concatenate([k for _, k in keyed]))
+    return union, [(X, np.searchsorted(union, k)) for X, k in keyed]
+
+
+class FixedSum:
+    """A + C / dt + theta Hf of the same rows and columns of each block, in the fixed CSR
+    pattern of their union: ``matrix(dt)`` and ``entries(dt)``."""
+
+    def __init__(self, blocks, time_weight):
+        blocks = [sp.csr_matrix(X, copy=True) for X in blocks]
+        for X in blocks:   # (a stored zero is no entry of the sum: sparse sums drop it)
+            X.eliminate_zeros()
+        self.shape = shape = blocks[0].shape
+        # (a CSR matrix's pattern is the CSC pattern of its transpose)
+        union, placed = _positions([X.T for X in blocks], shape[::-1])
+        rows = union // shape[1]
+        self.indptr = _index(np.bincount(rows, minlength=shape[0]))
+        self.indices = (union % shape[1]).astype(self.indptr.dtype)
+        self.rows = rows
+        self._time_weight = time_weight
+        # each block's values at the union's positions (zeros where it has none)
+        self._values = []
+        for XT, at in placed:
+            v = np.zeros(len(union))
+            v[at] = XT.data
+            self._values.append(v)
+
+    def values(self, dt):
+        a, c, h = self._values
+        out = a + c * (1.0 / dt)
+        out += h * self._time_weight
+        return out
+
+    def matrix(self, dt):
+        """A + C / dt + theta Hf as CSR (the fixed pattern's arrays shared)."""
+        M = sp.csr_matrix(self.shape)
+        M.indptr, M.indices, M.data = self.indptr, self.indices, self.values(dt)
+        return M
+
+    def entries(self, dt):
+        """(rows, columns, values) in row-major order."""
+        return self.rows, self.indices.astype(np.int64), self.values(dt)
+
+
+class FixedBulk:
+    """The scaled free block in the factors' order at any step size, in one fixed CSC pattern.
+
+    ``blocks``: A, C, Hf (sparse, on all unknowns); ``order``: the free unknowns in the factors'
+    order (global indices); ``scale``: the symmetric scaling (on all unknowns); ``flow``: which
+    of ``order`` are flow unknowns, whose rows are multiplied by -dt (None: no row factor, the
+    block as it is); ``n_linear``: the unknowns eliminated (the rest condensed)."""
+
+    def __init__(self, blocks, time_weight, order, scale, flow, n_linear):
+        self._time_weight = time_weight
+        self.n_linear = n_linear
+        n = len(order)
+        self.shape = (n, n)
+        # each block's nonzero entries, numbered (their positions in its CSR values, plus one:
+        # a slice drops no entry, and no number is zero; a stored zero, numbered 0, is dropped
+        # as a sparse sum drops it), restricted to the free unknowns in order
+        self._data, numbered = [], []
+        for X in blocks:
+            X = sp.csr_matrix(X)
+            if not X.has_canonical_format:
+                X = X.copy()
+                X.sum_duplicates()
+            self._data.append(X.data)
+            number = np.where(X.data != 0.0, np.arange(1, X.nnz + 1, dtype=np.float64), 0.0)
+            ids = sp.csr_matrix((number, X.indices, X.indptr), shape=X.shape)[order][:, order]
+            ids.eliminate_zeros()
+            numbered.append(ids.tocsc())
+        union, placed = _positions(numbered, self.shape)
+        cols = union // n
+        self.indptr = _index(np.bincount(cols, minlength=n))
+        rows = (union % n).astype(self.indptr.dtype)
+        self.indices = rows
+        self._at = []   # (int32 where they fit: four bytes an entry and block held all run)
+        for (X, at), values in zip(placed, self._data):
+            where = np.full(len(union), -1, dtype=_index_type(len(values)))
+            where[at] = X.data.astype(np.int64) - 1
+            self._at.append(where)
+        self._scale = np.ascontiguousarray(scale[order])
+        self._flow = None if flow is None else np.asarray(flow, dtype=bool)
+        # the lower triangle of the first n_linear columns, and the condensed block
+        lower = (rows >= cols) & (cols < n_linear)
+        self._lower_at = np.flatnonzero(lower).astype(_index_type(len(union)))
+        self.lower_indptr = _index(np.bincount(cols[lower], minlength=n_linear)).astype(rows.dtype)
+        self.lower_indices = rows[lower]
+        on_N = (rows >= n_linear) & (cols >= n_linear)
+        self._N_at = np.flatnonzero(on_N)
+        # (positions in the column-major block)
+        self._N_flat = (cols[on_N] - n_linear) * (n - n_linear) + (rows[on_N].astype(np.int64) - n_linear)
+
+    def _row_factor(self, dt):
+        if self._flow is None:
+            return np.ones(self.shape[0])
+        return np.where(self._flow, -dt, 1.0)
+
+    def values(self, dt):
+        """The CSC values of the block at step size dt (rows times the row factor)."""
+        out = np.empty(len(self.indices))
+        a, c, h = self._data
+        at_a, at_c, at_h = self._at
+        _scaled_values(self.indptr, self.indices, at_a, at_c, at_h, a, c, h, self._scale,
+                       self._row_factor(dt), 1.0 / dt, self._time_weight, out)
+        return out
+
+    def matrix(self, values):
+        """The block as CSC from ``values`` (the pattern's arrays shared, not copied)."""
+        M = sp.csc_matrix(self.shape)
+        M.indptr, M.indices, M.data = self.indptr, self.indices, values
+        return M
+
+    def lower(self, values):
+        """The lower triangle of the first n_linear columns (CSC, sorted) from ``values``."""
+        L = sp.csc_matrix((self.shape[0], self.n_linear))
+        L.indptr, L.indices, L.data = self.lower_indptr, self.lower_indices, values[self._lower_at]
+        return L
+
+    def condensed(self, values):
+        """The dense block on the condensed unknowns from ``values``."""
+        n_N = self.shape[0] - self.n_linear
+        out = np.zeros((n_N, n_N), order="F")   # (as a CSC block's toarray(): products with
+        out.T.reshape(-1)[self._N_flat] = values[self._N_at]   # it then sum in the same order)
+        return out
+
+    def components(self):
+        """The block's parts X, Y, Z (CSC, the fixed pattern) with value(dt) = X + dt Y + Z / dt
+        in exact arithmetic: one symmetric for every dt when all three are."""
+        a, c, h = self._data
+        at_a, at_c, at_h = self._at
+        scale = self._scale
+        rows = self.indices
+        cols = np.repeat(np.arange(self.shape[1]), np.diff(self.indptr))
+        va = np.where(at_a >= 0, a[np.maximum(at_a, 0)], 0.0)
+        vc = np.where(at_c >= 0, c[np.maximum(at_c, 0)], 0.0)
+        vh = np.where(at_h >= 0, h[np.maximum(at_h, 0)], 0.0)
+        ss = scale[rows] * scale[cols]
+        stiff = ss * (va + self._time_weight * vh)
+        storage = ss * vc
+        flow = np.zeros(self.shape[0], dtype=bool) if self._flow is None else self._flow
+        on_flow = flow[rows]
+        X = np.where(on_flow, -storage, stiff)
+        Y = np.where(on_flow, -stiff, 0.0)
+        Z = np.where(on_flow, 0.0, storage)
+        return [self.matrix(v) for v in (X, Y, Z)]
