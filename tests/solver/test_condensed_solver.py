@@ -172,3 +172,42 @@ def test_without_a_storage_block_a_new_step_size_is_factorised(blocks):
         M = _set(dense, blocks, inv_dt, _tangent(np.arange(10, 20), 50.0))
         _check(dense, M, rng)
         assert dense.factorizations == k + 1
+
+
+def _gmres_by_arnoldi_columns(A, b, m):
+    """m iterations of unpreconditioned GMRES from zero by ``_arnoldi_column``: the iterate, the
+    basis and the rotated right-hand side."""
+    from fault_screen.linear_system import _arnoldi_column
+
+    n = len(b)
+    V, H = np.empty((m + 1, n)), np.zeros((m + 1, m))
+    cs, sn, g = np.zeros(m), np.zeros(m), np.zeros(m + 1)
+    g[0] = np.linalg.norm(b)
+    V[0] = b / g[0]
+    for j in range(m):
+        w = A @ V[j]
+        V[j + 1] = w / _arnoldi_column(V, H, cs, sn, g, j, w)
+    y = np.linalg.solve(np.triu(H[:m, :m]), g[:m])
+    return y @ V[:m], V, g
+
+
+@pytest.mark.parametrize("m", [5, 40])
+def test_arnoldi_columns_give_the_gmres_iterate(m):
+    """The Arnoldi kernel of the condensed iteration against numpy: its basis is orthonormal to
+    round-off (1e-13), the residual it estimates (the last entry of the rotated right-hand side)
+    is the true residual of its iterate (1e-9 relative), and with as many iterations as unknowns
+    the iterate is numpy's solve (1e-10 relative)."""
+    n = 40
+    rng = np.random.default_rng(11)
+    A = 3.0 * np.eye(n) + rng.standard_normal((n, n)) / np.sqrt(n)   # unsymmetric, regular
+    b = rng.standard_normal(n)
+    x, V, g = _gmres_by_arnoldi_columns(A, b, m)
+    k = min(m + 1, n)   # (with m = n the last basis row is made of round-off)
+    assert np.max(np.abs(V[:k] @ V[:k].T - np.eye(k))) < 1e-13
+    true = np.linalg.norm(b - A @ x)
+    if m < n:
+        assert true > 1e-6 * np.linalg.norm(b)   # (far from converged: the estimate means something)
+        assert abs(abs(g[m]) - true) <= 1e-9 * true
+    else:
+        exact = np.linalg.solve(A, b)
+        assert np.max(np.abs(x - exact)) < 1e-10 * np.max(np.abs(exact))
