@@ -148,25 +148,58 @@ class MetricsTracker:
                            {k: result.injection[k][i] for k in INJECTION_FIELDS})
 
 
+class BlockMetrics:
+    """Every metric of successive blocks of output rows (the first block starting at row 0):
+    (rows,) arrays per block, the same numbers as :func:`result_metrics` over the whole result,
+    whatever the blocks. Keeps from earlier blocks what the point metrics need: the Coulomb
+    failure function of row 0, the last injection-point slip and the induced slip so far."""
+
+    def __init__(self, fault_x, fault_weights, mu0: float):
+        self.fault_x = np.asarray(fault_x, dtype=float)
+        self.fault_weights = np.asarray(fault_weights, dtype=float)
+        self.mu0 = float(mu0)
+        self.point = injection_point_index(self.fault_x)
+        self._cff0 = None
+        self._slip_before = None
+        self._induced = 0.0            # signed induced slip up to the last row so far
+
+    def block(self, fault: dict, injection: dict) -> dict:
+        """``fault``: :data:`FAULT_FIELDS` -> (rows, x) arrays; ``injection``:
+        :data:`INJECTION_FIELDS` -> (rows,) arrays (SI)."""
+        mu0 = self.mu0
+        out = fault_metrics({k: fault[k] for k in FAULT_FIELDS}, self.fault_x, self.fault_weights, mu0)
+        n = len(injection["overpressure"])
+        out = {k: np.broadcast_to(np.asarray(v, dtype=float), (n,)).copy() for k, v in out.items()}
+        if not n:
+            out.update({k: np.zeros(0) for k in POINT_METRICS})
+            return out
+        cff = coulomb_failure_function(np.asarray(injection["shear_traction"], dtype=float),
+                                       injection["effective_normal_stress"], mu0)
+        if self._cff0 is None:
+            self._cff0 = cff[0]
+        out["delta_cff"] = cff - self._cff0
+        out["injection_overpressure"] = np.asarray(injection["overpressure"], dtype=float).copy()
+        slip = np.asarray(injection["slip"], dtype=float)
+        state = np.asarray(fault["contact_state"])
+        if state.shape[-1]:
+            sliding = state[:, self.point] == SLIP
+            # the increment into each row; the first row of the run has none
+            before = slip[:1] if self._slip_before is None else np.array([self._slip_before])
+            steps = np.where(sliding, np.diff(np.concatenate([before, slip])), 0.0)
+            if self._slip_before is None:
+                steps[0] = 0.0
+            # one running sum over the whole run, in row order (cumsum adds in sequence)
+            total = np.cumsum(np.concatenate([[self._induced], steps]))[1:]
+            self._induced = float(total[-1])
+            out["induced_slip"] = np.abs(total)
+        else:
+            out["induced_slip"] = np.zeros(n)
+        self._slip_before = float(slip[-1])
+        return out
+
+
 def result_metrics(result) -> dict:
     """Every metric of every output row of ``result`` at once: (time,) arrays; the same numbers
     as :class:`MetricsTracker` row by row."""
-    mu0 = float(result.scene.fault.friction)
-    out = fault_metrics({k: result.fault[k] for k in FAULT_FIELDS}, result.fault_x,
-                        result.fault_weights, mu0)
-    n = len(result.time)
-    out = {k: np.broadcast_to(np.asarray(v, dtype=float), (n,)).copy() for k, v in out.items()}
-    inj = result.injection
-    cff = coulomb_failure_function(np.asarray(inj["shear_traction"], dtype=float),
-                                   inj["effective_normal_stress"], mu0)
-    out["delta_cff"] = cff - cff[0] if n else cff
-    out["injection_overpressure"] = np.asarray(inj["overpressure"], dtype=float).copy()
-    slip = np.asarray(inj["slip"], dtype=float)
-    state = np.asarray(result.fault["contact_state"])
-    if state.shape[-1] and n:
-        sliding = state[:, injection_point_index(result.fault_x)] == SLIP
-        steps = np.where(sliding[1:], np.diff(slip), 0.0)
-        out["induced_slip"] = np.abs(np.concatenate([[0.0], np.cumsum(steps)]))
-    else:
-        out["induced_slip"] = np.zeros(n)
-    return out
+    blocks = BlockMetrics(result.fault_x, result.fault_weights, result.scene.fault.friction)
+    return blocks.block(result.fault, result.injection)
