@@ -1,0 +1,112 @@
+"""Estimates before a run: ``scene check --log`` (the replay of that log) and the monitor's
+start-up estimate per day of operation."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from fault_screen import Result, Scene
+from fault_screen.cli import main
+
+#: a 4 x 5 mesh: the estimates count its steps and bytes as for any scene
+TINY = {
+    "mesh": {"nx": 4, "ny": 5, "lx": 50.0, "ly": 50.0},
+    "initial": {"effective_stress": [-5.649e6, -3.351e6, 0.964e6], "pore_pressure": 2.764e6},
+    "injection": {"number_of_fractures": 10, "schedule": [[0.0, 1e-3]]},
+    "time": {"end": 100.0, "dt": 5.0},
+}
+
+
+def invoke(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def tiny_scene(tmp_path_factory):
+    path = tmp_path_factory.mktemp("tiny") / "tiny.toml"
+    path.write_text(Scene.from_dict(TINY).to_toml())
+    return path
+
+
+def _log(path, rows: int, every: float, unit: str = "s"):
+    """A steady 0.06 m3/min log of ``rows`` samples ``every`` s apart (elapsed times)."""
+    path.write_text(f"elapsed[{unit}],flow_rate[L/min]\n" + "".join(
+        f"{k * every / (60.0 if unit == 'min' else 1.0):g},60\n" for k in range(rows)))
+    return path
+
+
+def _estimate(output: str) -> str:
+    (line,) = [x.strip() for x in output.splitlines() if x.strip().startswith("estimate:")]
+    return line
+
+
+def test_scene_check_with_a_log_estimates_the_replay_of_it(tiny_scene, tmp_path):
+    """A 170-s log (35 samples) on the 5-s steps of the scene: check counts 34 steps, the
+    estimate line replay prints at its start, and the replay takes 34 steps; with --end 60 (the
+    replay's option) 12 steps; the scene's own 100 s (no --log) 20."""
+    log = _log(tmp_path / "q.csv", 35, 5.0)
+    r = invoke("scene", "check", tiny_scene, "--log", log)
+    assert r.exit_code == 0, r.output
+    line = _estimate(r.output)
+    assert line.startswith("estimate: 34 steps,") and f"replay of {log}: 0 to 170 s" in r.output
+    out = tmp_path / "r.h5"
+    rep = invoke("replay", tiny_scene, "--log", log, "--out", out)
+    assert rep.exit_code == 0, rep.output
+    assert _estimate(rep.output) == line
+    assert len(Result.load(out).time) == 35
+    r = invoke("scene", "check", tiny_scene, "--log", log, "--end", 60)
+    assert r.exit_code == 0 and _estimate(r.output).startswith("estimate: 12 steps,"), r.output
+    r = invoke("scene", "check", tiny_scene)
+    assert r.exit_code == 0 and _estimate(r.output).startswith("estimate: 20 steps,"), r.output
+
+
+def test_scene_check_reads_the_log_with_replays_options(tiny_scene, tmp_path):
+    """A log whose flow column names no unit: refused without --flow-unit with replay's message
+    (exit 2); with --flow-unit L/min, 100 samples a minute apart: 99 min, 1,188 steps of 5 s."""
+    log = tmp_path / "m.csv"
+    log.write_text("elapsed[min],flow_rate\n" + "".join(f"{k},60\n" for k in range(100)))
+    bad = invoke("scene", "check", tiny_scene, "--log", log)
+    rep = invoke("replay", tiny_scene, "--log", log, "--out", tmp_path / "r.h5")
+    assert bad.exit_code == rep.exit_code == 2
+    assert bad.output.strip().splitlines()[-1] == rep.output.strip().splitlines()[-1]
+    assert bad.output.strip().splitlines()[-1].startswith("Error: ")
+    assert "pass --flow-unit" in bad.output and "ok --" not in bad.output
+    r = invoke("scene", "check", tiny_scene, "--log", log, "--flow-unit", "L/min")
+    assert r.exit_code == 0, r.output
+    assert _estimate(r.output).startswith("estimate: 1,188 steps,")
+
+
+hypothesis = pytest.importorskip("hypothesis")
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from input_strategies import LOG_HEADERS, mutated, tables  # noqa: E402
+
+
+@settings(max_examples=40, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
+                                 HealthCheck.function_scoped_fixture])
+@given(data=st.one_of(tables(LOG_HEADERS), tables(LOG_HEADERS).flatmap(mutated),
+                      st.binary(max_size=400)),
+       options=st.lists(st.sampled_from([["--policy", "skip"], ["--policy", "hold"],
+                                         ["--time-unit", "min"], ["--flow-unit", "L/min"],
+                                         ["--tz", "Europe/Zurich"], ["--accept-implausible"],
+                                         ["--end", "50"]]), max_size=3))
+def test_scene_check_of_any_log_gives_an_estimate_or_one_error_line(tiny_scene, tmp_path, data,
+                                                                    options):
+    """Random bytes, broken tables and mutated ones as --log: the estimate (exit 0) or exit 2
+    with one line 'Error: ...' naming the problem, never a traceback or another exit code."""
+    log = tmp_path / "log.csv"
+    log.write_bytes(data)
+    r = invoke("scene", "check", tiny_scene, "--log", log, *[x for o in options for x in o])
+    assert r.exit_code in (0, 2), (r.exit_code, r.output, r.exc_info)
+    assert r.exception is None or isinstance(r.exception, SystemExit), r.exc_info
+    assert "Traceback" not in r.output
+    if r.exit_code == 0:
+        assert _estimate(r.output).startswith("estimate: ")
+    else:
+        errors = [x for x in r.output.splitlines() if x.startswith("Error: ")]
+        assert len(errors) == 1 and len(errors[0]) > len("Error: ") + 10 and "ok --" not in r.output
