@@ -110,3 +110,55 @@ def test_scene_check_of_any_log_gives_an_estimate_or_one_error_line(tiny_scene, 
     else:
         errors = [x for x in r.output.splitlines() if x.startswith("Error: ")]
         assert len(errors) == 1 and len(errors[0]) > len("Error: ") + 10 and "ok --" not in r.output
+
+
+# ---------------------------------------------------------------------------------------------
+# the monitor: per day of operation
+# ---------------------------------------------------------------------------------------------
+#: 4,096 steps a day: a day's series fill exactly one chunk of the streamed file (4,096 rows),
+#: so a day's growth is the difference of two files, one step long and a day long
+DAY_DT = 86400.0 / 4096
+
+
+def test_monitor_prints_its_estimate_per_day_at_start(tiny_scene, tmp_path, monkeypatch):
+    """The monitor's first lines: the estimate of estimate_monitor (4,096 steps a day at
+    21.1-s steps; 17,280 at the tiny scene's 5 s), before it follows the log."""
+    from fault_screen.run_estimate import estimate_monitor
+
+    monkeypatch.chdir(tmp_path)
+    log = _log(tmp_path / "q.csv", 4, 5.0)
+    r = invoke("monitor", tiny_scene, "--follow", log, "--idle-exit", "0.5", "--out", tmp_path / "m.h5")
+    assert r.exit_code == 0, r.output
+    want = estimate_monitor(Scene.from_toml(tiny_scene)).lines()
+    assert want[0].startswith("estimate per day of operation: 17,280 steps of about ")
+    assert r.stdout.splitlines()[:len(want)] == want
+    day = Scene.from_dict({**TINY, "time": {"end": 100.0, "dt": DAY_DT}})
+    assert estimate_monitor(day).steps_per_day == 4096
+
+
+def test_monitor_file_growth_per_day_against_a_replayed_day(tmp_path):
+    """The per-day growth of the monitor's estimate against a replay of a steady day-long log
+    (1,441 samples a minute apart) on the tiny mesh with [output] profile_interval = "1 h":
+    the file of the day minus that of its first step, the log's samples set aside (16 B each
+    without pressure), within 1.1x (the series, stored uncompressed, 31 values a step, are
+    most of it); the day's profiles are the estimate's 26 (every hour and the last), and its
+    steps 4,096."""
+    from fault_screen.run_estimate import estimate_monitor
+
+    scene = Scene.from_dict({**TINY, "time": {"end": 100.0, "dt": DAY_DT},
+                             "output": {"profile_interval": 3600.0}})
+    path = tmp_path / "day.toml"
+    path.write_text(scene.to_toml())
+    log = _log(tmp_path / "day.csv", 1441, 60.0)
+    sizes = {}
+    for name, end in (("step", DAY_DT), ("day", 86400.0)):
+        out = tmp_path / f"{name}.h5"
+        r = invoke("replay", path, "--log", log, "--end", end, "--out", out, "--quiet")
+        assert r.exit_code == 0, r.output
+        sizes[name] = out.stat().st_size - 16 * len(Result.load(out).extra["log"]["time"])
+    day = Result.load(tmp_path / "day.h5")
+    assert len(day.time) == 4097
+    est = estimate_monitor(scene)
+    assert est.steps_per_day == 4096 and est.profiles_per_day == 26 == len(day.profile_time)
+    grown = sizes["day"] - sizes["step"]
+    assert est.file_bytes_per_day / 1.1 <= grown <= 1.1 * est.file_bytes_per_day, (grown, est)
