@@ -22,8 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..rules import METRICS
-from .metrics import (FAULT_FIELDS, INJECTION_FIELDS, BlockMetrics, MetricsTracker, fault_metrics,
-                      result_metrics)
+from .metrics import FAULT_FIELDS, INJECTION_FIELDS, MetricsTracker, fault_metrics, result_metrics
 from .screener import (GREEN, LEVEL_NAMES, RED, UNSTABLE_RULE, YELLOW, Events, Screener, Transition,
                        Verdict, event_metrics, thresholds_of)
 from .stepwise import TRANSITION_DTYPE, Screening, StepScreening
@@ -31,7 +30,7 @@ from .stepwise import TRANSITION_DTYPE, Screening, StepScreening
 __all__ = ["screen_result", "Screening", "Screener", "StepScreening", "MetricsTracker", "event_metrics", "Transition", "Verdict", "Events",
            "fault_metrics", "result_metrics", "thresholds_of", "stopped_unstable", "GREEN", "YELLOW",
            "RED", "LEVEL_NAMES", "UNSTABLE_RULE", "TRANSITION_DTYPE", "METRICS", "read_transitions",
-           "screen_file", "BlockMetrics"]
+           "screen_file"]
 
 
 
@@ -129,8 +128,8 @@ def screen_file(rf, spec=None, events=None, *, sink=None) -> Screening:
     n = rf.rows
     if rf.profiles_per_row():
         paths = [f"fault/{k}" for k in FAULT_FIELDS] + [f"injection/{k}" for k in INJECTION_FIELDS]
-        blocks = BlockMetrics(rf.h5["fault/x"][()], rf.h5["fault/weight"][()],
-                              rf.scene.fault.friction)
+        blocks = MetricsTracker(rf.h5["fault/x"][()], rf.h5["fault/weight"][()],
+                                rf.scene.fault.friction)
 
         def metrics_of(block):
             return blocks.block({k: block[f"fault/{k}"] for k in FAULT_FIELDS},

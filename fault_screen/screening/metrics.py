@@ -81,7 +81,8 @@ def coulomb_failure_function(tau, sigma_n, mu0):
 
 
 class MetricsTracker:
-    """Metrics of successive output rows, one call per row (what the live monitor does per step).
+    """Metrics of successive output rows, one call per row (what the live monitor does per step)
+    or per block of rows (:meth:`block`: a result file read in pieces).
 
     Keeps what the point metrics need from earlier rows: the Coulomb failure function at the first
     row (reference of ``delta_cff``), the previous injection-point slip and the induced slip so far.
@@ -148,23 +149,10 @@ class MetricsTracker:
                            {k: result.injection[k][i] for k in INJECTION_FIELDS})
 
 
-class BlockMetrics:
-    """Every metric of successive blocks of output rows (the first block starting at row 0):
-    (rows,) arrays per block, the same numbers as :func:`result_metrics` over the whole result,
-    whatever the blocks. Keeps from earlier blocks what the point metrics need: the Coulomb
-    failure function of row 0, the last injection-point slip and the induced slip so far."""
-
-    def __init__(self, fault_x, fault_weights, mu0: float):
-        self.fault_x = np.asarray(fault_x, dtype=float)
-        self.fault_weights = np.asarray(fault_weights, dtype=float)
-        self.mu0 = float(mu0)
-        self.point = injection_point_index(self.fault_x)
-        self._cff0 = None
-        self._slip_before = None
-        self._induced = 0.0            # signed induced slip up to the last row so far
-
     def block(self, fault: dict, injection: dict) -> dict:
-        """``fault``: :data:`FAULT_FIELDS` -> (rows, x) arrays; ``injection``:
+        """Metrics of the next block of rows (the first block starting at row 0), (rows,) arrays:
+        the same numbers as :func:`result_metrics` over the whole result, whatever the blocks.
+        ``fault``: :data:`FAULT_FIELDS` -> (rows, x) arrays; ``injection``:
         :data:`INJECTION_FIELDS` -> (rows,) arrays (SI)."""
         mu0 = self.mu0
         out = fault_metrics({k: fault[k] for k in FAULT_FIELDS}, self.fault_x, self.fault_weights, mu0)
@@ -176,7 +164,7 @@ class BlockMetrics:
         cff = coulomb_failure_function(np.asarray(injection["shear_traction"], dtype=float),
                                        injection["effective_normal_stress"], mu0)
         if self._cff0 is None:
-            self._cff0 = cff[0]
+            self._cff0 = float(cff[0])
         out["delta_cff"] = cff - self._cff0
         out["injection_overpressure"] = np.asarray(injection["overpressure"], dtype=float).copy()
         slip = np.asarray(injection["slip"], dtype=float)
@@ -189,8 +177,8 @@ class BlockMetrics:
             if self._slip_before is None:
                 steps[0] = 0.0
             # one running sum over the whole run, in row order (cumsum adds in sequence)
-            total = np.cumsum(np.concatenate([[self._induced], steps]))[1:]
-            self._induced = float(total[-1])
+            total = np.cumsum(np.concatenate([[self.induced_slip_signed], steps]))[1:]
+            self.induced_slip_signed = float(total[-1])
             out["induced_slip"] = np.abs(total)
         else:
             out["induced_slip"] = np.zeros(n)
@@ -201,5 +189,4 @@ class BlockMetrics:
 def result_metrics(result) -> dict:
     """Every metric of every output row of ``result`` at once: (time,) arrays; the same numbers
     as :class:`MetricsTracker` row by row."""
-    blocks = BlockMetrics(result.fault_x, result.fault_weights, result.scene.fault.friction)
-    return blocks.block(result.fault, result.injection)
+    return MetricsTracker.for_result(result).block(result.fault, result.injection)
