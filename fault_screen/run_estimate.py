@@ -87,6 +87,7 @@ LARGE_DAY = 100e6
 LARGE_MEMORY = 4e9
 #: bytes a monitor stores per log sample (/log time, flow rate, pressure)
 LOG_SAMPLE_BYTES = 24
+#: a day of operation (s)
 DAY = 86400.0
 
 
