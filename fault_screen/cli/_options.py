@@ -262,7 +262,7 @@ def log_path_option(required: bool = True, help: str = "Injection log (CSV: time
                     "(?starttime=&endtime= for the window)."):
     """``--log LOG|URL``: the injection log that drives a run."""
     return click.option("--log", "log_path", type=FILE_OR_URL, required=required,
-                        default=None, metavar="LOG|URL", help=help)
+                        metavar="LOG|URL", help=help)
 
 
 #: how ``replay`` reads its ``--log`` and where the run ends (``scene check --log`` too)

@@ -125,7 +125,6 @@ def screen_file(rf, spec=None, events=None, *, sink=None) -> Screening:
     the transitions and the verdict, its ``time``, ``metrics`` and ``level`` are None)."""
     spec = spec if spec is not None else rf.scene.monitor
     events = Events.coerce(events) if events is not None else _events_of(rf.group("events"))
-    n = rf.rows
     if rf.profiles_per_row():
         paths = [f"fault/{k}" for k in FAULT_FIELDS] + [f"injection/{k}" for k in INJECTION_FIELDS]
         blocks = MetricsTracker(rf.h5["fault/x"][()], rf.h5["fault/weight"][()],
@@ -140,6 +139,8 @@ def screen_file(rf, spec=None, events=None, *, sink=None) -> Screening:
 
         def metrics_of(block):
             return {k: np.asarray(block[f"screening/{k}"], dtype=float).copy() for k in names}
+    # the rows every dataset read holds (a file still being streamed may be between flushes)
+    n = min(rf.h5[p].shape[0] for p in ["time"] + paths)
     unstable_from = _unstable_from(_stop_time(rf.meta, lambda: rf.last("time")) if n else None)
     steps = StepScreening(spec, events=events)
     for i0, block in rf.row_blocks(["time"] + paths, n):
