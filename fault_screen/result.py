@@ -230,6 +230,89 @@ class ResultFile:
             out = part if out is None else ufunc(out, part)
         return out if out is not None else np.zeros(self.h5[path].shape[1])
 
+    def row_blocks(self, paths: list, rows: int | None = None):
+        """(first row, {path: its rows}) of the datasets ``paths`` side by side, first ``rows``
+        rows (default: every output time), in blocks of at most ``read_rows`` values of the
+        widest of them (at least one row)."""
+        n = self.rows if rows is None else int(rows)
+        widest = max((int(np.prod(self.h5[p].shape[1:], dtype=np.int64)) or 1 for p in paths),
+                     default=1)
+        step = max(1, self.read_rows // widest)
+        for i0 in range(0, n, step):
+            index = slice(i0, min(n, i0 + step))
+            yield i0, {p: self._read(p, index) for p in paths}
+
+    def group(self, name: str) -> dict:
+        """The datasets of the group ``name`` read whole: for the small ones (events, level
+        changes, the log's settings); empty when there is no such group."""
+        if name not in self.h5:
+            return {}
+        return {k: self.h5[name][k][()] for k in self.h5[name]}
+
+    def profiles_per_row(self) -> bool:
+        """Whether the file holds a fault profile for every output time (no ``[output]``
+        thinning), as :attr:`Result.fault_time` is None after :meth:`Result.load`."""
+        if self.profiles != self.rows:
+            return False
+        if "time" not in self.h5["fault"]:
+            return True
+        return all(np.array_equal(b["time"], b["fault/time"])
+                   for _, b in self.row_blocks(["time", "fault/time"]))
+
+    def check(self) -> None:
+        """ValueError (one line) unless every per-time array has one row per output time and
+        every fault profile one column per fault point (:meth:`Result.check_lengths`, without
+        reading the arrays); a file still being streamed is not checked."""
+        if self.growing:
+            return
+        h5 = self.h5
+        series = {g: [k for k in h5[g] if not (g == "screening" and k == "transitions")]
+                  for g in _SERIES_GROUPS if g in h5}
+        self._check_shapes(series)
+        if "time" in h5["fault"] and h5["fault/time"].shape[0] != self.profiles:
+            raise ValueError(f"damaged result: /fault/time has {h5['fault/time'].shape[0]} rows "
+                             f"for {self.profiles} fault profiles")
+        n_x = h5["fault/x"].shape[0]
+        if h5["fault/weight"].shape[:1] != (n_x,) or h5["fault/xy"].shape[:1] != (n_x,):
+            raise ValueError(f"damaged result: /fault/weight and /fault/xy do not have one row "
+                             f"per fault point ({n_x})")
+
+    def copy_to(self, h5, skip=()) -> None:
+        """Every group, dataset and attribute of the file into the open h5py file ``h5`` but
+        the groups or datasets named in ``skip`` (e.g. ``"screening"``), each dataset with its
+        type, chunks and compression, copied at most ``read_rows`` values at a time."""
+        import h5py
+
+        for k, v in self.h5.attrs.items():
+            h5.attrs[k] = v
+
+        def copy(src, dst):
+            for k, v in src.attrs.items():
+                dst.attrs[k] = v
+            for name, obj in src.items():
+                if obj.name.lstrip("/") in skip:
+                    continue
+                if isinstance(obj, h5py.Group):
+                    copy(obj, dst.create_group(name))
+                    continue
+                chunked = obj.chunks is not None
+                ds = dst.create_dataset(name, shape=obj.shape, dtype=obj.dtype,
+                                        chunks=obj.chunks if chunked else None,
+                                        maxshape=obj.maxshape if chunked else None,
+                                        compression=obj.compression,
+                                        compression_opts=obj.compression_opts,
+                                        shuffle=obj.shuffle)
+                for a, val in obj.attrs.items():
+                    ds.attrs[a] = val
+                if obj.ndim == 0:
+                    ds[()] = obj[()]
+                    continue
+                path = obj.name.lstrip("/")
+                for i0, block in self.row_blocks([path], obj.shape[0]):
+                    ds[i0:i0 + len(block[path])] = block[path]
+
+        copy(self.h5, h5)
+
     # -- a view to plot ----------------------------------------------------------------------
     def view(self, points: int = VIEW_POINTS, profiles: int = VIEW_PROFILES) -> Result:
         """The result with every series reduced to about ``points`` values and at most

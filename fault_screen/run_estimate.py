@@ -76,7 +76,79 @@ class RunEstimate:
         if self.wall_seconds > LONG_RUN:
             out.append("advice: the run is long: let the steps grow ([time] growth = 1.2 and "
                        "dt_max, e.g. 600 s) or coarsen the mesh ([mesh] nx, ny)")
+        if self.memory_bytes > LARGE_MEMORY:
+            out.append(_MEMORY_ADVICE)
         return out
+
+
+#: a monitor's result growing faster than this a day (bytes) is large: a month of it is 3 GB
+LARGE_DAY = 100e6
+#: a model needing more memory than this (bytes) is large
+LARGE_MEMORY = 4e9
+#: bytes a monitor stores per log sample (/log time, flow rate, pressure)
+LOG_SAMPLE_BYTES = 24
+#: a day of operation (s)
+DAY = 86400.0
+
+
+@dataclass(frozen=True)
+class MonitorEstimate:
+    """What a monitor of the scene costs per day of operation (it has no end): its first day at
+    the scene's step rule (``time.dt`` growing by ``growth`` to ``dt_max``)."""
+    steps_per_day: int
+    """Model steps in the first day (-)."""
+    step_seconds: float
+    """Wall time of a model step on an idle machine (s)."""
+    profiles_per_day: int
+    """Fault profiles kept in the first day (-); fewer each later day by the automatic rule."""
+    file_bytes_per_day: float
+    """Growth of the result file in the first day, the log's samples apart (bytes)."""
+    memory_bytes: float
+    """Peak resident memory of the process (bytes); it does not grow with the days."""
+
+    def lines(self) -> list[str]:
+        """What a day of monitoring costs, and, when large, how to thin or coarsen it."""
+        out = [f"estimate per day of operation: {self.steps_per_day:,} steps of about "
+               f"{self.step_seconds * 1e3:.2g} ms on an idle machine "
+               f"({_duration(self.steps_per_day * self.step_seconds)} of computing a day), "
+               f"result file growing by about {_size(self.file_bytes_per_day)} a day "
+               f"({self.profiles_per_day:,} fault profiles the first day, fewer later; "
+               f"{LOG_SAMPLE_BYTES} B per log sample besides), peak memory about "
+               f"{_size(self.memory_bytes)}"]
+        if self.file_bytes_per_day > LARGE_DAY:
+            out.append("advice: the result file grows fast: let the steps grow ([time] growth = "
+                       "1.2 and dt_max, e.g. 600 s) or keep fewer fault profiles ([output] "
+                       "profile_interval, e.g. \"1 h\")")
+        if self.memory_bytes > LARGE_MEMORY:
+            out.append(_MEMORY_ADVICE)
+        return out
+
+
+_MEMORY_ADVICE = "advice: the model needs much memory: coarsen the mesh ([mesh] nx, ny)"
+
+
+def estimate_monitor(scene: Scene) -> MonitorEstimate:
+    """The cost of monitoring with ``scene`` per day of operation (:class:`MonitorEstimate`):
+    the first day's steps, profiles and file as :func:`estimate_run` counts a run of a day,
+    the series' bytes per row (a day's rows do not fill whole chunks, many days do)."""
+    import dataclasses
+
+    day = scene.replace(time=dataclasses.replace(scene.time, end=DAY))
+    _, unknowns, model_memory = estimate_size(scene)
+    steps = step_count(day)
+    profiles = profile_count(day, steps)
+    file_bytes = 8.0 * _SERIES * steps + _profile_bytes(scene, profiles)
+    return MonitorEstimate(steps_per_day=steps, step_seconds=_step_seconds(unknowns),
+                           profiles_per_day=profiles, file_bytes_per_day=file_bytes,
+                           memory_bytes=model_memory)
+
+
+def _step_seconds(unknowns: int) -> float:
+    return STEP_SECONDS + STEP_SECONDS_PER_UNKNOWN * unknowns
+
+
+def _profile_bytes(scene: Scene, profiles: int) -> float:
+    return PROFILE_COMPRESSION * 8.0 * _PROFILES * fault_points(scene) * profiles
 
 
 def step_count(scene: Scene) -> int:
@@ -110,12 +182,11 @@ def estimate_run(scene: Scene, *, plot: bool = False, log_samples: int = 0) -> R
     _, unknowns, model_memory = estimate_size(scene)
     steps = step_count(scene)
     profiles = profile_count(scene, steps)
-    points = fault_points(scene)
     chunks = math.ceil((steps + 1) / SERIES_CHUNK_ROWS)
-    file_bytes = (8.0 * _SERIES * SERIES_CHUNK_ROWS * chunks + 8.0 * 3 * log_samples
-                  + PROFILE_COMPRESSION * 8.0 * _PROFILES * points * profiles)
+    file_bytes = (8.0 * _SERIES * SERIES_CHUNK_ROWS * chunks + LOG_SAMPLE_BYTES * log_samples
+                  + _profile_bytes(scene, profiles))
     memory = model_memory + (PLOT_MEMORY if plot else 0.0)
-    wall = START_SECONDS + steps * (STEP_SECONDS + STEP_SECONDS_PER_UNKNOWN * unknowns)
+    wall = START_SECONDS + steps * _step_seconds(unknowns)
     return RunEstimate(steps=steps, profiles=profiles, unknowns=unknowns, file_bytes=file_bytes,
                        memory_bytes=memory, wall_seconds=wall)
 

@@ -257,11 +257,16 @@ log_reading_options = _compose(
 )
 
 
-#: options of ``replay`` that control how the injection log is read
-log_options = _compose(
-    click.option("--log", "log_path", type=FILE_OR_URL, required=True, metavar="LOG|URL",
-                 help="Injection log (CSV: time + flow rate [+ pressure] columns), or the URL "
-                      "of a HYDWS borehole section (?starttime=&endtime= for the window)."),
+def log_path_option(required: bool = True, help: str = "Injection log (CSV: time + flow rate "
+                    "[+ pressure] columns), or the URL of a HYDWS borehole section "
+                    "(?starttime=&endtime= for the window)."):
+    """``--log LOG|URL``: the injection log that drives a run."""
+    return click.option("--log", "log_path", type=FILE_OR_URL, required=required,
+                        metavar="LOG|URL", help=help)
+
+
+#: how ``replay`` reads its ``--log`` and where the run ends (``scene check --log`` too)
+log_format_options = _compose(
     click.option("--flow-unit", default=None, metavar="U", callback=_unit_callback("flow_rate"),
                  help="Unit of the flow-rate column when its header has none (e.g. L/min, m3/h)."),
     click.option("--pressure-unit", default=None, metavar="U", callback=_unit_callback("pressure"),
@@ -291,6 +296,9 @@ log_options = _compose(
                  help="The log's pressure column, by header or 1-based position."),
     log_reading_options,
 )
+
+#: options of ``replay`` that control how the injection log is read
+log_options = _compose(log_path_option(), log_format_options)
 
 def check_log(log, scene, accepted: bool) -> None:
     """Stop (exit 2, one line) at a log that looks like a unit mistake, unless ``accepted``;

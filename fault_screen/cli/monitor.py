@@ -214,6 +214,9 @@ def monitor(scene_path, follow, events, waveforms, seedlink, seedlink_streams, s
         exporter.attach(service)
         with reading(f"--metrics-port {metrics_port}"):
             exporter.start(metrics_port, metrics_address)
+    if not quiet:        # what a day of operation costs (fault_screen.run_estimate)
+        from ..run_estimate import estimate_monitor
+        click.echo("\n".join(estimate_monitor(scene).lines()))
     service.install_signal_handlers()
     try:
         summary = service.run()

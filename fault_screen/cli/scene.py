@@ -8,8 +8,8 @@ from pathlib import Path
 
 import click
 
-from ._options import check_size, reading
-from ._common import load_scene, read_scene_log
+from ._options import check_size, log_format_options, log_path_option, reading
+from ._common import load_scene, read_driving_log, read_scene_log
 
 FILE = click.Path(dir_okay=False, path_type=Path)
 
@@ -176,31 +176,49 @@ def show(path):
 
 
 # ---- check ---------------------------------------------------------------------------------
-def _estimate_lines(scene, log) -> list[str]:
-    """The run's cost (:mod:`fault_screen.run_estimate`): with the scene's own log, to the
-    end the run would take (``time.end``), as ``fault-screen run`` plans it."""
+def _estimate_lines(scene, log, plan=None) -> list[str]:
+    """The run's cost (:mod:`fault_screen.run_estimate`): for ``plan`` (a replay planned from
+    --log: to the log's end, or --end), else with the scene's own log to the end the run would
+    take (``time.end``), as ``fault-screen run`` plans it."""
     from ..run_estimate import estimate_run
 
     samples = 0
-    if log is not None:
+    if plan is None and log is not None:
         from ..io.replay import plan_replay
 
         plan = plan_replay(scene, log, scene.time.end, end_name="time.end")
+    if plan is not None:
         scene, samples = plan.scene, len(plan.log_arrays.get("time", ()))
     return estimate_run(scene, log_samples=samples).lines()
 
 
 @scene.command()
 @click.argument("path", type=FILE)
-def check(path):
+@log_path_option(required=False, help="Estimate the run for this injection log, as 'fault-screen "
+                 "replay PATH --log LOG' would take it (the same log options): steps to the "
+                 "log's end, wall time, result file, memory, and how to thin or coarsen.")
+@log_format_options
+def check(path, log_path, flow_unit, pressure_unit, max_gap, policy, end, log_date, log_tz,
+          time_column, flow_column, pressure_column, time_unit, volume_column,
+          cumulative_volume_column, volume_unit, accept_implausible):
     """Validate a scene: keys, values and their physical ranges, units, switch combinations,
     the memory it needs, its injection log (if any) and the geometry (fault in the domain,
-    injection point on the fault, in-situ equilibrium). Prints what it would simulate."""
+    injection point on the fault, in-situ equilibrium). Prints what it would simulate and what
+    the run would cost; with --log, a replay of that log."""
     from ..discretisation import discretise
 
     sc = load_scene(path)
     check_size(sc, str(path))
-    log = read_scene_log(sc) if sc.injection.log is not None else None
+    plan = None
+    if log_path is not None:        # read as replay reads it: a bad log stops here (exit 2)
+        log, plan = read_driving_log(
+            sc, Path(path), log_path, end, accept_implausible=accept_implausible, quiet=True,
+            flow_unit=flow_unit, pressure_unit=pressure_unit, max_gap=max_gap, policy=policy,
+            date=log_date, tz=log_tz, time_column=time_column, flow_column=flow_column,
+            pressure_column=pressure_column, time_unit=time_unit, volume_column=volume_column,
+            cumulative_volume_column=cumulative_volume_column, volume_unit=volume_unit)
+    else:
+        log = read_scene_log(sc) if sc.injection.log is not None else None
     import warnings
 
     from ..scene import SceneWarning
@@ -216,12 +234,15 @@ def check(path):
     click.echo(f"  mesh {model.mesh.nx} x {model.mesh.ny} elements, fault cuts "
                f"{len(model.cut_elements)} of them")
     click.echo(f"  unknowns {model.n_dofs} ({counts})")
-    for line in _estimate_lines(sc, log):
+    if plan is not None:
+        click.echo(f"  replay of {log_path}: 0 to {plan.scene.time.end:g} s")
+    for line in _estimate_lines(sc, log, plan):
         click.echo(f"  {line}")
     click.echo(f"  physics terms: {', '.join(model.physics.names())}")
     for line in fault_state_lines(model):
         click.echo(("  " if not line.startswith("notice") else "") + line)
     if log is not None:
         click.echo(f"  log: {log.summary}")
-        for w in log.warnings:
-            click.echo(f"Warning: {w}", err=True)
+        if plan is None:        # read_driving_log has warned already
+            for w in log.warnings:
+                click.echo(f"Warning: {w}", err=True)

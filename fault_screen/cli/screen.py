@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import click
 
@@ -28,33 +29,78 @@ def screen(result_path, scene_path, events, t0, fail_on, out):
     Events come from --events (placed relative to --t0, else the start stored in the result),
     else from those stored in the result.
     """
-    from ..result import Result
-    from ..screening import LEVEL_NAMES, screen_result
+    import numpy as np
+
+    from .. import result as results
+    from ..screening import LEVEL_NAMES, screen_file
 
     result_path = Path(result_path)
+    if out is not None and Path(out).resolve() == result_path.resolve():
+        raise BadInput(f"--out {out}: is RESULT.h5 itself; write to a new file")
     with reading(result_path):
-        result = Result.load(result_path)
-    if scene_path is not None:
-        monitor = load_scene(Path(scene_path)).monitor
-        with reading(scene_path):
-            result.scene = result.scene.replace(monitor=monitor)
-    catalog = None
-    if events is not None:
-        start = t0
-        if start is None and result.meta.get("start"):
-            start = parse_iso(result.meta["start"], f"{result_path}: meta start")
-        catalog = load_events(events, start)
-        result.extra["events"] = {"time": catalog.time, "magnitude": catalog.magnitude}
-    screening = screen_result(result, events=catalog)
+        whole = results.ResultFile(result_path, read_rows=results.READ_ROWS)
+    with whole:
+        with reading(result_path):
+            whole.check()
+        scene = whole.scene
+        if scene_path is not None:
+            monitor = load_scene(Path(scene_path)).monitor
+            with reading(scene_path):
+                scene = scene.replace(monitor=monitor)
+        catalog = None
+        if events is not None:
+            start = t0
+            if start is None and whole.meta.get("start"):
+                start = parse_iso(whole.meta["start"], f"{result_path}: meta start")
+            catalog = load_events(events, start)
+        with reading(result_path):
+            if out is None:
+                screening = screen_file(whole, scene.monitor, catalog)
+            else:
+                screening = _screen_into(whole, Path(out), scene, catalog)
+        # what the exit code needs of the result: its meta and last time (an unstable stop)
+        ended = SimpleNamespace(meta=whole.meta, time=np.array([whole.last("time")]))
+        rows = whole.rows
     source = scene_path if scene_path is not None else f"{result_path} (its own scene)"
-    click.echo(f"screening {result_path}: {len(result.time)} output times, rules of {source}")
+    click.echo(f"screening {result_path}: {rows} output times, rules of {source}")
     for tr in screening.transitions:
         click.echo(f"  {tr.describe()}")
     if not screening.transitions:
         click.echo(f"  level {LEVEL_NAMES[0]} throughout")
     if out is not None:
-        if Path(out).resolve() == result_path.resolve():
-            raise BadInput(f"--out {out}: is RESULT.h5 itself; write to a new file")
-        result.save(out)
         click.echo(f"  written {out}")
-    conclude(result, fail_on, screening)
+    conclude(ended, fail_on, screening)
+
+
+def _screen_into(whole, out: Path, scene, catalog):
+    """Screen the open ResultFile ``whole`` and write it to ``out`` with the new ``/screening/``
+    group (and ``scene``, whose ``[monitor]`` may be new, and the ``catalog``'s events), copied
+    and screened in bounded pieces; the layout :meth:`fault_screen.Result.save` gives."""
+    import numpy as np
+
+    from ..outputs import unit
+    from ..result import atomic_hdf5
+    from ..rules import METRICS
+    from ..screening import TRANSITION_DTYPE, screen_file
+    from ..screening.stepwise import _transition_row
+
+    skip = ("screening",) + (("events",) if catalog is not None else ())
+    with atomic_hdf5(out) as h5:
+        whole.copy_to(h5, skip=skip)
+        h5.attrs["scene"] = scene.to_toml()
+        if catalog is not None:
+            grp = h5.create_group("events")
+            for k, v in (("time", catalog.time), ("magnitude", catalog.magnitude)):
+                grp.create_dataset(k, data=v).attrs["unit"] = unit("events", k)
+        grp = h5.create_group("screening")
+        for k, dtype in [(k, "f8") for k in METRICS] + [("level", "i1")]:
+            grp.create_dataset(k, shape=(whole.rows,), dtype=dtype).attrs["unit"] = unit("screening", k)
+
+        def sink(first, arrays):
+            for k, v in arrays.items():
+                grp[k][first:first + len(v)] = v
+
+        screening = screen_file(whole, scene.monitor, catalog, sink=sink)
+        tr = np.array([_transition_row(t) for t in screening.transitions], dtype=TRANSITION_DTYPE)
+        grp.create_dataset("transitions", data=tr.reshape(-1)).attrs["unit"] = unit("screening", "transitions")
+    return screening

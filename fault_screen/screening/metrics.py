@@ -81,7 +81,8 @@ def coulomb_failure_function(tau, sigma_n, mu0):
 
 
 class MetricsTracker:
-    """Metrics of successive output rows, one call per row (what the live monitor does per step).
+    """Metrics of successive output rows, one call per row (what the live monitor does per step)
+    or per block of rows (:meth:`block`: a result file read in pieces).
 
     Keeps what the point metrics need from earlier rows: the Coulomb failure function at the first
     row (reference of ``delta_cff``), the previous injection-point slip and the induced slip so far.
@@ -148,25 +149,44 @@ class MetricsTracker:
                            {k: result.injection[k][i] for k in INJECTION_FIELDS})
 
 
+    def block(self, fault: dict, injection: dict) -> dict:
+        """Metrics of the next block of rows (the first block starting at row 0), (rows,) arrays:
+        the same numbers as :func:`result_metrics` over the whole result, whatever the blocks.
+        ``fault``: :data:`FAULT_FIELDS` -> (rows, x) arrays; ``injection``:
+        :data:`INJECTION_FIELDS` -> (rows,) arrays (SI)."""
+        mu0 = self.mu0
+        out = fault_metrics({k: fault[k] for k in FAULT_FIELDS}, self.fault_x, self.fault_weights, mu0)
+        n = len(injection["overpressure"])
+        out = {k: np.broadcast_to(np.asarray(v, dtype=float), (n,)).copy() for k, v in out.items()}
+        if not n:
+            out.update({k: np.zeros(0) for k in POINT_METRICS})
+            return out
+        cff = coulomb_failure_function(np.asarray(injection["shear_traction"], dtype=float),
+                                       injection["effective_normal_stress"], mu0)
+        if self._cff0 is None:
+            self._cff0 = float(cff[0])
+        out["delta_cff"] = cff - self._cff0
+        out["injection_overpressure"] = np.asarray(injection["overpressure"], dtype=float).copy()
+        slip = np.asarray(injection["slip"], dtype=float)
+        state = np.asarray(fault["contact_state"])
+        if state.shape[-1]:
+            sliding = state[:, self.point] == SLIP
+            # the increment into each row; the first row of the run has none
+            before = slip[:1] if self._slip_before is None else np.array([self._slip_before])
+            steps = np.where(sliding, np.diff(np.concatenate([before, slip])), 0.0)
+            if self._slip_before is None:
+                steps[0] = 0.0
+            # one running sum over the whole run, in row order (cumsum adds in sequence)
+            total = np.cumsum(np.concatenate([[self.induced_slip_signed], steps]))[1:]
+            self.induced_slip_signed = float(total[-1])
+            out["induced_slip"] = np.abs(total)
+        else:
+            out["induced_slip"] = np.zeros(n)
+        self._slip_before = float(slip[-1])
+        return out
+
+
 def result_metrics(result) -> dict:
     """Every metric of every output row of ``result`` at once: (time,) arrays; the same numbers
     as :class:`MetricsTracker` row by row."""
-    mu0 = float(result.scene.fault.friction)
-    out = fault_metrics({k: result.fault[k] for k in FAULT_FIELDS}, result.fault_x,
-                        result.fault_weights, mu0)
-    n = len(result.time)
-    out = {k: np.broadcast_to(np.asarray(v, dtype=float), (n,)).copy() for k, v in out.items()}
-    inj = result.injection
-    cff = coulomb_failure_function(np.asarray(inj["shear_traction"], dtype=float),
-                                   inj["effective_normal_stress"], mu0)
-    out["delta_cff"] = cff - cff[0] if n else cff
-    out["injection_overpressure"] = np.asarray(inj["overpressure"], dtype=float).copy()
-    slip = np.asarray(inj["slip"], dtype=float)
-    state = np.asarray(result.fault["contact_state"])
-    if state.shape[-1] and n:
-        sliding = state[:, injection_point_index(result.fault_x)] == SLIP
-        steps = np.where(sliding[1:], np.diff(slip), 0.0)
-        out["induced_slip"] = np.abs(np.concatenate([[0.0], np.cumsum(steps)]))
-    else:
-        out["induced_slip"] = np.zeros(n)
-    return out
+    return MetricsTracker.for_result(result).block(result.fault, result.injection)

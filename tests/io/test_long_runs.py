@@ -254,3 +254,192 @@ def test_summary_numbers_from_bounded_reads_are_the_whole_files(bundled_run, tmp
         assert rf.largest_read <= 2 * n_x
     assert split == slip_split(full) and split[0] == 0.0 and split[1] > 1e-10
     assert peak == full.injection["overpressure"].max() > 1e5          # 0.15 MPa
+
+
+# ---------------------------------------------------------------------------------------------
+# `fault-screen screen` from bounded reads
+# ---------------------------------------------------------------------------------------------
+#: two pulses of injection; yellow above 4.5 MPa at the injection point, red above 5.2 MPa for
+#: at least 10 s after, red for 5 s for a magnitude 2 event (at 32 s, counted at the step
+#: ending at 35 s, row 7): the level changes eight times
+SCREENED = {**TINY, "injection": {"number_of_fractures": 10, "schedule": [
+    [0.0, 1e-3], [30.0, 0.0], [60.0, 1e-3], [80.0, 0.0]]},
+    "time": {"end": 135.0, "dt": 5.0},
+    "monitor": {"rules": [
+        {"level": "red", "name": "pressure high", "when": "injection_overpressure > 5.2e6", "hold": 10.0},
+        {"level": "red", "name": "felt event", "when": "event_magnitude >= 2", "hold": 5.0},
+        {"level": "yellow", "name": "pressure up", "when": "injection_overpressure > 4.5e6", "hold": 0.0}]}}
+EVENTS = {"time": np.array([32.0, 101.0]), "magnitude": np.array([2.5, 0.4])}
+
+
+@pytest.fixture(scope="module")
+def screened_results(tmp_path_factory):
+    """The scene above run in memory (a profile every row: screen reads the metrics from the
+    profiles) and streamed with a profile every 4th step (screen reads the stored metrics)."""
+    import fault_screen
+    from fault_screen.api import run_streamed
+
+    d = tmp_path_factory.mktemp("screen")
+    scene = Scene.from_dict(SCREENED)
+    whole = fault_screen.simulate(scene)
+    whole.extra["events"] = dict(EVENTS)
+    whole.save(d / "every-profile.h5")
+    sim, _ = run_streamed(scene.replace(output=scene.output.__class__(profile_every=4)), d / "thinned.h5")
+    sim.close_stream(groups={"events": dict(EVENTS)})
+    # stopped unstable between two output times (red from the next), and after the last one
+    # (red at the last)
+    for name, stopped in (("unstable", {"reason": "unstable", "time": 97.5}),
+                          ("unstable-at-end", {"reason": "unstable", "time": 1000.0})):
+        res = Result.load(d / "thinned.h5")
+        res.meta["stopped"] = stopped
+        res.save(d / f"{name}.h5")
+    return d
+
+
+def _whole_screen_output(path: Path, out: Path):
+    """What `screen RESULT --out OUT` printed when it loaded the result whole, and the result it
+    wrote (the screening of the whole result, kept in ``extra``)."""
+    from fault_screen.cli._verdict import verdict_lines
+    from fault_screen.screening import screen_result
+
+    res = Result.load(path)
+    sc = screen_result(res)
+    lines = [f"screening {path}: {len(res.time)} output times, rules of {path} (its own scene)"]
+    lines += [f"  {tr.describe()}" for tr in sc.transitions] or ["  level green throughout"]
+    lines += [f"  written {out}"] + verdict_lines(sc)
+    return "\n".join(lines) + "\n", res, sc
+
+
+def _same(a, b) -> bool:
+    a, b = np.asarray(a), np.asarray(b)
+    if a.dtype.kind == "f" and b.dtype.kind == "f":
+        return a.shape == b.shape and np.array_equal(a, b, equal_nan=True)
+    return a.dtype == b.dtype and np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("name", ["every-profile", "thinned", "unstable", "unstable-at-end"])
+@pytest.mark.parametrize("read_rows", [7, 7 * 16, 65536])
+def test_screen_from_bounded_reads_prints_and_writes_what_the_whole_load_did(
+        screened_results, tmp_path, monkeypatch, name, read_rows):
+    """Blocks of 7 rows (the streamed file, one value a row; the in-memory one with 16 fault
+    points at read_rows 7 * 16), of one row (read_rows 7 and 16 points), and the whole file in
+    one block: the same text to the character, the same exit code (4, red reached; 3 after an
+    unstable stop), and a
+    written file equal array for array, NaN for NaN, to the whole result screened and saved."""
+    from click.testing import CliRunner
+
+    import fault_screen.result
+    from fault_screen.cli import main
+
+    path = screened_results / f"{name}.h5"
+    out = tmp_path / "again.h5"
+    want, res, sc = _whole_screen_output(path, out)
+    changes = [int(np.searchsorted(res.time, tr.time)) for tr in sc.transitions]
+    levels = [tr.to_level for tr in sc.transitions]
+    # yellow from row 4 goes on into the second 7-row block, whose first row turns red
+    if name == "unstable":                  # red for good from 100 s, row 20
+        assert changes == [4, 7, 8, 9, 13, 15, 18, 20] and levels == [1, 2, 1, 0, 1, 2, 1, 2]
+    elif name == "unstable-at-end":        # red at the last row, 135 s
+        assert changes == [4, 7, 8, 9, 13, 15, 18, 26, 27] and levels == [1, 2, 1, 0, 1, 2, 1, 0, 2]
+    else:
+        assert changes == [4, 7, 8, 9, 13, 15, 18, 26] and levels == [1, 2, 1, 0, 1, 2, 1, 0]
+    monkeypatch.setattr(fault_screen.result, "READ_ROWS", read_rows)
+    r = CliRunner().invoke(main, ["screen", str(path), "--out", str(out), "--fail-on", "red"])
+    assert r.exit_code == (3 if name.startswith("unstable") else 4), r.output
+    assert r.stdout == want
+    got = Result.load(out)
+    assert got.scene == res.scene and got.meta == res.meta
+    for group in ("injection", "balance", "solver"):
+        for k, v in getattr(res, group).items():
+            assert _same(getattr(got, group)[k], v), (group, k)
+    for k, v in res.fault.items():
+        assert _same(got.fault[k], v), k
+    assert _same(got.time, res.time) and _same(got.profile_time, res.profile_time)
+    assert sorted(got.extra) == sorted(res.extra)
+    for g, arrays in res.extra.items():
+        assert sorted(got.extra[g]) == sorted(arrays), g
+        for k, v in arrays.items():
+            assert _same(got.extra[g][k], v), (g, k)
+
+
+def test_screen_file_reads_at_most_read_rows(screened_results):
+    """The screening of the file read seven rows at a time: the level changes and verdict of the
+    result loaded whole, no read above seven rows."""
+    from fault_screen.result import ResultFile
+    from fault_screen.screening import screen_file, screen_result
+
+    path = screened_results / "thinned.h5"
+    whole = screen_result(Result.load(path), store=False)
+    with ResultFile(path, read_rows=7) as rf:
+        got = screen_file(rf)
+        assert rf.largest_read == 7
+    # repr: every number to the last digit, NaN (no event distance) equal to NaN
+    assert len(got.transitions) == 8
+    assert repr(got.transitions) == repr(whole.transitions)
+    assert repr(got.verdict) == repr(whole.verdict)
+
+
+LONG_ROWS = 30_001
+
+
+@pytest.fixture(scope="module")
+def long_screened(screened_results):
+    """The streamed result above grown to 30,001 output times (a 5-s step for 1.7 days): every
+    series extended in place, block by block; the injection overpressure stored for the
+    screening swings across both thresholds, one period every 10,000 rows."""
+    import shutil
+
+    import h5py
+
+    path = screened_results / "long.h5"
+    shutil.copy(screened_results / "thinned.h5", path)
+    with h5py.File(path, "r+") as h5:
+        n0 = h5["time"].shape[0]
+        series = [f"{g}/{k}" for g in ("injection", "balance", "solver", "screening") for k in h5[g]
+                  if h5[g][k].shape == (n0,)] + ["time"]
+        for p in series:
+            ds = h5[p]
+            ds.resize(LONG_ROWS, axis=0)
+            for i0 in range(n0, LONG_ROWS, 50_000):
+                k = np.arange(i0, min(LONG_ROWS, i0 + 50_000))
+                if p == "time":
+                    ds[k[0]:k[-1] + 1] = 5.0 * k
+                elif p == "screening/injection_overpressure":
+                    ds[k[0]:k[-1] + 1] = 4.8e6 + 0.6e6 * np.sin(2 * np.pi * k / 10_000)
+                else:
+                    ds[k[0]:k[-1] + 1] = ds[n0 - 1]
+    return path
+
+
+def test_screen_of_a_long_result_holds_a_bounded_memory(long_screened, tmp_path, monkeypatch):
+    """Loading the 30,001-row result whole takes over 6 MB (tracemalloc peak: ~36 series of
+    240 kB); `screen --out` of it, read 256 rows at a time, stays below 1.5 MB, and finds the
+    level changes of the first 28 rows (9, the last back to yellow) and four per period of the
+    swings (yellow -> red above 5.2 MPa, back, green below 4.5 MPa, yellow): 21. (The rows are
+    few to keep the test fast, the screener's rules being evaluated row by row; what the
+    bounded reads hold does not grow with them.)"""
+    import tracemalloc
+
+    from click.testing import CliRunner
+
+    import fault_screen.result
+    from fault_screen.cli import main
+
+    tracemalloc.start()
+    try:
+        Result.load(long_screened)
+        whole = tracemalloc.get_traced_memory()[1]
+        tracemalloc.reset_peak()
+        monkeypatch.setattr(fault_screen.result, "READ_ROWS", 256)
+        out = tmp_path / "again.h5"
+        r = CliRunner().invoke(main, ["screen", str(long_screened), "--out", str(out)])
+        bounded = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert r.exit_code == 0, r.output
+    assert f"{LONG_ROWS} output times" in r.output
+    assert whole > 6e6 and bounded < 1.5e6, (whole, bounded)
+    import h5py
+
+    with h5py.File(out) as h5:
+        assert h5["screening/level"].shape == (LONG_ROWS,) and len(h5["screening/transitions"]) == 21
