@@ -1,6 +1,8 @@
 """Fixtures shared by the monitor tests."""
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 
 import monitor_env
@@ -13,6 +15,27 @@ def dist(tmp_path_factory):
     folder = tmp_path_factory.mktemp("dist")
     monitor_env.activate(folder)
     return folder
+
+
+@pytest.fixture(scope="session")
+def scene_file(tmp_path_factory):
+    """The impermeable Rustrel scene with steps of 10 s (the look-ahead tests' live model; its
+    first yellow at 390 s of the stand-in log)."""
+    from fault_screen import Scene
+
+    s = Scene.from_toml(CONFIGS / "rustrel-2015-impermeable.toml")
+    s = s.replace(time=dataclasses.replace(s.time, dt=10.0))
+    path = tmp_path_factory.mktemp("scene") / "impermeable-10s.toml"
+    path.write_text(s.to_toml())
+    return path
+
+
+@pytest.fixture(scope="session")
+def log():
+    """The bundled Rustrel stand-in injection log."""
+    from fault_screen.io.injection_log import read_injection_log
+
+    return read_injection_log(CONFIGS / "logs" / "rustrel-2015-standin.csv")
 
 
 # pytest imports this file under the module name ``conftest``, replacing tests/conftest.py under
