@@ -249,6 +249,11 @@ def test_prometheus_forecast_gauges_follow_the_plan_followed():
     exp.update(Update(level=0, forecasts=rows))
     assert value("fault_screen_forecast_time_to_yellow_seconds") == 210.0
     assert math.isnan(value("fault_screen_forecast_time_to_red_seconds"))
+    assert math.isnan(value("fault_screen_forecast_p_yellow"))          # no ensemble
+    # an ensemble's rows: the probabilities of the plan followed
+    exp.update(Update(level=0, forecasts=[dict(rows[0], p_yellow=2 / 3, p_red=0.0),
+                                          dict(rows[1], p_yellow=0.0, p_red=0.0)]))
+    assert value("fault_screen_forecast_p_yellow") == 2 / 3 and value("fault_screen_forecast_p_red") == 0.0
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
