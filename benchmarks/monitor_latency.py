@@ -3,8 +3,10 @@ alert hook.
 
     python benchmarks/monitor_latency.py [--lines 300] [--rate 1] [--poll 0.5]
     python benchmarks/monitor_latency.py --lookahead [--plan hold --plan stop] [--horizon 3600]
-        [--lookahead-every 60] [--rate 5]
+        [--lookahead-every 60] [--rate 5] [--members 4 [--vary PARAMS.toml] [--free KEYS]]
     python benchmarks/monitor_latency.py --beside [--blocks 4]
+    python benchmarks/monitor_latency.py --advice [--horizon 1800] [--lookahead-every 300]
+        [--until 1500]
 
 A writer thread appends the bundled Rustrel stand-in log, resampled to one sample per second of
 log time, at --rate lines per second of wall time (1 = real time) to a file that the monitor
@@ -23,7 +25,16 @@ step is then the wall time from the append of the line that completed it to the 
 screening, when its alerts, had it any, are in the outbox (the stage hands them over as it
 raises them, before the next step or a look-ahead fork).  Prints median, p95
 and max of each run, the forks' wall time on the live thread, the refreshes made and skipped,
-and the load average.
+and the load average.  With ``--members N`` a third run has the ensemble look-ahead: N parameter
+draws of ``--vary`` (default: the calibration's parameters file, ``--free`` its keys varied),
+each a model of its own stepped in the worker from the samples received.
+
+``--advice`` measures what reusing the previous advice saves: one live run of the calibrated
+scene (fed sample by sample, every refresh waited for) whose forecaster makes, at each refresh
+and on the same look-ahead state, a fresh bisection and one that seeks its bracket around the
+previous refresh's advice (``advise(..., near=)``, what the monitor does); prints per refresh
+the look-aheads and the worker's CPU time of each and their rates' relative difference (the
+bisection's tolerance is 2 %).
 
 ``--beside`` isolates what a worker thread costs the live thread: live steps of the calibrated
 scene (no log, no polling) in alternating blocks alone and with a worker beside them stepping
@@ -93,9 +104,22 @@ def main(argv=None):
     ap.add_argument("--beside", action="store_true",
                     help="live steps alone and with a worker thread beside them")
     ap.add_argument("--blocks", type=int, default=4, help="--beside: blocks of 10 steps [4]")
+    ap.add_argument("--members", type=int, default=0,
+                    help="--lookahead: also a run with an ensemble of this many members [0: none]")
+    ap.add_argument("--vary", default=str(ROOT / "configs" / "calibration" / "rustrel-2015-parameters.toml"),
+                    help="--members: the parameters file [the calibration's]")
+    ap.add_argument("--free", default="fault.hydraulic_aperture,damage_zone.mobility",
+                    help="--members: the keys varied [fault.hydraulic_aperture,damage_zone.mobility]")
+    ap.add_argument("--seed", type=int, default=1, help="--members: the draws' seed [1]")
+    ap.add_argument("--advice", action="store_true",
+                    help="advice CPU time per refresh, fresh and reusing the previous advice")
+    ap.add_argument("--until", type=float, default=1500.0,
+                    help="--advice: model time the live run goes to, s [1500]")
     a = ap.parse_args(argv)
     if a.beside:
         return worker_beside(a.blocks)
+    if a.advice:
+        return advice_reuse(a)
     if a.lookahead:
         return compare_lookahead(a)
     logging.getLogger("fault_screen").setLevel(logging.ERROR)   # one alert per step: quiet
@@ -217,9 +241,18 @@ def compare_lookahead(a):
 
     plans = a.plan or ["hold", "stop"]
     load = os.getloadavg()[0]
+    settings = {"plans": plans, "horizon": a.horizon, "every": a.lookahead_every, "advise": False}
     runs = [("without look-ahead", None),
             (f"with look-ahead ({', '.join(plans)}; {a.horizon:g} s ahead every {a.lookahead_every:g} s)",
-             {"plans": plans, "horizon": a.horizon, "every": a.lookahead_every, "advise": False})]
+             settings)]
+    if a.members:
+        from fault_screen.calibration import check_keys, load_parameters, sample_parameters
+
+        params = load_parameters(a.vary).select(a.free.split(","))
+        check_keys(Scene.from_toml(ROOT / "configs" / "rustrel-2015-calibrated.toml"), params)
+        draws = sample_parameters(params, a.members, "normal", a.seed)
+        runs.append((f"with the ensemble look-ahead ({a.members} members of {a.free}; the same plans)",
+                     dict(settings, ensemble={"draws": draws, "confidence": None})))
     print(f"{a.lines} lines at {a.rate:g} line/s, poll {a.poll:g} s; 2 cores, load average "
           f"{load:.1f} at the start (busy: compare the two rows, not absolute values)")
     print("| run | steps | median (ms) | p95 (ms) | max (ms) | forks on the live thread (ms, median) "
@@ -232,6 +265,58 @@ def compare_lookahead(a):
                 else "-")
         print(f"| {name} | {lat.size} | {np.median(lat) * 1e3:.1f} | "
               f"{np.percentile(lat, 95) * 1e3:.1f} | {lat.max() * 1e3:.1f} | {fork} | {made} |")
+
+
+def advice_reuse(a):
+    from fault_screen.forecast import LookAhead, advise
+    from fault_screen.monitor import Stage
+    from fault_screen.monitor.lookahead import LiveLookAhead, LookAheadForecaster
+    import os
+
+    class FreshAndReused(LookAheadForecaster):
+        """Both bisections on the same look-ahead state; the reused one is kept (as live)."""
+
+        def __init__(self):
+            super().__init__(advise=True)
+            self.table = []
+
+        def forecast(self, sim_fork, plans, horizon, now_utc, *, screening, drive=None, start=None):
+            ahead = LookAhead(sim_fork, screening, drive=drive, start=start)
+            c0 = time.thread_time()
+            fresh = advise(ahead, horizon, level=self.advise_level)
+            c1 = time.thread_time()
+            reused = advise(ahead, horizon, level=self.advise_level, near=self.near)
+            c2 = time.thread_time()
+            self.table.append((ahead.made_at, fresh, c1 - c0, reused, c2 - c1))
+            self.last_advice = reused
+            return []
+
+    scene = Scene.from_toml(ROOT / "configs" / "rustrel-2015-calibrated.toml")
+    log = read_injection_log(ROOT / "configs" / "logs" / "rustrel-2015-standin.csv")
+    both = FreshAndReused()
+    stage = Stage(scene, start=log.start, lookahead=LiveLookAhead(
+        plans=["hold"], horizon=a.horizon, every=a.lookahead_every, forecaster=both))
+    print(f"calibrated Rustrel scene, the stand-in log to {a.until:g} s, advice over {a.horizon:g} s "
+          f"every {a.lookahead_every:g} s; 2 cores, load average {os.getloadavg()[0]:.1f} at the start "
+          f"(CPU time of the worker thread: the work, not the waiting)")
+    print("| refresh at (s) | fresh: look-aheads | fresh: CPU (s) | reusing: look-aheads | "
+          "reusing: CPU (s) | advised rate (L/min) | relative difference |")
+    print("|---|---|---|---|---|---|---|")
+    for k in range(log.time.size):
+        stage.feed_samples(log.time[k:k + 1], log.flow_rate[k:k + 1])
+        stage.wait_forecasts()
+        if stage.time >= a.until:
+            break
+    for made_at, fresh, cpu_fresh, reused, cpu_reused in both.table:
+        diff = abs(reused.rate - fresh.rate) / fresh.rate if fresh.rate > 0 else 0.0
+        print(f"| {made_at:g} | {fresh.evaluations} | {cpu_fresh:.2f} | {reused.evaluations} | "
+              f"{cpu_reused:.2f} | {fresh.rate * 60e3:.4g} / {reused.rate * 60e3:.4g} | {100 * diff:.2f} % |")
+    later = both.table[1:]           # the first refresh has nothing to reuse
+    if later:
+        cpu = np.array([(row[2], row[4]) for row in later])
+        print(f"refreshes after the first: CPU time per advice, median {np.median(cpu[:, 0]):.2f} s fresh, "
+              f"{np.median(cpu[:, 1]):.2f} s reusing ({np.median(cpu[:, 1] / cpu[:, 0]):.2f} of it); "
+              f"largest rate difference {100 * max(abs(r[3].rate - r[1].rate) / r[1].rate for r in later):.2f} %")
 
 
 def worker_beside(blocks):

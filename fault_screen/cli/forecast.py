@@ -14,6 +14,7 @@ from ._options import DIR, FILE, BadInput, check_size, log_options, t0_option, v
 from ._progress import format_duration
 from ._common import default_scene_path, load_scene, read_driving_log, read_scene_log
 from ._runner import _scheduler_callback, _workers_callback
+from ._draws import ensemble_options, member_draws
 
 DEFAULT_PLANS = ("scene", "hold", "stop")
 
@@ -65,19 +66,7 @@ def _duration(what):
               help="Write <scene-stem>-forecast.png (one per forecast time when several) into DIR.")
 @t0_option
 @click.option("--quiet", "-q", is_flag=True, help="Only the table.")
-@click.option("--vary", "params_path", type=FILE, default=None, metavar="PARAMS.toml",
-              help="Ensemble: parameters to vary, with their means and bounds (mean -/+ 1 SD), "
-                   "the file `fault-screen ensemble --vary` takes; needs --members.")
-@click.option("--members", type=int, default=None, metavar="N",
-              help="Ensemble: number of parameter draws, each running its own history.")
-@click.option("--distribution", type=click.Choice(["normal", "uniform"]), default="normal",
-              show_default=True, help="Ensemble: how the draws are made (as `ensemble`).")
-@click.option("--seed", type=int, default=1, show_default=True, help="Ensemble: the draws' seed.")
-@click.option("--free", default=None, metavar="KEY,KEY",
-              help="Ensemble: vary only these parameters of PARAMS.toml [default: all].")
-@click.option("--confidence", type=float, default=None, metavar="C",
-              help="Ensemble advice: the largest rate whose probability of reaching "
-                   "--advise-level is at most 1 - C [default with --members: 0.9].")
+@ensemble_options
 @click.option("--workers", type=int, default=2, show_default=True, callback=_workers_callback,
               help="Ensemble: worker processes of the local Dask cluster (0: this process).")
 @click.option("--scheduler", default=None, metavar="tcp://HOST:PORT", callback=_scheduler_callback,
@@ -120,7 +109,8 @@ def forecast(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, en
     scene_path = Path(scene_path) if scene_path is not None else default_scene_path()
     scene = load_scene(scene_path)
     check_size(scene, str(scene_path))
-    draws = _draws(scene, params_path, members, distribution, seed, free, confidence, advise, scheduler)
+    draws = member_draws(scene, params_path, members, distribution, seed, free, confidence, advise,
+                         {"--scheduler": scheduler})
     drive, start, scene = _drive(scene, scene_path, log_path, end, t0, quiet,
                                  dict(flow_unit=flow_unit, pressure_unit=pressure_unit, max_gap=max_gap,
                                       policy=policy, date=log_date, tz=log_tz, time_column=time_column,
@@ -305,31 +295,6 @@ def _write_rows(path, columns, rows) -> None:
 
 
 # ---- --vary/--members: the ensemble -----------------------------------------------------------
-def _draws(scene, params_path, members, distribution, seed, free, confidence, advise, scheduler):
-    """The members' parameter draws (None without --members), every ensemble option checked."""
-    if params_path is None and members is None:
-        for name, value in (("--confidence", confidence), ("--free", free), ("--scheduler", scheduler)):
-            if value is not None:
-                raise BadInput(f"{name} is for an ensemble: give --vary PARAMS.toml --members N")
-        return None
-    if params_path is None:
-        raise BadInput("--members needs --vary PARAMS.toml (the parameters to draw)")
-    if members is None:
-        raise BadInput("--vary needs --members N (how many draws)")
-    if members < 1:
-        raise BadInput(f"--members {members}: must be >= 1")
-    if confidence is not None:
-        if not advise:
-            raise BadInput("--confidence is for the advice: add --advise")
-        if not 0.0 < confidence < 1.0:
-            raise BadInput(f"--confidence {confidence!r}: must be between 0 and 1 (e.g. 0.9)")
-    from ..calibration import sample_parameters
-    from .calibrate import load_parameters_option
-
-    params = load_parameters_option(params_path, scene, free)
-    return sample_parameters(params, members, distribution, seed)
-
-
 def _forecast_ensemble(scene, scene_path, drive, start, times, plans, horizon, draws, advice,
                        confidence, workers, scheduler, out, plot_dir, quiet, ladder_dt_max=None):
     """The scene's own forecasts and every member's, as tasks on the ensemble runner; the

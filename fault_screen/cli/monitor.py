@@ -10,6 +10,7 @@ import click
 from ._options import (DIR, FILE, FILE_OR_URL, BadInput, _positive_callback, _t0_callback,
                        _unit_callback, check_size, log_reading_options, reading, version_option)
 from ._common import load_scene
+from ._draws import ensemble_options, member_draws
 from .forecast import _duration
 
 
@@ -123,14 +124,20 @@ def _count_callback(ctx, param, value):
                    "next is due skips it) [default: 60 s].")
 @click.option("--advise", is_flag=True,
               help="Each refresh also finds the largest constant rate that stays green over "
-                   "the horizon.")
+                   "the horizon (its bisection seeks the bracket around the previous advice first).")
+@click.option("--ladder", "ladder_dt_max", default=None, metavar="DT_MAX", callback=_duration("--ladder"),
+              help="Look ahead on steps doubling from the live step up to DT_MAX (seconds or a "
+                   "duration), each size factorised once for the whole run: faster refreshes, the "
+                   "time to yellow late by up to DT_MAX [default: the scene's own steps, exact].")
+@ensemble_options
 @click.option("--quiet", "-q", is_flag=True, help="Only warnings and errors on stderr.")
 @version_option
 def monitor(scene_path, follow, events, waveforms, seedlink, seedlink_streams, state, out, overwrite, idle_exit, alerts, source,
             poll_interval, checkpoint_every, outbox, flow_unit, pressure_unit, max_gap, policy,
             log_date, log_tz, time_column, flow_column, pressure_column, time_unit,
             volume_column, cumulative_volume_column, volume_unit, accept_implausible, t0,
-            sta_lta, metrics_port, metrics_address, plans, horizon, lookahead_every, advise, quiet):
+            sta_lta, metrics_port, metrics_address, plans, horizon, lookahead_every, advise,
+            ladder_dt_max, params_path, members, distribution, seed, free, confidence, quiet):
     """Follow a growing injection log with the model of SCENE, screen every step, and alert.
 
     The model advances only as far as the samples allow (whole steps ending at or before the
@@ -142,6 +149,11 @@ def monitor(scene_path, follow, events, waveforms, seedlink, seedlink_streams, s
     \b
         fault-screen monitor configs/rustrel-2015-calibrated.toml --follow live.csv \\
             --state live-state.h5 --out live.h5 --alert jsonl:alerts.jsonl --idle-exit 30
+
+    With --plan/--horizon the forecasts under the plans are refreshed on forks in a worker
+    thread; with --vary PARAMS.toml --members N as well on N parameter draws, each a model of
+    its own stepping with the data in that worker (P(yellow), P(red), the 10/50/90 % time to
+    yellow; with --advise the largest rate whose P(yellow) is at most 1 - --confidence).
     """
     from ..io.injection_log import CLI_OPTION_NAMES, InjectionLogError
     from ..monitor.plugins import PluginError
@@ -181,9 +193,11 @@ def monitor(scene_path, follow, events, waveforms, seedlink, seedlink_streams, s
         if not re.fullmatch(rf"{token}(,{token})*", seedlink_streams.replace(", ", ",")):
             raise BadInput(f"--seedlink-streams {seedlink_streams!r}: expected NET_STA[:SELECTORS],"
                            f"... (e.g. BW_RJOB:EH?)")
+    draws = member_draws(scene, params_path, members, distribution, seed, free, confidence, advise)
     lookahead = _lookahead(plans, horizon, lookahead_every, advise, dict(
         flow_unit=flow_unit, pressure_unit=pressure_unit, max_gap=max_gap, policy=policy,
-        date=log_date, tz=log_tz))
+        date=log_date, tz=log_tz), ladder=ladder_dt_max,
+        ensemble=None if draws is None else {"draws": draws, "confidence": confidence})
     cfg = MonitorConfig(follow=follow, state=state, out=out, events=events, waveforms=waveforms,
                         seedlink=seedlink, seedlink_streams=seedlink_streams or "",
                         idle_exit=idle_exit, alerts=list(alerts), source=source,
@@ -235,9 +249,10 @@ def monitor(scene_path, follow, events, waveforms, seedlink, seedlink_streams, s
                       f"--outbox {summary['outbox']})" if summary["dead_alerts"] else ""))
 
 
-def _lookahead(plans, horizon, every, advise, log_options):
+def _lookahead(plans, horizon, every, advise, log_options, ladder=None, ensemble=None):
     """The look-ahead settings (MonitorConfig.lookahead), or None when none was asked for."""
-    if not plans and horizon is None and every is None and not advise:
+    if not plans and horizon is None and every is None and not advise and ladder is None \
+            and ensemble is None:
         return None
     from ..forecast import PlanError, parse_plan
 
@@ -247,6 +262,8 @@ def _lookahead(plans, horizon, every, advise, log_options):
         raise BadInput(f"--horizon {horizon!r}: must be a finite duration > 0")
     if every is not None and not (math.isfinite(every) and every > 0):
         raise BadInput(f"--lookahead-every {every!r}: must be a finite duration > 0")
+    if ladder is not None and not (math.isfinite(ladder) and ladder > 0):
+        raise BadInput(f"--ladder {ladder!r}: must be a finite duration > 0 (the largest look-ahead step)")
     try:
         for p in plans:
             parse_plan(p, log_options=log_options).check("rate")
@@ -254,4 +271,4 @@ def _lookahead(plans, horizon, every, advise, log_options):
         raise BadInput(str(exc)) from None
     return {"plans": list(plans) or ["hold", "stop"], "horizon": 3600.0 if horizon is None else horizon,
             "every": 60.0 if every is None else every, "advise": bool(advise),
-            "plan_log_options": log_options}
+            "plan_log_options": log_options, "ladder": ladder, "ensemble": ensemble}

@@ -306,36 +306,61 @@ class LiveEnsemble:
     date-time of model time 0; ``advice`` (keywords of :func:`advise`) and ``confidence``: the
     ensemble advice with every forecast; ``steps``: the look-aheads' ``growth`` and ``dt_max``
     (default: the scene's own steps). A member whose step fails is set aside with its error and no
-    longer counted (the rows' ``members`` says how many are left).
+    longer counted (the rows' ``members`` says how many are left, ``members_set_aside`` how
+    many were set aside, when any). ``scene`` None: the members are built at the first
+    :meth:`forecast`, from the scene of the fork it is given (in the worker that calls it: a
+    monitor's start-up does not wait for N models). With ``advice`` each member's bisection
+    seeks its bracket around that member's previous advice first (``advise(..., near=)``).
 
-    :meth:`forecast` is the monitor's forecaster protocol: ``forecast(sim_fork, plans,
-    horizon, now_utc) -> list[dict]``, one row per plan (forecast.csv's columns with the
-    ensemble ones, plus ``made_at_utc``), made on forks of the members (``sim_fork`` is not
-    used: the members carry their own states). It runs in the caller's thread; :meth:`advance`
-    and the forks a forecast starts from are taken under one lock, so a look-ahead worker may
-    call both (stepping N members costs N live steps: keep it off the thread that sends the
-    alerts)."""
+    :meth:`forecast` is the monitor's forecaster protocol (:class:`~fault_screen.monitor.
+    lookahead.Forecaster`): ``forecast(sim_fork, plans, horizon, now_utc, *, screening, drive,
+    start) -> list[dict]``, one row per plan (forecast.csv's columns with the ensemble ones,
+    plus ``made_at_utc``), made on forks of the members. ``drive.received`` (the samples
+    received, a PiecewiseLinearVolume) first steps every member to the time of ``sim_fork``
+    (whole steps of its sequence, as the live model took them; :attr:`samples_from` says from
+    which time they are needed); ``sim_fork`` with ``screening`` (the live model's fork and
+    screening state) gives the deterministic columns when the ensemble has no ``base`` member
+    of its own; ``drive`` and ``start`` are what the plans read (default: the ensemble's). It
+    runs in the caller's thread; :meth:`advance` and the forks a forecast starts from are taken
+    under one lock, so a look-ahead worker may call both (stepping N members costs N live
+    steps: keep it off the thread that sends the alerts)."""
 
     def __init__(self, scene, draws: Sequence[dict], *, base: bool = True, drive=None,
                  start: Optional[datetime] = None, advice: Optional[dict] = None,
                  confidence: Optional[float] = None, steps: Optional[dict] = None):
+        self.drive, self.start = drive, start
+        self.advice, self.confidence, self.steps = advice, confidence, dict(steps or {})
+        self._keywords = {}   # member index -> its look-ahead keywords (its own ladder)
+        self._near = {}       # member index -> its last advised rate (where its next bisection looks)
+        self.last_base: Optional[MemberRun] = None   # the deterministic forecast's run, newest
+        self.failed: list[tuple[int, str]] = []
+        self.members = []     # (index, params, Simulation, StepScreening)
+        self._lock = threading.Lock()
+        # the members still to build (None once built)
+        self._entries = ([(-1, {})] if base else []) + [(i, dict(d)) for i, d in enumerate(draws)]
+        if scene is not None:
+            self._build(scene)
+
+    def _build(self, scene) -> None:
         from ..ensemble import scene_with
         from ..screening.stepwise import StepScreening
         from ..stepper import Simulation
 
-        self.drive, self.start = drive, start
-        self.advice, self.confidence, self.steps = advice, confidence, dict(steps or {})
-        self._keywords = {}   # member index -> its look-ahead keywords (its own ladder)
-        self.failed: list[tuple[int, str]] = []
-        self.members = []     # (index, params, Simulation, StepScreening)
-        self._lock = threading.Lock()
-        entries = ([(-1, {})] if base else []) + list(enumerate(draws))
-        for index, params in entries:
+        for index, params in self._entries:
             sim = Simulation(scene_with(scene, params) if params else scene)
             fp = sim.disc.fault_points
             screening = StepScreening.for_scene(sim.scene, fp.s - sim.disc.injection.s, fp.weight)
             screening.screen_simulation(sim)
             self.members.append((index, dict(params), sim, screening))
+        self._entries = None
+
+    @property
+    def samples_from(self) -> float:
+        """The model time (s) from which the members need the injection received: the time of
+        the member furthest behind (0 before they are built; +inf when none is left)."""
+        if self._entries is not None:
+            return 0.0
+        return min((float(m[2].time) for m in self.members), default=math.inf)
 
     def _member_keywords(self, index: int) -> dict:
         if index not in self._keywords:
@@ -346,21 +371,22 @@ class LiveEnsemble:
     def time(self) -> float:
         return float(self.members[0][2].time) if self.members else math.nan
 
-    def advance(self, t_next: float, *, volume=None, pressure=None) -> int:
+    def advance(self, t_next: float, *, volume=None, pressure=None, align: bool = False) -> int:
         """Step every member to ``t_next`` (s) with the same injection (what
-        ``Simulation.advance`` takes), screening every row; returns the steps of the first."""
+        ``Simulation.advance`` takes; ``align``: whole steps of its sequence only, ending by
+        ``t_next``), screening every row; returns the steps of the first."""
         if volume is None and pressure is None and self.drive is not None:
             volume = self.drive.volume
         with self._lock:
-            return self._advance(t_next, volume, pressure)
+            return self._advance(t_next, volume, pressure, align)
 
-    def _advance(self, t_next, volume, pressure) -> int:
+    def _advance(self, t_next, volume, pressure, align=False) -> int:
         taken, alive = None, []
         for member in self.members:
             index, params, sim, screening = member
             try:
                 steps = 0
-                while sim.advance(t_next, volume=volume, pressure=pressure, max_steps=1):
+                while sim.advance(t_next, volume=volume, pressure=pressure, align=align, max_steps=1):
                     screening.screen_simulation(sim)
                     steps += 1
                 alive.append(member)
@@ -370,14 +396,23 @@ class LiveEnsemble:
         self.members = alive
         return taken or 0
 
-    def run(self, plans: Sequence[Plan], horizon: float) -> tuple[list[EnsembleForecast], Optional[EnsembleAdvice]]:
+    def run(self, plans: Sequence[Plan], horizon: float, *, sim=None, screening=None, drive=None,
+            start: Optional[datetime] = None) -> tuple[list[EnsembleForecast], Optional[EnsembleAdvice]]:
         """The forecasts of every plan over ``horizon`` (s) from now, and the ensemble advice
-        when asked (``advice`` keywords and a ``confidence`` given)."""
+        when asked (``advice`` keywords and a ``confidence`` given). ``sim`` and ``screening``:
+        the model whose forecast gives the deterministic columns, when the ensemble has no base
+        member; ``drive``, ``start``: what the plans read (default: the ensemble's)."""
+        drive = self.drive if drive is None else drive
+        start = self.start if start is None else start
         runs, base, aheads = [], None, []
+        self.last_base = None
         with self._lock:    # every member forked at the same time
-            for index, params, sim, screening in self.members:
+            entries = list(self.members)
+            if sim is not None and screening is not None and not any(m[0] < 0 for m in entries):
+                entries.insert(0, (-1, {}, sim, screening))
+            for index, params, member, screened in entries:
                 try:
-                    aheads.append((index, params, LookAhead(sim, screening, drive=self.drive, start=self.start,
+                    aheads.append((index, params, LookAhead(member, screened, drive=drive, start=start,
                                                             **self._member_keywords(index))))
                 except Exception as exc:
                     aheads.append((index, params, exc))
@@ -388,20 +423,26 @@ class LiveEnsemble:
                 if isinstance(ahead, Exception):
                     raise ahead
                 if self.advice is not None and index >= 0:
-                    found = advise(ahead, horizon, **self.advice)
+                    found = advise(ahead, horizon, **self.advice, near=self._near.get(index))
                     found.forecasts = []
                     run.advice.append(found)
+                    # (an advice with a bracket of one end, 0 or the largest rate, tells nothing)
+                    self._near[index] = (found.rate if not found.even_zero_reaches and found.rate > 0
+                                         and found.upper is not None else None)
                 run.forecasts = [_lean(ahead.run(plan, horizon)) for plan in plans]
                 run.ok = True
             except Exception as exc:
                 run.error = f"{type(exc).__name__}: {exc}"
             run.wall_s, run.cpu_s = _time.perf_counter() - wall0, _time.process_time() - cpu0
             if index < 0:
-                base = run
+                base = self.last_base = run
             else:
                 runs.append(run)
         failed = [MemberRun(index=i, params={}, error=e) for i, e in self.failed]
         made = summarise(runs + failed, base)
+        for m in made:       # made when the deterministic forecast is (a member may end a step before)
+            if m.base is not None:
+                m.made_at = m.base.made_at
         found = None
         if self.advice is not None and self.confidence is not None:
             advices = [r.advice[0] for r in runs if r.ok and r.advice]
@@ -411,8 +452,23 @@ class LiveEnsemble:
                     m.advised_rate = found.rate
         return made, found
 
-    def forecast(self, sim_fork, plans: Sequence[Plan], horizon: float, now_utc=None) -> list[dict]:
+    def forecast(self, sim_fork, plans: Sequence[Plan], horizon: float, now_utc=None, *,
+                 screening=None, drive=None, start=None) -> list[dict]:
         """The forecaster protocol of the monitor's look-ahead worker (see the class docstring)."""
-        made, _ = self.run(plans, horizon)
+        if self._entries is not None:
+            if sim_fork is None:
+                raise ValueError("an ensemble built without a scene needs the fork of the live "
+                                 "model at its first forecast (its scene)")
+            self._build(sim_fork.scene)
+        received = getattr(drive, "received", None)
+        if received is not None and sim_fork is not None:
+            self.advance(float(sim_fork.time), volume=received.volume, align=True)
+        live = sim_fork if screening is not None else None
+        made, _ = self.run(plans, horizon, sim=live, screening=screening, drive=drive, start=start)
+        if live is not None and not (self.last_base is not None and self.last_base.ok):
+            # no deterministic columns, no level to alert on: the refresh fails (counted, logged)
+            raise RuntimeError("the look-ahead of the live model failed: "
+                               + (self.last_base.error if self.last_base is not None else "not made"))
         stamp = now_utc.isoformat() if isinstance(now_utc, datetime) else now_utc
-        return [{**m.row(), "made_at_utc": stamp} for m in made]
+        aside = {"members_set_aside": len(self.failed)} if self.failed else {}
+        return [{**m.row(), "made_at_utc": stamp, **aside} for m in made]

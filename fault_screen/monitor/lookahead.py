@@ -24,6 +24,15 @@ the same outbox and sinks as the level changes, its id built as theirs
 the summaries before and after), so a restarted monitor that makes the same forecast again
 does not send it twice.  The first forecast is compared with "green at the horizon, yellow not
 within it" for every plan: a quiet start sends nothing.
+
+Ensemble.  With ``ensemble`` (parameter draws, ``--vary``/``--members``) the forecaster is a
+:class:`~fault_screen.forecast.ensemble.LiveEnsemble`: N member models, each with its own
+history from time 0, stepped in the worker (never on the live thread) from a snapshot of the
+samples received so far (taken on the live thread with the fork), caught up to the fork's time
+before they forecast; the deterministic columns are the live model's own fork.  The rows get
+the ensemble columns (``p_yellow``, ``p_red``, ``time_to_yellow_p10/p50/p90``, ``members``), the
+summary of each plan a third part, the band of its P(yellow) (:data:`CHANCES`), and the alert
+text the probabilities.
 """
 from __future__ import annotations
 
@@ -40,20 +49,25 @@ from typing import List, Optional, Protocol, Sequence
 
 import numpy as np
 
-from ..forecast import COLUMNS, LookAhead, Plan, advise, parse_plan
+from ..forecast import COLUMNS, LookAhead, Plan, StepLadder, advise, parse_plan
+from ..forecast.ensemble import ENSEMBLE_COLUMNS
 from ..screening import LEVEL_NAMES, YELLOW
 
 __all__ = ["Forecaster", "LookAheadForecaster", "LiveLookAhead", "LiveDrive", "BRACKETS",
-           "LOOKAHEAD_COLUMNS", "bracket", "forecast_alert", "forecast_change", "forecast_text",
-           "lookahead_streams"]
+           "CHANCES", "LOOKAHEAD_COLUMNS", "ENSEMBLE_LOOKAHEAD_COLUMNS", "bracket", "chance",
+           "forecast_alert", "forecast_change", "forecast_text", "lookahead_streams"]
 
 log = logging.getLogger("fault_screen.monitor.lookahead")
 
 #: the columns of ``/lookahead``: forecast.csv's, and the wall-clock date-time of the forecast
 LOOKAHEAD_COLUMNS = COLUMNS + ("made_at_utc",)
+#: the columns of ``/lookahead`` with an ensemble: those and the ensemble's
+ENSEMBLE_LOOKAHEAD_COLUMNS = LOOKAHEAD_COLUMNS + ENSEMBLE_COLUMNS
 #: time-to-yellow brackets of the forecast alerts: (upper bound in s, name)
 BRACKETS = ((15 * 60.0, "<15 min"), (30 * 60.0, "15-30 min"), (60 * 60.0, "30-60 min"),
             (math.inf, ">60 min"))
+#: P(yellow within the horizon) bands of the ensemble's forecast alerts: (upper bound, name)
+CHANCES = ((0.1, "<10 %"), (0.5, "10-50 %"), (0.9, "50-90 %"), (math.inf, ">=90 %"))
 #: scheduling priority added to the worker thread (Linux: per thread)
 WORKER_NICE = 10
 
@@ -71,6 +85,16 @@ def bracket(time_to_yellow: Optional[float]) -> str:
     return next(name for upper, name in BRACKETS if time_to_yellow < upper)
 
 
+def chance(p_yellow: Optional[float]) -> str:
+    """The band of an ensemble's P(yellow within the horizon): ``0`` (no member), ``<10 %``,
+    ``10-50 %``, ``50-90 %``, ``>=90 %``; ``none`` when no member is left."""
+    if p_yellow is None or not math.isfinite(p_yellow):
+        return "none"
+    if p_yellow <= 0:
+        return "0"
+    return next(name for upper, name in CHANCES if p_yellow < upper)
+
+
 # ---------------------------------------------------------------------------------------------
 # the forecaster protocol and the default one
 # ---------------------------------------------------------------------------------------------
@@ -85,7 +109,13 @@ class Forecaster(Protocol):
     (:class:`~fault_screen.screening.StepScreening`) at the fork, the forecaster's own;
     ``drive``: the live drive as a plan reads it (:class:`LiveDrive`); ``start``: date-time of
     model time 0 or None.  It may take as long as it needs (a refresh due meanwhile is
-    skipped) and must not touch the live objects."""
+    skipped) and must not touch the live objects.
+
+    A forecaster with models of its own that follow the data (an ensemble) has a
+    ``samples_from`` attribute: the model time (s) from which it needs the samples received;
+    the stage then keeps every sample and hands the forecaster a snapshot of them from that
+    time on as ``drive.received`` (a
+    :class:`~fault_screen.io.volume.PiecewiseLinearVolume` of its own)."""
 
     def forecast(self, sim_fork, plans: Sequence[Plan], horizon: float, now_utc: datetime, *,
                  screening, drive, start) -> List[dict]:
@@ -94,22 +124,39 @@ class Forecaster(Protocol):
 
 class LookAheadForecaster:
     """The default forecaster: :class:`~fault_screen.forecast.LookAhead` per plan, with the
-    scene's own steps (so that the plan ``scene`` continues the run row for row), and with
-    ``advise`` the largest constant rate below ``advise_level`` over the horizon (up to
-    ``max_rate`` m3/s, default twice the largest rate so far) in every row's
-    ``advised_rate``; :attr:`last_advice` keeps the newest advice."""
+    scene's own steps (so that the plan ``scene`` continues the run row for row) or, with
+    ``ladder`` (its dt_max, s), on one :class:`~fault_screen.forecast.StepLadder` kept for the
+    whole run (the factorisations of its step sizes shared by every refresh); with ``advise``
+    the largest constant rate below ``advise_level`` over the horizon (up to ``max_rate`` m3/s,
+    default twice the largest rate so far) in every row's ``advised_rate``.  :attr:`last_advice`
+    keeps the newest advice; with ``reuse`` the next bisection seeks its bracket around it
+    first (``advise(..., near=)``: the same 2 % bracket, fewer look-aheads when the advice
+    moved little)."""
 
     def __init__(self, *, advise: bool = False, advise_level: int = YELLOW,
-                 max_rate: Optional[float] = None):
+                 max_rate: Optional[float] = None, ladder: Optional[float] = None,
+                 reuse: bool = True):
         self.advise = bool(advise)
         self.advise_level = int(advise_level)
         self.max_rate = max_rate
+        self.ladder = StepLadder(ladder) if ladder is not None else None
+        self.reuse = bool(reuse)
         self.last_advice = None
 
+    @property
+    def near(self) -> Optional[float]:
+        """Where the next bisection looks first: the last advised rate (None: a fresh one, also
+        after an advice of 0 or of the largest rate tried, whose bracket had one end only)."""
+        last = self.last_advice
+        if not self.reuse or last is None or last.even_zero_reaches or last.upper is None \
+                or not last.rate > 0:
+            return None
+        return float(last.rate)
+
     def forecast(self, sim_fork, plans, horizon, now_utc, *, screening, drive=None, start=None):
-        ahead = LookAhead(sim_fork, screening, drive=drive, start=start)
-        advice = (advise(ahead, horizon, level=self.advise_level, max_rate=self.max_rate)
-                  if self.advise else None)
+        ahead = LookAhead(sim_fork, screening, drive=drive, start=start, ladder=self.ladder)
+        advice = (advise(ahead, horizon, level=self.advise_level, max_rate=self.max_rate,
+                         near=self.near) if self.advise else None)
         rows = []
         for plan in plans:
             f = ahead.run(plan, horizon)
@@ -127,10 +174,12 @@ class LiveDrive:
     ``scene`` and ``scale`` plans is the scene's own schedule (the planned injection: the log
     stops at its last sample), ``rate_at`` gives the rate of the samples at the model time of
     the fork (the ``hold`` plan), ``time``/``flow_rate`` the largest rate received so far (the
-    advice's default upper bound)."""
+    advice's default upper bound); ``received``: the snapshot of the samples received (for a
+    forecaster with ``samples_from``), else None."""
 
-    def __init__(self, schedule, rate_now: float, largest: float, now: float):
+    def __init__(self, schedule, rate_now: float, largest: float, now: float, received=None):
         self.volume = schedule.volume
+        self.received = received
         self._rate_now = float(rate_now)
         self.time = np.array([float(now)])
         self.flow_rate = np.array([float(largest)])
@@ -161,8 +210,13 @@ class LiveLookAhead:
     ``plans``: plan texts or :class:`~fault_screen.forecast.Plan`; the first is the one the
     alert text leads with (the plan being followed).  ``horizon`` and ``every`` (s of model
     time); ``plan_log_options``: keywords of ``read_injection_log`` for a plan file;
-    ``forecaster``: a :class:`Forecaster` (default :class:`LookAheadForecaster` with
-    ``advise``, ``advise_level``, ``max_rate``)."""
+    ``ladder``: the look-aheads' step ladder (its dt_max, s; default: the scene's own steps);
+    ``ensemble``: ``{"draws": [dotted-key overrides, SI, one per member], "confidence": C or
+    None}`` for an ensemble look-ahead (a :class:`~fault_screen.forecast.ensemble.LiveEnsemble`
+    whose members are built in the worker at the first refresh, from the live scene, and replay
+    the samples from time 0); ``forecaster``: a :class:`Forecaster` (default:
+    :class:`LookAheadForecaster` with ``advise``, ``advise_level``, ``max_rate``, ``ladder``, or
+    the ensemble)."""
 
     plans: Sequence = ("hold",)
     horizon: float = 3600.0
@@ -171,6 +225,8 @@ class LiveLookAhead:
     advise_level: int = YELLOW
     max_rate: Optional[float] = None
     plan_log_options: Optional[dict] = None
+    ladder: Optional[float] = None
+    ensemble: Optional[dict] = None
     forecaster: Optional[Forecaster] = None
     # the live state (checkpointed by the stage)
     next_due: float = field(default=None)
@@ -192,23 +248,61 @@ class LiveLookAhead:
             raise ValueError(f"look-ahead horizon {self.horizon!r}: must be > 0 s")
         if not (math.isfinite(self.every) and self.every > 0):
             raise ValueError(f"look-ahead every {self.every!r}: must be > 0 s")
-        if self.forecaster is None:
+        if self.ladder is not None and not (math.isfinite(self.ladder) and self.ladder > 0):
+            raise ValueError(f"look-ahead ladder {self.ladder!r}: must be > 0 s")
+        if self.ensemble is not None:
+            self.ensemble = _ensemble_settings(self.ensemble)
+        if self.forecaster is None and self.ensemble is not None:
+            from ..forecast.ensemble import LiveEnsemble
+
+            self.forecaster = LiveEnsemble(
+                None, self.ensemble["draws"], base=False,
+                advice=(dict(level=self.advise_level, max_rate=self.max_rate) if self.advise
+                        else None),
+                confidence=self.confidence,
+                steps=dict(ladder=self.ladder) if self.ladder is not None else None)
+        elif self.forecaster is None:
             self.forecaster = LookAheadForecaster(advise=self.advise, advise_level=self.advise_level,
-                                                  max_rate=self.max_rate)
+                                                  max_rate=self.max_rate, ladder=self.ladder)
         if self.next_due is None:
             self.next_due = float(self.every)
         if self.summary is None:
-            self.summary = [("green", "none")] * len(self.plans)
+            self.summary = [self.quiet] * len(self.plans)
         self._thread: Optional[threading.Thread] = None
         self._done: "queue.Queue[_Job]" = queue.Queue()
         self._running: Optional[_Job] = None
         self._stream = False          # rows go to the result file (not kept)
 
+    @property
+    def quiet(self) -> tuple:
+        """The summary a first forecast is compared with: green, yellow not within the horizon
+        (and, with an ensemble, no member reaching it)."""
+        return ("green", "none", "0") if self.ensemble is not None else ("green", "none")
+
+    @property
+    def columns(self) -> tuple:
+        """The columns of ``/lookahead``."""
+        return ENSEMBLE_LOOKAHEAD_COLUMNS if self.ensemble is not None else LOOKAHEAD_COLUMNS
+
+    @property
+    def follows_samples(self) -> bool:
+        """Does the forecaster keep models that follow the samples (the stage keeps them all)?"""
+        return getattr(self.forecaster, "samples_from", None) is not None
+
+    @property
+    def confidence(self) -> Optional[float]:
+        """The ensemble advice's confidence (None: no ensemble advice)."""
+        if self.ensemble is None or not self.advise:
+            return None
+        c = self.ensemble["confidence"]
+        return 0.9 if c is None else c
+
     # -- settings as plain data ---------------------------------------------------------------
     def settings(self) -> dict:
         return {"plans": [p.name for p in self.plans], "horizon": self.horizon, "every": self.every,
                 "advise": self.advise, "advise_level": self.advise_level, "max_rate": self.max_rate,
-                "plan_log_options": self.plan_log_options}
+                "plan_log_options": self.plan_log_options, "ladder": self.ladder,
+                "ensemble": self.ensemble}
 
     def state(self) -> dict:
         """The live state as plain data.  A refresh still running is made again after a
@@ -225,7 +319,7 @@ class LiveLookAhead:
         names = state["settings"]["plans"]
         # the same plans continue their summaries; a plan new since then starts quiet
         by_name = dict(zip(names, summary))
-        self.summary = [by_name.get(p.name, ("green", "none")) for p in self.plans]
+        self.summary = [by_name.get(p.name, self.quiet) for p in self.plans]
         self.latest = dict(state.get("latest") or {})
         self.rows = list(state.get("rows") or [])
         self.made, self.skipped = int(state["made"]), int(state["skipped"])
@@ -313,7 +407,12 @@ def lower_worker_priority() -> None:
 # alerts and storage
 # ---------------------------------------------------------------------------------------------
 def summary_of(row: dict) -> tuple:
-    return (str(row["level_at_horizon"]), bracket(row["time_to_yellow"]))
+    """A forecast row summed up for the alerts: (level at the horizon, time-to-yellow bracket)
+    and, for an ensemble's row, the band of its P(yellow)."""
+    out = (str(row["level_at_horizon"]), bracket(row["time_to_yellow"]))
+    if "p_yellow" in row:
+        out += (chance(row["p_yellow"]),)
+    return out
 
 
 def _in(seconds: float) -> str:
@@ -352,28 +451,57 @@ def _phrase(row: dict, start: Optional[datetime], lead: bool) -> str:
     return f"{what} under plan {plan}" if lead else f"plan {plan}: {what}"
 
 
-def forecast_text(rows: List[dict], start: Optional[datetime], advise_level: int = YELLOW) -> str:
-    """One line for the operator: the first plan first, then each other plan, then the
-    advice (e.g. ``forecast: yellow expected 14:32 UTC (in 38 min) under plan hold; plan stop
-    stays green for 1 h; largest rate green for 1 h: 31 L/min``)."""
+def _chances(rows: List[dict]) -> List[str]:
+    """The ensemble's part of the text: P(yellow) (and P(red) when a member reaches red) within
+    the horizon under each plan, and how many members are counted."""
+    within = f"within {_in(float(rows[0]['horizon']))}"
+    parts = []
+    for key, name in (("p_yellow", "yellow"), ("p_red", "red")):
+        values = [r.get(key) for r in rows]
+        if name == "red" and not any(v is not None and v > 0 for v in values):
+            continue
+        each = [f"{'n/a' if v is None or not math.isfinite(v) else f'{v:.2f}'} under plan {r['plan']}"
+                for v, r in zip(values, rows)]
+        parts.append(f"P({name} {within}) = " + ", ".join(each))
+    aside = rows[0].get("members_set_aside") or 0
+    counted = f"{rows[0]['members']} members" + (f", {aside} set aside (failed)" if aside else "")
+    parts[-1] += f" ({counted})"
+    return parts
+
+
+def forecast_text(rows: List[dict], start: Optional[datetime], advise_level: int = YELLOW,
+                  confidence: Optional[float] = None) -> str:
+    """One line for the operator: the first plan first, then each other plan, then (an
+    ensemble) the probabilities, then the advice (e.g. ``forecast: yellow expected 14:32 UTC
+    (in 38 min) under plan hold; plan stop stays green for 1 h; largest rate green for 1 h:
+    31 L/min``; an ensemble adds ``P(yellow within 1 h) = 0.30 under plan hold, 0.00 under plan
+    stop (10 members)`` and its advice is ``largest rate with P(yellow within 1 h) <= 10 %``)."""
     parts = [_phrase(r, start, i == 0) for i, r in enumerate(rows)]
+    if rows[0].get("members") is not None:
+        parts += _chances(rows)
     advised = rows[0].get("advised_rate")
     if advised is not None:
-        below = "green" if advise_level == YELLOW else f"below {LEVEL_NAMES[advise_level]}"
-        parts.append(f"largest rate {below} for {_in(float(rows[0]['horizon']))}: "
-                     f"{advised * 60e3:.3g} L/min")
+        span = _in(float(rows[0]["horizon"]))
+        if confidence is not None:
+            below = (f"with P({LEVEL_NAMES[advise_level]} within {span}) <= "
+                     f"{100 * (1 - confidence):.3g} %")
+        else:
+            below = ("green" if advise_level == YELLOW else f"below {LEVEL_NAMES[advise_level]}") \
+                + f" for {span}"
+        parts.append(f"largest rate {below}: {advised * 60e3:.3g} L/min")
     return "forecast: " + "; ".join(parts)
 
 
 def forecast_change(rows: List[dict], previous: list) -> tuple:
     """What a forecast alert's id is made of: (made_at, the summaries before, after), as text."""
-    before = "; ".join(f"{r['plan']}: {a}, {b}" for r, (a, b) in zip(rows, previous))
-    after = "; ".join(f"{r['plan']}: {a}, {b}" for r, (a, b) in zip(rows, map(summary_of, rows)))
+    before = "; ".join(f"{r['plan']}: {', '.join(s)}" for r, s in zip(rows, previous))
+    after = "; ".join(f"{r['plan']}: {', '.join(s)}" for r, s in zip(rows, map(summary_of, rows)))
     return float(rows[0]["made_at"]), before, after
 
 
 def forecast_alert(*, alert_id: str, rows: List[dict], previous: list, start: Optional[datetime],
-                   label: str = "", advise_level: int = YELLOW) -> dict:
+                   label: str = "", advise_level: int = YELLOW,
+                   confidence: Optional[float] = None) -> dict:
     """The ``forecast`` alert of a refresh whose summaries changed from ``previous``: the
     fields of a level-change alert (``id``: ``alert_id`` of :func:`forecast_change`; ``level``,
     ``previous_level`` with codes: the first plan's level at the horizon now and before) plus
@@ -382,36 +510,38 @@ def forecast_alert(*, alert_id: str, rows: List[dict], previous: list, start: Op
     made_at = float(rows[0]["made_at"])
     now = [summary_of(r) for r in rows]
     level, prev_level = now[0][0], previous[0][0]
-    text = forecast_text(rows, start, advise_level)
+    text = forecast_text(rows, start, advise_level, confidence)
     return {
         "id": alert_id, "kind": "forecast", "level": level,
         "level_code": LEVEL_NAMES.index(level), "previous_level": prev_level,
         "previous_level_code": LEVEL_NAMES.index(prev_level),
         "rule": "forecast", "action": text, "text": text,
-        "summary": [list(s) for s in now], "forecasts": [_json_row(r) for r in rows],
+        "summary": [list(s) for s in now],
+        "forecasts": [_json_row(r, ENSEMBLE_LOOKAHEAD_COLUMNS if "p_yellow" in r else LOOKAHEAD_COLUMNS)
+                      for r in rows],
         "metrics": {}, "model_time": made_at,
         "model_datetime": (start + timedelta(seconds=made_at)).isoformat() if start else None,
         "wall_time": datetime.now(timezone.utc).isoformat(), "scene": label,
     }
 
 
-def _json_row(row: dict) -> dict:
+def _json_row(row: dict, columns=LOOKAHEAD_COLUMNS) -> dict:
     out = {}
-    for k in LOOKAHEAD_COLUMNS:
+    for k in columns:
         v = row.get(k)
         out[k] = None if isinstance(v, float) and not math.isfinite(v) else v
     return out
 
 
-def lookahead_streams() -> dict:
+def lookahead_streams(columns=LOOKAHEAD_COLUMNS) -> dict:
     """The ``lookahead`` stream of a result file: one record per forecast row."""
-    return {"lookahead": {f"/lookahead/{c}": (_TEXT.get(c, "<f8"), ()) for c in LOOKAHEAD_COLUMNS}}
+    return {"lookahead": {f"/lookahead/{c}": (_TEXT.get(c, "<f8"), ()) for c in columns}}
 
 
-def lookahead_record(row: dict) -> dict:
+def lookahead_record(row: dict, columns=LOOKAHEAD_COLUMNS) -> dict:
     """A forecast row as a record of :func:`lookahead_streams` (empty: NaN)."""
     rec = {}
-    for c in LOOKAHEAD_COLUMNS:
+    for c in columns:
         v = row.get(c)
         if c in _TEXT:
             rec[f"/lookahead/{c}"] = str(v if v is not None else "").encode()
@@ -420,8 +550,20 @@ def lookahead_record(row: dict) -> dict:
     return rec
 
 
-def lookahead_arrays(rows: List[dict]) -> dict:
+def lookahead_arrays(rows: List[dict], columns=LOOKAHEAD_COLUMNS) -> dict:
     """The ``/lookahead`` group of rows kept in memory (the layout of the streamed one)."""
-    recs = [lookahead_record(r) for r in rows]
+    recs = [lookahead_record(r, columns) for r in rows]
     return {c: np.array([r[f"/lookahead/{c}"] for r in recs], dtype=_TEXT.get(c, "<f8"))
-            for c in LOOKAHEAD_COLUMNS}
+            for c in columns}
+
+
+def _ensemble_settings(given: dict) -> dict:
+    """The ensemble settings as plain data, checked: draws (dicts of dotted keys to floats),
+    confidence (0 < C < 1, or None)."""
+    draws = [{str(k): float(v) for k, v in d.items()} for d in given.get("draws") or ()]
+    if not draws:
+        raise ValueError("an ensemble look-ahead needs at least one member (draws)")
+    confidence = given.get("confidence")
+    if confidence is not None and not 0.0 < float(confidence) < 1.0:
+        raise ValueError(f"confidence = {confidence!r}: must be between 0 and 1 (e.g. 0.9)")
+    return {"draws": draws, "confidence": None if confidence is None else float(confidence)}

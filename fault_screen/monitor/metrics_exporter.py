@@ -12,6 +12,9 @@ the ``fault_screen_`` prefix, base SI units in the name, ``_total`` for counters
 ``fault_screen_forecast_time_to_yellow_seconds`` model time left before the forecast of the
 ``fault_screen_forecast_time_to_red_seconds``    first ``--plan`` reaches yellow / red (NaN: no
                                                  look-ahead yet, or not within its horizon)
+``fault_screen_forecast_p_yellow``               the ensemble's probability that the first
+``fault_screen_forecast_p_red``                  ``--plan`` reaches yellow / red within the
+                                                 horizon (NaN: no ensemble, ``--members``)
 ``fault_screen_model_time_seconds``              model time of the newest step
 ``fault_screen_model_lag_seconds``               newest sample's time minus the model time
 ``fault_screen_step_wall_seconds``               histogram of the wall time of each step
@@ -78,6 +81,12 @@ class MetricsExporter:
         self.time_to_red = Gauge("fault_screen_forecast_time_to_red_seconds",
                                  "Model time until the forecast turns red (NaN: no look-ahead)",
                                  registry=r)
+        self.p_yellow = Gauge("fault_screen_forecast_p_yellow",
+                              "Fraction of the ensemble's members whose forecast reaches yellow "
+                              "within the horizon (NaN: no ensemble)", registry=r)
+        self.p_red = Gauge("fault_screen_forecast_p_red",
+                           "Fraction of the ensemble's members whose forecast reaches red "
+                           "within the horizon (NaN: no ensemble)", registry=r)
         self.model_time = Gauge("fault_screen_model_time_seconds", "Model time of the newest step",
                                 registry=r)
         self.model_lag = Gauge("fault_screen_model_lag_seconds",
@@ -95,8 +104,8 @@ class MetricsExporter:
                           registry=r)
         self.info = Info("fault_screen", "The scene followed and the program", registry=r)
         self.info.info({"scene_title": str(getattr(scene, "title", "")), "version": __version__})
-        for g in (*self.screening.values(), self.time_to_yellow, self.time_to_red,
-                  self.model_time, self.model_lag):
+        for g in (*self.screening.values(), self.time_to_yellow, self.time_to_red, self.p_yellow,
+                  self.p_red, self.model_time, self.model_lag):
             g.set(math.nan)
         self.service = None
         self._samples_seen = 0
@@ -123,7 +132,8 @@ class MetricsExporter:
             # each refresh's rows begin with the plan followed: its newest row
             lead = forecasts[0]["plan"]
             row = [r for r in forecasts if r["plan"] == lead][-1]
-            self.set_forecast(row["time_to_yellow"], row["time_to_red"])
+            self.set_forecast(row["time_to_yellow"], row["time_to_red"], row.get("p_yellow"),
+                              row.get("p_red"))
         svc = self.service
         if svc is None:
             return
@@ -138,10 +148,13 @@ class MetricsExporter:
         self.pending.set(svc.outbox.pending())
         self.dead.set(svc.outbox.dead())
 
-    def set_forecast(self, time_to_yellow: Optional[float], time_to_red: Optional[float]) -> None:
-        """The look-ahead's model time to yellow and red (s; None: not reached in its horizon)."""
-        self.time_to_yellow.set(math.nan if time_to_yellow is None else float(time_to_yellow))
-        self.time_to_red.set(math.nan if time_to_red is None else float(time_to_red))
+    def set_forecast(self, time_to_yellow: Optional[float], time_to_red: Optional[float],
+                     p_yellow: Optional[float] = None, p_red: Optional[float] = None) -> None:
+        """The look-ahead's model time to yellow and red (s; None: not reached in its horizon)
+        and, with an ensemble, the probabilities of reaching them (None: no ensemble)."""
+        for gauge, value in ((self.time_to_yellow, time_to_yellow), (self.time_to_red, time_to_red),
+                             (self.p_yellow, p_yellow), (self.p_red, p_red)):
+            gauge.set(math.nan if value is None else float(value))
 
     # -- serving ------------------------------------------------------------------------------
     def start(self, port: int, address: str = "127.0.0.1") -> int:

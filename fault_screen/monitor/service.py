@@ -251,8 +251,10 @@ class MonitorService:
         for alert in upd.forecast_alerts:
             log.warning("t = %.6g s: %s", alert["model_time"], alert["text"])
         if upd.forecasts and not upd.forecast_alerts:
+            la = self.stage.lookahead
             log.info("t = %.6g s: %s", upd.forecasts[-1]["made_at"],
-                     forecast_text(_last_refresh(upd.forecasts), self.stage.start))
+                     forecast_text(_last_refresh(upd.forecasts), self.stage.start,
+                                   la.advise_level, la.confidence))
         if self.on_update is not None:
             self.on_update(upd)
         now = time.monotonic()

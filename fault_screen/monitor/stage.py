@@ -52,8 +52,9 @@ from ..io.volume import PiecewiseLinearVolume
 from ..stepper import Simulation
 from ..screening import Events, StepScreening, event_metrics, screen_result
 from ..screening.metrics import MetricsTracker
-from .lookahead import (LiveDrive, LiveLookAhead, forecast_alert, forecast_change,
-                        lookahead_arrays, lookahead_record, lookahead_streams, summary_of)
+from .lookahead import (ENSEMBLE_LOOKAHEAD_COLUMNS, LOOKAHEAD_COLUMNS, LiveDrive, LiveLookAhead,
+                        forecast_alert, forecast_change, lookahead_arrays, lookahead_record,
+                        lookahead_streams, summary_of)
 from .seismicity import SeismicEvent, Site, associate
 
 _log = logging.getLogger("fault_screen.monitor")
@@ -64,6 +65,8 @@ LEVELS = ("green", "yellow", "red")
 _STATE_ATTR = "fault_screen_monitor"
 #: the layout of the stage's state record (plain data only: never code nor import paths)
 _STATE_VERSION = 2
+#: the checkpoint's group of every sample received (a look-ahead ensemble's history)
+_RECEIVED = "monitor_received"
 #: what an event association reads from a recorded row
 _ROW_KEYS = ("time", "slip_rate", "contact_state", "shear_traction", "effective_normal_stress")
 
@@ -292,6 +295,10 @@ class Stage:
         self.on_forecast = on_forecast
         self.on_alert = on_alert
         self.largest_rate = 0.0           # m3/s, of the samples received (the advice's bound)
+        # every sample since time 0, for a look-ahead whose own models follow the data (an
+        # ensemble's members, rebuilt from time 0 after a restart); None when none does
+        self.received = (PiecewiseLinearVolume() if lookahead is not None
+                         and lookahead.follows_samples else None)
 
     # -- identity ---------------------------------------------------------------------------
     @property
@@ -335,6 +342,8 @@ class Stage:
                 continue
             pk = None if p is None or p[k] is None else float(p[k])
             self.samples.append(tk, float(q[k]), pk)
+            if self.received is not None:
+                self.received.append(tk, float(q[k]))
             self.largest_rate = max(self.largest_rate, float(q[k]))
             if writer is not None:
                 rec = {"/log/time": tk, "/log/flow_rate": float(q[k])}
@@ -354,8 +363,8 @@ class Stage:
             log["/log/pressure"] = ("<f8", ())
         streams["log"] = log
         if self.lookahead is not None:
-            streams.update(lookahead_streams())
-            self.lookahead._stream = True
+            streams.update(lookahead_streams(self.lookahead.columns))
+            self.lookahead._stream = self.lookahead.columns
         self.sim.stream_to(self.stream_path, streams=streams, meta=self._meta())
 
     @property
@@ -475,8 +484,15 @@ class Stage:
         la = self.lookahead
         if la is None or not la.due(self.time):
             return
-        drive = LiveDrive(self.sim.schedule, self.samples.rate_at(self.time), self.largest_rate,
-                          self.time)
+        drive = None
+        if not la.busy:      # (a busy worker skips the refresh: no drive to make)
+            received = None
+            if self.received is not None:
+                # the samples the forecaster's models still need, a copy of their own: the
+                # worker steps them while this thread takes the next samples
+                received = _since(self.received, float(la.forecaster.samples_from))
+            drive = LiveDrive(self.sim.schedule, self.samples.rate_at(self.time),
+                              self.largest_rate, self.time, received=received)
         la.refresh(self.sim, self.screening, drive, self.time, start=self.start)
 
     def _collect_forecasts(self, upd: Update) -> None:
@@ -484,6 +500,7 @@ class Stage:
         if la is None:
             return
         writer = self.sim.writer if self.out is not None and la._stream else None
+        columns = la._stream or la.columns       # (a continued file: the columns it was made with)
         for job in la.collect():
             if job.error is not None:
                 la.failed += 1
@@ -494,7 +511,7 @@ class Stage:
             la.made += 1
             for row in rows:
                 if writer is not None:
-                    writer.append("lookahead", lookahead_record(row))
+                    writer.append("lookahead", lookahead_record(row, columns))
                 else:
                     la.rows.append(row)
                 la.latest[str(row["plan"])] = row
@@ -506,7 +523,8 @@ class Stage:
                 alert = forecast_alert(alert_id=alert_id(self.run_key, made_at, before, after,
                                                          "forecast"),
                                        rows=rows, previous=la.summary, start=self.start,
-                                       label=self.label, advise_level=la.advise_level)
+                                       label=self.label, advise_level=la.advise_level,
+                                       confidence=la.confidence)
                 upd.forecast_alerts.append(alert)
                 if self.on_alert is not None:
                     self.on_alert(alert)
@@ -651,7 +669,7 @@ class Stage:
             extra["events"] = ev
         if self.lookahead is not None and self.lookahead.rows:
             # the forecasts kept in memory (a result file streams them as they come)
-            extra["lookahead"] = lookahead_arrays(self.lookahead.rows)
+            extra["lookahead"] = lookahead_arrays(self.lookahead.rows, self.lookahead.columns)
         return extra
 
     # -- checkpoints ------------------------------------------------------------------------
@@ -688,6 +706,9 @@ class Stage:
             state["extra"] = extra or {}
             with h5py.File(tmp, "a") as h5:
                 h5.attrs[_STATE_ATTR] = json.dumps(state, default=_json_default)
+                if self.received is not None:       # every sample: datasets, not the record
+                    for name, values in _received_arrays(self.received).items():
+                        h5[f"{_RECEIVED}/{name}"] = values
             with open(tmp, "rb+") as fh:
                 os.fsync(fh.fileno())
             os.replace(tmp, path)
@@ -752,7 +773,13 @@ class Stage:
             if saved_la is not None:
                 lookahead.restore_state(saved_la)
             # a streamed file continued: its /lookahead stream was declared when it was made
-            lookahead._stream = streamed and saved_la is not None
+            if streamed and saved_la is not None:
+                lookahead._stream = (ENSEMBLE_LOOKAHEAD_COLUMNS
+                                     if saved_la["settings"].get("ensemble") is not None
+                                     else LOOKAHEAD_COLUMNS)
+        if st.received is not None:
+            # the forecaster's models are rebuilt from time 0 in the worker: every sample since
+            st.received = _received_from(path)
         st.screener = _with_own_state(screener, state["screener"])
         st.metrics_fn = _with_own_state(metrics, state["metrics"])
         if state["screening"] is not None:
@@ -770,6 +797,31 @@ class Stage:
         st.screened = state.get("screened", st.steps)
         st.largest_rate = float(state.get("largest_rate", 0.0))
         return st, state.get("extra", {})
+
+
+def _since(flow: PiecewiseLinearVolume, t: float) -> PiecewiseLinearVolume:
+    """A copy of the samples of ``flow`` from the one at or just before ``t`` (s) on, their
+    cumulative volume absolute (each step gets the volume the whole record gives it)."""
+    k = max(int(np.searchsorted(flow.time, t, side="right")) - 1, 0)
+    return PiecewiseLinearVolume(flow.time[k:], flow.flow_rate[k:], flow.cumulative[k:])
+
+
+def _received_arrays(flow: PiecewiseLinearVolume) -> dict:
+    return {"time": flow.time.copy(), "flow_rate": flow.flow_rate.copy(),
+            "cumulative": flow.cumulative.copy()}
+
+
+def _received_from(path) -> PiecewiseLinearVolume:
+    """Every sample received, from a checkpoint (which must have them)."""
+    import h5py
+
+    with h5py.File(path, "r") as h5:
+        if _RECEIVED not in h5:
+            raise ValueError(f"{path}: this state was written without a look-ahead ensemble: its "
+                             f"members cannot be rebuilt from time 0 (the samples are not kept); "
+                             f"start without --state, or without --members")
+        g = h5[_RECEIVED]
+        return PiecewiseLinearVolume(g["time"][()], g["flow_rate"][()], g["cumulative"][()])
 
 
 # ---------------------------------------------------------------------------------------------

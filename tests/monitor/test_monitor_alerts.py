@@ -16,15 +16,13 @@ import time
 import pytest
 from click.testing import CliRunner
 
-import monitor_env
 from fault_screen.monitor import plugins
 from fault_screen.monitor.outbox import Outbox
 from monitor_fakes import Receiver
 
 
-@pytest.fixture(scope="module", autouse=True)
-def entry_points_visible(tmp_path_factory):
-    monitor_env.activate(tmp_path_factory.mktemp("dist"))
+# the plugins are found by their entry points (tests/monitor/conftest.py)
+pytestmark = pytest.mark.usefixtures("dist")
 
 
 def alert(aid, level):

@@ -9,7 +9,6 @@ look-ahead, and a restart from its checkpoint."""
 from __future__ import annotations
 
 import csv
-import dataclasses
 import math
 import threading
 
@@ -24,7 +23,6 @@ from fault_screen import Scene
 from fault_screen.cli import main
 from fault_screen.cli._options import BadInput
 from fault_screen.cli.monitor import _lookahead
-from fault_screen.io.injection_log import read_injection_log
 from fault_screen.monitor import Stage
 from fault_screen.monitor.lookahead import (LOOKAHEAD_COLUMNS, LiveLookAhead, bracket,
                                             forecast_text)
@@ -40,18 +38,13 @@ END = 460.0
 FIRST_YELLOW = 390.0       # the impermeable scene's first yellow ("near failure")
 
 
-@pytest.fixture(scope="module")
-def scene_file(tmp_path_factory):
-    s = Scene.from_toml(CONFIGS / "rustrel-2015-impermeable.toml")
-    s = s.replace(time=dataclasses.replace(s.time, dt=DT))
-    path = tmp_path_factory.mktemp("scene") / "impermeable-10s.toml"
-    path.write_text(s.to_toml())
+def log_written_up_to(path, stamp):
+    """``path``: the stand-in log as written up to the date-time ``stamp`` (ISO, as in the log)."""
+    lines = LOG.read_text().splitlines()
+    head = next(i for i, line in enumerate(lines) if line.startswith("time,"))
+    stamps = [line for line in lines[head + 1:] if line.split(",")[0] <= stamp]
+    path.write_text("\n".join(lines[:head + 1] + stamps) + "\n")
     return path
-
-
-@pytest.fixture(scope="module")
-def log():
-    return read_injection_log(LOG)
 
 
 def live_run(scene, log, *, lookahead=None, stage=None, checkpoint=None, end=END):
@@ -256,6 +249,11 @@ def test_prometheus_forecast_gauges_follow_the_plan_followed():
     exp.update(Update(level=0, forecasts=rows))
     assert value("fault_screen_forecast_time_to_yellow_seconds") == 210.0
     assert math.isnan(value("fault_screen_forecast_time_to_red_seconds"))
+    assert math.isnan(value("fault_screen_forecast_p_yellow"))          # no ensemble
+    # an ensemble's rows: the probabilities of the plan followed
+    exp.update(Update(level=0, forecasts=[dict(rows[0], p_yellow=2 / 3, p_red=0.0),
+                                          dict(rows[1], p_yellow=0.0, p_red=0.0)]))
+    assert value("fault_screen_forecast_p_yellow") == 2 / 3 and value("fault_screen_forecast_p_red") == 0.0
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -322,10 +320,7 @@ def test_monitor_command_stores_forecasts_and_alerts_them(scene_file, tmp_path_f
 
     d = tmp_path_factory.mktemp("cli")
     monitor_env.activate(d / "dist")
-    lines = LOG.read_text().splitlines()
-    head = next(i for i, line in enumerate(lines) if line.startswith("time,"))
-    stamps = [line for line in lines[head + 1:] if line.split(",")[0] <= "2015-03-12T10:07:30"]
-    (d / "live.csv").write_text("\n".join(lines[:head + 1] + stamps) + "\n")
+    log_written_up_to(d / "live.csv", "2015-03-12T10:07:30")
     r = CliRunner().invoke(main, ["monitor", str(scene_file), "--follow", str(d / "live.csv"),
                                   "--idle-exit", "0.5", "--out", str(d / "live.h5"),
                                   "--alert", f"jsonl:{d / 'alerts.jsonl'}", "--plan", "scene",

@@ -11,15 +11,13 @@ import time
 
 import pytest
 
-import monitor_env
 from fault_screen.monitor import plugins
 from fault_screen.monitor.outbox import Outbox
 from monitor_fakes import Receiver
 
 
-@pytest.fixture(scope="module", autouse=True)
-def entry_points_visible(tmp_path_factory):
-    monitor_env.activate(tmp_path_factory.mktemp("dist"))
+# the plugins are found by their entry points (tests/monitor/conftest.py)
+pytestmark = pytest.mark.usefixtures("dist")
 
 
 def test_builtins_are_registered_and_unknown_names_list_them():

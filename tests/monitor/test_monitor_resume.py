@@ -29,13 +29,6 @@ GROUPS = ("fault", "injection", "balance", "solver")
 
 
 @pytest.fixture(scope="module")
-def dist(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("dist")
-    monitor_env.activate(folder)
-    return folder
-
-
-@pytest.fixture(scope="module")
 def case(tmp_path_factory, dist):
     """A coarse scene, a 600-s log and its replay (the reference of every monitor run)."""
     folder = tmp_path_factory.mktemp("case")

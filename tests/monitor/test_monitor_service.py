@@ -27,13 +27,6 @@ STANDIN = ROOT / "configs" / "logs" / "rustrel-2015-standin.csv"
 
 
 @pytest.fixture(scope="module")
-def dist(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("dist")
-    monitor_env.activate(folder)
-    return folder
-
-
-@pytest.fixture(scope="module")
 def scene_file(tmp_path_factory):
     return monitor_env.calibrated_scene_with_step(tmp_path_factory.mktemp("scene"), 7.0)
 

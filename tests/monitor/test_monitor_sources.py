@@ -23,9 +23,8 @@ STANDIN = LOGS / "rustrel-2015-standin.csv"
 GAPS = LOGS / "standin-with-gaps.csv"
 
 
-@pytest.fixture(scope="module", autouse=True)
-def entry_points_visible(tmp_path_factory):
-    monitor_env.activate(tmp_path_factory.mktemp("dist"))
+# the plugins are found by their entry points (tests/monitor/conftest.py)
+pytestmark = pytest.mark.usefixtures("dist")
 
 
 follower = monitor_env.csv_follower

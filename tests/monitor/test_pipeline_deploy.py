@@ -36,9 +36,9 @@ def test_dashboard_and_rules_name_only_exported_metrics_and_the_dashboard_shows_
     families |= {"fault_screen_step_wall_seconds_bucket"}
     families -= {"fault_screen_step_wall_seconds"}
     assert sorted(families - on_dashboard) == []
-    # level, 11 screening metrics, 2 forecasts, model time and lag, step wall time, samples,
-    # events, pending and dead-letter alerts, info
-    assert len(families) == 22
+    # level, 11 screening metrics, 2 forecast times and the ensemble's 2 probabilities, model
+    # time and lag, step wall time, samples, events, pending and dead-letter alerts, info
+    assert len(families) == 24
     assert {r["alert"] for g in rules["groups"] for r in g["rules"]} >= {"FaultScreenRed",
                                                                          "FaultScreenYellow"}
 
