@@ -192,6 +192,8 @@ def _create(h5, p: str, dtype, shape, gzip: bool) -> None:
     shape = tuple(shape)
     row_bytes = np.dtype(dtype).itemsize * int(np.prod(shape, dtype=np.int64) if shape else 1)
     chunk = max(1, min(4096, (64 * 1024) // max(row_bytes, 1)))   # ~64 kB chunks
+    if gzip:   # a compressed chunk written again moves in the file and leaves its old space
+        chunk = min(chunk, BATCH)   # unused: one batch fills a chunk once
     ds = h5.require_group(group or "/").create_dataset(
         name, shape=(0, *shape), maxshape=(None, *shape), chunks=(chunk, *shape), dtype=dtype,
         compression="gzip" if gzip else None)
