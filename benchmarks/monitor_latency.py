@@ -6,7 +6,7 @@ alert hook.
         [--lookahead-every 60] [--rate 5] [--members 4 [--vary PARAMS.toml] [--free KEYS]]
     python benchmarks/monitor_latency.py --beside [--blocks 4]
     python benchmarks/monitor_latency.py --advice [--horizon 1800] [--lookahead-every 300]
-        [--until 1500]
+        [--until 1500] [--scene configs/rustrel-2015-impermeable.toml]
 
 A writer thread appends the bundled Rustrel stand-in log, resampled to one sample per second of
 log time, at --rate lines per second of wall time (1 = real time) to a file that the monitor
@@ -30,7 +30,7 @@ draws of ``--vary`` (default: the calibration's parameters file, ``--free`` its 
 each a model of its own stepped in the worker from the samples received.
 
 ``--advice`` measures what reusing the previous advice saves: one live run of the calibrated
-scene (fed sample by sample, every refresh waited for) whose forecaster makes, at each refresh
+scene (or ``--scene``; fed sample by sample, every refresh waited for) whose forecaster makes, at each refresh
 and on the same look-ahead state, a fresh bisection and one that seeks its bracket around the
 previous refresh's advice (``advise(..., near=)``, what the monitor does); prints per refresh
 the look-aheads and the worker's CPU time of each and their rates' relative difference (the
@@ -115,6 +115,8 @@ def main(argv=None):
                     help="advice CPU time per refresh, fresh and reusing the previous advice")
     ap.add_argument("--until", type=float, default=1500.0,
                     help="--advice: model time the live run goes to, s [1500]")
+    ap.add_argument("--scene", default=str(ROOT / "configs" / "rustrel-2015-calibrated.toml"),
+                    help="--advice: the scene [configs/rustrel-2015-calibrated.toml]")
     a = ap.parse_args(argv)
     if a.beside:
         return worker_beside(a.blocks)
@@ -291,12 +293,12 @@ def advice_reuse(a):
             self.last_advice = reused
             return []
 
-    scene = Scene.from_toml(ROOT / "configs" / "rustrel-2015-calibrated.toml")
+    scene = Scene.from_toml(a.scene)
     log = read_injection_log(ROOT / "configs" / "logs" / "rustrel-2015-standin.csv")
     both = FreshAndReused()
     stage = Stage(scene, start=log.start, lookahead=LiveLookAhead(
         plans=["hold"], horizon=a.horizon, every=a.lookahead_every, forecaster=both))
-    print(f"calibrated Rustrel scene, the stand-in log to {a.until:g} s, advice over {a.horizon:g} s "
+    print(f"{scene.title}: the stand-in log to {a.until:g} s, advice over {a.horizon:g} s "
           f"every {a.lookahead_every:g} s; 2 cores, load average {os.getloadavg()[0]:.1f} at the start "
           f"(CPU time of the worker thread: the work, not the waiting)")
     print("| refresh at (s) | fresh: look-aheads | fresh: CPU (s) | reusing: look-aheads | "

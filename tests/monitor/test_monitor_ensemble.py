@@ -198,3 +198,23 @@ def test_monitor_checks_the_ensemble_options_as_forecast_does(args, message, fri
     r = CliRunner().invoke(main, ["monitor", str(CONFIGS / "rustrel-2015-impermeable.toml"),
                                   "--follow", str(log), "--idle-exit", "1", *args])
     assert r.exit_code == 2 and message in r.output, r.output
+
+
+def test_the_live_ensemble_advice_is_that_of_the_members_own_bisections(scene_file, log, draws):
+    """--advise --confidence 0.6 with three members: at the first refresh (180 s; no earlier
+    advice to start from) the advised rate is the second smallest of the members' own advised
+    rates (at most floor(0.4 * 3) = 1 member may reach yellow), each bisected as
+    ``forecast --vary --advise`` bisects it, bit for bit."""
+    scene = Scene.from_toml(scene_file)
+    la = LiveLookAhead(plans=["hold"], horizon=120.0, every=EVERY, advise=True,
+                       ensemble={"draws": draws, "confidence": 0.6})
+    stage, _ = live_run(scene, log, lookahead=la, end=EVERY)
+    runs = [run_member(i, scene.to_dict(), d, [EVERY], [parse_plan("hold")], 120.0, drive=log,
+                       start=log.start, advice=dict(level=YELLOW, max_rate=None))
+            for i, d in enumerate(draws)]
+    own = sorted(r.advice[0].rate for r in runs)
+    assert own[0] < own[1] < own[2]
+    (row,) = la.rows
+    assert row["advised_rate"] == own[1]
+    assert forecast_text([row], None, confidence=0.6).endswith(
+        f"largest rate with P(yellow within 2 min) <= 40 %: {own[1] * 60e3:.3g} L/min")
