@@ -50,6 +50,14 @@ def _index(counts):
     return indptr.astype(np.int32) if indptr[-1] < np.iinfo(np.int32).max else indptr
 
 
+def _gather(values, at):
+    """values[at] where at >= 0, else 0 (a block without entries has no values to index)."""
+    out = np.zeros(len(at))
+    has = at >= 0
+    out[has] = values[at[has]]
+    return out
+
+
 def _positions(blocks, shape):
     """The union pattern of ``blocks`` (sparse, one shape) as sorted keys column * rows + row
     (CSC order), and per block the position in the union of each of its entries (CSC order)."""
@@ -194,9 +202,7 @@ class FixedBulk:
         scale = self._scale
         rows = self.indices
         cols = np.repeat(np.arange(self.shape[1]), np.diff(self.indptr))
-        va = np.where(at_a >= 0, a[np.maximum(at_a, 0)], 0.0)
-        vc = np.where(at_c >= 0, c[np.maximum(at_c, 0)], 0.0)
-        vh = np.where(at_h >= 0, h[np.maximum(at_h, 0)], 0.0)
+        va, vc, vh = _gather(a, at_a), _gather(c, at_c), _gather(h, at_h)
         ss = scale[rows] * scale[cols]
         stiff = ss * (va + self._time_weight * vh)
         storage = ss * vc

@@ -277,7 +277,8 @@ class CondensedSystem:
                 held = [(D @ L @ D).tocsr()[self._order][:, self._order].tocsc()]
                 del L
                 self.lu = bordered_lu(held.pop, len(B), self._split, self._analyses)
-            else:   # the symmetric form (see the class docstring)
+            else:   # the symmetric form (see the class docstring); L goes first (the peak)
+                L = None
                 self.lu = self._factorise_symmetric(dt)
             self.factorizations += 1
             if self._row_factor is not None:   # (the Schur complement of the rows as they are)
