@@ -28,6 +28,7 @@ from ._jit import helper, kernel
 from .bordered_lu import bordered_lu, lu_solve, release_freed_memory, split_layout
 from .ldl import SymbolicAnalyses
 from .ordering import nested_dissection
+from . import shared_bulk
 
 
 #: condensed (nonlinear) blocks up to this many unknowns are solved with one BLAS thread: with
@@ -194,13 +195,9 @@ class CondensedSystem:
             D = sp.diags(self.scale)
             Ls = (D @ L @ D).tocsr()
             if self._order is None:  # the pattern of B is that of every step size
-                inner, split, quarters = nested_dissection(
-                    Ls[B][:, B], self._coordinates()[B], return_split=True,
-                    return_quarters=True)
-                layout, self._split = split_layout(len(B), split, quarters)
-                if layout is not None:
-                    inner = inner[layout]
-                self._order = np.concatenate([B[inner], N])
+                self._order, self._split = _with_shared(
+                    lambda store, make: store.order(Ls[B][:, B], self._coordinates()[B], make),
+                    lambda: self._bulk_order(Ls))
             # the factorisation's peak (SuperLU's storage and the factors copied out of it) is
             # reached holding neither L nor the matrix factorised
             held = [Ls[self._order][:, self._order].tocsc()]
@@ -210,10 +207,12 @@ class CondensedSystem:
                 self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
                 held[0].data *= self._row_factor[held[0].indices]
                 if self._analyses is None:
-                    self._analyses = SymbolicAnalyses()
+                    self._analyses = _with_shared(lambda store, make: store.analyses, SymbolicAnalyses)
             self.lu = None  # the old factors go before the new ones are made (peak memory)
             release_freed_memory()
-            self.lu = bordered_lu(held.pop, len(B), self._split, self._analyses)
+            self.lu = _with_shared(
+                lambda store, make: store.factors(bordered_lu, held.pop(), len(B), self._split, self._analyses),
+                lambda: bordered_lu(held.pop, len(B), self._split, self._analyses))
             self.factorizations += 1
             if self._row_factor is not None:   # (the Schur complement of the rows as they are)
                 self.lu.schur /= self._row_factor[len(B):, None]
@@ -234,6 +233,17 @@ class CondensedSystem:
             self._blocks_rows_N_fixed = [M[self._rows_N_fixed] for M in (self.A, self.C, self.Hf)]
         self._L_rows_N_fixed = self._combine(self._blocks_rows_N_fixed, dt)
         self.dt = dt
+
+    def _bulk_order(self, Ls):
+        """(the free unknowns in the factors' order, the split of B's factorisation): B in a
+        nested-dissection order of its pattern, then N."""
+        B = self.B
+        inner, split, quarters = nested_dissection(Ls[B][:, B], self._coordinates()[B], return_split=True,
+                                                   return_quarters=True)
+        layout, split = split_layout(len(B), split, quarters)
+        if layout is not None:
+            inner = inner[layout]
+        return np.concatenate([B[inner], self.N]), split
 
     @property
     def order(self):
@@ -365,6 +375,13 @@ class CondensedSystem:
         """L_NN's entries at step size dt (scaled; rows, columns, values)."""
         LNN = self._combine(self._blocks_NN, dt).tocoo()
         return LNN.row.astype(np.int64), LNN.col.astype(np.int64), LNN.data
+
+
+def _with_shared(shared, make):
+    """``shared(store, make)`` inside ``shared_bulk.sharing()`` (members of an ensemble
+    reusing equal bulks), ``make()`` otherwise."""
+    store = shared_bulk.active()
+    return make() if store is None else shared(store, make)
 
 
 class PendingBulk:
