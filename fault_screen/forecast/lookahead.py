@@ -137,6 +137,8 @@ class LookAhead:
         self.time_steps = (_time_steps(sim.scene, growth, dt_max) if ladder is None
                            else ladder.scene_for(sim.scene))
         self._rungs = None if ladder is None else ladder.rungs(sim.dt)
+        # the "now" row's metrics, the first row of every plan's forecast
+        self._first = {k.rsplit("/", 1)[1]: v for k, v in _now_record(self.state, self.screening).items()}
 
     @property
     def control(self) -> str:
@@ -155,9 +157,8 @@ class LookAhead:
         # the look-ahead reads each newest row once (its metrics are kept below): the fork's
         # recorder keeps no more than that row
         sim.recorder.rows = collections.deque(sim.recorder.rows, maxlen=1)
-        first = {k.rsplit("/", 1)[1]: v for k, v in _now_record(self.state, screening).items()}
         times, levels, iterations = [self.made_at], [self.level_now], 0
-        rows = {k: [v] for k, v in first.items()}
+        rows = {k: [v] for k, v in self._first.items()}
         end = self.made_at + float(horizon)
         ladder = self.ladder
         while True:
