@@ -31,6 +31,7 @@ from .bordered_lu import (_linear_rows_symmetric, bordered_lu, lu_solve, release
 from .fixed_pattern import FixedBulk, FixedSum
 from .ldl import SymbolicAnalyses
 from .ordering import nested_dissection
+from . import shared_bulk
 
 
 #: condensed (nonlinear) blocks up to this many unknowns are solved with one BLAS thread: with
@@ -259,14 +260,10 @@ class CondensedSystem:
             if self._order is None:  # the pattern of B is that of every step size
                 D = sp.diags(self.scale)
                 Ls = (D @ L @ D).tocsr()
-                inner, split, quarters = nested_dissection(
-                    Ls[B][:, B], self._coordinates()[B], return_split=True,
-                    return_quarters=True)
+                self._order, self._split = _with_shared(
+                    lambda store, make: store.order(Ls[B][:, B], self._coordinates()[B], make),
+                    lambda: self._bulk_order(Ls))
                 del Ls
-                layout, self._split = split_layout(len(B), split, quarters)
-                if layout is not None:
-                    inner = inner[layout]
-                self._order = np.concatenate([B[inner], N])
             self._row_factor = None
             self.lu = None  # the old factors go before the new ones are made (peak memory)
             release_freed_memory()
@@ -276,7 +273,15 @@ class CondensedSystem:
                 D = sp.diags(self.scale)
                 held = [(D @ L @ D).tocsr()[self._order][:, self._order].tocsc()]
                 del L
-                self.lu = bordered_lu(held.pop, len(B), self._split, self._analyses)
+                store = shared_bulk.active()
+                if store is None:
+                    self.lu = bordered_lu(held.pop, len(B), self._split, self._analyses)
+                else:   # (the key needs the matrix: held here until factorised)
+                    M = held.pop()
+                    self.lu = store.factors(
+                        (M.indptr, M.indices, M.data, np.asarray(M.shape)), len(B), self._split,
+                        lambda: bordered_lu(lambda: M, len(B), self._split, self._analyses))
+                    del M
             else:   # the symmetric form (see the class docstring); L goes first (the peak)
                 L = None
                 self.lu = self._factorise_symmetric(dt)
@@ -323,7 +328,7 @@ class CondensedSystem:
                                        for X in self._bulk.components())
             self.bulk_patterns += 1
         if self._analyses is None:
-            self._analyses = SymbolicAnalyses()
+            self._analyses = _with_shared(lambda store, make: store.analyses, SymbolicAnalyses)
         self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
         bulk = self._bulk
         values = [bulk.values(dt)]
@@ -334,8 +339,25 @@ class CondensedSystem:
         def matrix():   # (for SuperLU or a split bulk: the values go with the call)
             return bulk.matrix(values.pop())
 
-        return bordered_lu(matrix, nB, self._split, self._analyses,
-                           symmetric_parts=parts if self._bulk_symmetric else None)
+        def make():
+            return bordered_lu(matrix, nB, self._split, self._analyses,
+                               symmetric_parts=parts if self._bulk_symmetric else None)
+
+        return _with_shared(
+            lambda store, make: store.factors(
+                (bulk.indptr, bulk.indices, values[0], np.asarray(bulk.shape)), nB, self._split, make),
+            make)
+
+    def _bulk_order(self, Ls):
+        """(the free unknowns in the factors' order, the split of B's factorisation): B in a
+        nested-dissection order of its pattern, then N."""
+        B = self.B
+        inner, split, quarters = nested_dissection(Ls[B][:, B], self._coordinates()[B], return_split=True,
+                                                   return_quarters=True)
+        layout, split = split_layout(len(B), split, quarters)
+        if layout is not None:
+            inner = inner[layout]
+        return np.concatenate([B[inner], self.N]), split
 
     @property
     def order(self):
@@ -467,6 +489,13 @@ class CondensedSystem:
     def _linear_entries(self, dt):
         """L_NN's entries at step size dt (scaled; rows, columns, values)."""
         return self._fixed_sum("_sum_NN", self._blocks_NN).entries(dt)
+
+
+def _with_shared(shared, make):
+    """``shared(store, make)`` inside ``shared_bulk.sharing()`` (members of an ensemble
+    reusing equal bulks), ``make()`` otherwise."""
+    store = shared_bulk.active()
+    return make() if store is None else shared(store, make)
 
 
 class PendingBulk:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import math
+import uuid
 from pathlib import Path
 
 import click
@@ -59,7 +60,10 @@ def _duration(what):
 @click.option("--ladder", "ladder_dt_max", default=None, metavar="DT_MAX", callback=_duration("--ladder"),
               help="Look ahead on steps doubling from the run's step up to DT_MAX (seconds or a "
                    "duration), each size factorised once for all plans: faster, the time to "
-                   "yellow late by up to DT_MAX [default: the scene's own steps, exact].")
+                   "yellow late by up to DT_MAX [default: the scene's own steps, exact; with "
+                   "--members: a ladder to 160 s].")
+@click.option("--scene-steps", is_flag=True,
+              help="Look ahead on the scene's own steps (exact) also with --members.")
 @click.option("--out", "-o", "out", type=FILE, default=Path("forecast.csv"), show_default=True,
               metavar="CSV", help="The forecasts, one row per time and plan.")
 @click.option("--plot", "plot_dir", type=DIR, default=None, metavar="DIR",
@@ -75,7 +79,8 @@ def _duration(what):
 def forecast(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, end, log_date, log_tz,
              time_column, flow_column, pressure_column, time_unit, volume_column,
              cumulative_volume_column, volume_unit, accept_implausible, at, every, horizon, plans,
-             advise, advise_level, max_rate, ladder_dt_max, out, plot_dir, t0, quiet, params_path, members,
+             advise, advise_level, max_rate, ladder_dt_max, scene_steps, out, plot_dir, t0, quiet, params_path,
+             members,
              distribution, seed, free, confidence, workers, scheduler):
     """Forecast what the fault of SCENE does over the next H under injection plans, from one or
     more times of its run (or of the replay of --log LOG, with replay's log options).
@@ -106,6 +111,8 @@ def forecast(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, en
         raise BadInput("--horizon must be > 0")
     if ladder_dt_max is not None and not ladder_dt_max > 0:
         raise BadInput("--ladder must be > 0 (the largest look-ahead step)")
+    if scene_steps and ladder_dt_max is not None:
+        raise BadInput("--scene-steps or --ladder, not both")
     scene_path = Path(scene_path) if scene_path is not None else default_scene_path()
     scene = load_scene(scene_path)
     check_size(scene, str(scene_path))
@@ -141,6 +148,14 @@ def forecast(scene_path, log_path, flow_unit, pressure_unit, max_gap, policy, en
         click.echo(f"forecasting {scene_path} ({scene.title}) at {len(times)} time(s), "
                    f"{len(plan_list)} plan(s), horizon {format_duration(horizon)}")
     if draws is not None:
+        if ladder_dt_max is None and not scene_steps:
+            from ..forecast.ensemble import ENSEMBLE_LADDER
+
+            ladder_dt_max = ENSEMBLE_LADDER
+        if not quiet:
+            click.echo("look-aheads on the scene's own steps" if ladder_dt_max is None else
+                       f"look-aheads on a step ladder to {ladder_dt_max:g} s (times to yellow late by up "
+                       f"to {ladder_dt_max:g} s; --scene-steps for the exact steps)")
         return _forecast_ensemble(scene, scene_path, drive, start, times, plan_list, horizon, draws,
                                   dict(level=level, max_rate=max_rate_si) if advise else None,
                                   confidence if confidence is not None else 0.9, workers, scheduler,
@@ -300,7 +315,7 @@ def _forecast_ensemble(scene, scene_path, drive, start, times, plans, horizon, d
     """The scene's own forecasts and every member's, as tasks on the ensemble runner; the
     table, the CSV (the ensemble columns added) and the figure."""
     from ..forecast import COLUMNS
-    from ..forecast.ensemble import ENSEMBLE_COLUMNS, ensemble_advice, run_member, summarise
+    from ..forecast.ensemble import ENSEMBLE_COLUMNS, chunks, ensemble_advice, release, run_members, summarise
     from ._runner import TaskBar, open_runner
     from ._options import RunFailed
 
@@ -312,21 +327,27 @@ def _forecast_ensemble(scene, scene_path, drive, start, times, plans, horizon, d
     if not quiet:
         click.echo(f"ensemble: {len(draws)} members and the scene itself, "
                    f"{'in this process' if workers == 0 and scheduler is None else scheduler or f'{workers} workers'}")
-    runs = [None] * len(calls)
+    calls.insert(0, calls.pop())   # the scene itself first: it and the members share a process's factors
+    runs = {}
     bar = TaskBar("forecast", quiet)
     runner = open_runner(workers, scheduler)
+    ensemble_id = uuid.uuid4().hex
     try:
-        for i, run in runner.each(run_member, calls):
-            if isinstance(run, BaseException):   # the worker died: the member failed
+        # a few tasks per worker, each running its members in turn in one process, where they
+        # share the bulk's order and the factors of equal bulks (forecast.ensemble.run_members)
+        dealt = chunks(calls, len(runner.client.scheduler_info()["workers"]) if runner.client else 0)
+        for k, chunk in runner.each(run_members, [(ensemble_id, chunk) for chunk in dealt]):
+            if isinstance(chunk, BaseException):   # the worker died: its members failed
                 from ..forecast.ensemble import MemberRun
 
-                run = MemberRun(index=calls[i][0], params=calls[i][2],
-                                error=f"worker lost: {type(run).__name__}: {run}")
-            runs[i] = run
-            bar(sum(r is not None for r in runs), len(runs), sum(r is not None and not r.ok for r in runs))
+                chunk = [MemberRun(index=c[0], params=c[2], error=f"worker lost: {type(chunk).__name__}: {chunk}")
+                         for c in dealt[k]]
+            runs.update((r.index, r) for r in chunk)
+            bar(len(runs), len(calls), sum(not r.ok for r in runs.values()))
     finally:
+        release(ensemble_id)   # (in this process, with --workers 0)
         runner.close()
-    base, members = runs[-1], runs[:-1]
+    base, members = runs[-1], [runs[i] for i in range(len(draws))]
     ok = [r for r in members if r.ok]
     for r in members:
         if not r.ok:

@@ -32,6 +32,7 @@ demand, for the monitor's look-ahead worker.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import threading
@@ -48,9 +49,9 @@ from .advice import Advice, advise
 from .lookahead import COLUMNS, Forecast, LookAhead
 from .plans import Plan
 
-__all__ = ["ENSEMBLE_COLUMNS", "PERCENTILES", "MemberRun", "EnsembleForecast", "EnsembleAdvice",
-           "run_member", "summarise", "ensemble_advice", "time_percentile", "LiveEnsemble",
-           "lookaheads", "ensemble_rows"]
+__all__ = ["ENSEMBLE_COLUMNS", "PERCENTILES", "ENSEMBLE_LADDER", "MemberRun", "EnsembleForecast",
+           "EnsembleAdvice", "run_member", "run_members", "release", "chunks", "summarise",
+           "ensemble_advice", "time_percentile", "LiveEnsemble", "lookaheads", "ensemble_rows"]
 
 #: the columns forecast.csv gets with --members, after :data:`~fault_screen.forecast.COLUMNS`
 ENSEMBLE_COLUMNS = ("p_yellow", "p_red", "time_to_yellow_p10", "time_to_yellow_p50",
@@ -59,13 +60,22 @@ ENSEMBLE_COLUMNS = ("p_yellow", "p_red", "time_to_yellow_p10", "time_to_yellow_p
 #: the percentiles of the time to yellow (%)
 PERCENTILES = (10, 50, 90)
 
+#: the largest look-ahead step (s) of ``fault-screen forecast --members`` by default: a step ladder
+#: (:class:`~fault_screen.forecast.lookahead.StepLadder`) takes an hour ahead of a 5-s run in 28
+#: steps instead of 720, each member's time to yellow late by at most this much and its largest
+#: utilisation up to a few hundredths low (benchmarks/lookahead.py), where an ensemble runs every
+#: plan on every member (benchmarks/forecast_ensemble.py times both)
+ENSEMBLE_LADDER = 160.0
+
 
 @dataclass
 class MemberRun:
     """What one member's task returns. ``forecasts``: one :class:`Forecast` per forecast time
     and plan (times outer, plans inner); ``advice``: one :class:`Advice` per forecast time when
     advice was asked (its look-aheads left out); ``wall_s`` / ``cpu_s``: the task's wall and
-    CPU time (s), scene building and history included."""
+    CPU time (s), scene building and history included; ``factorizations`` /
+    ``shared_factorizations``: bulk factorisations made / taken from an earlier member of the
+    same process (:func:`run_members`; 0 for a member run alone)."""
 
     index: int
     params: dict
@@ -75,6 +85,8 @@ class MemberRun:
     error: str = ""
     wall_s: float = math.nan
     cpu_s: float = math.nan
+    factorizations: int = 0
+    shared_factorizations: int = 0
 
 
 def member_steps(steps: Optional[dict]) -> dict:
@@ -95,10 +107,19 @@ def lookaheads(scene, times: Sequence[float], drive=None, start: Optional[dateti
     last step ending by each of ``times`` (s, ascending). ``drive``: what drives the run (an
     InjectionLog), None for the scene's schedule; ``start``: date-time of model time 0;
     ``steps``: the look-aheads' ``growth`` and ``dt_max``, or ``ladder`` (its dt_max, s)
-    (default: the scene's own steps)."""
+    (default: the scene's own steps); and ``history_dt_max`` (s): the run itself on steps
+    doubling from the scene's first up to this size, its last step before each of ``times``
+    shortened to end there (faster, less exact: benchmarks/forecast_ensemble.py shows the state
+    it reaches against the scene's own steps; default: the scene's own steps, aligned)."""
     from ..screening.stepwise import StepScreening
     from ..stepper import Simulation
 
+    steps = dict(steps or {})
+    history = steps.pop("history_dt_max", None)
+    if history is not None:
+        if not float(history) > 0:
+            raise ValueError(f"history steps: dt_max {history!r} must be > 0")
+        scene = scene.replace(time=dataclasses.replace(scene.time, growth=2.0, dt_max=float(history)))
     sim = Simulation(scene)
     fp = sim.disc.fault_points
     screening = StepScreening.for_scene(scene, fp.s - sim.disc.injection.s, fp.weight)
@@ -106,7 +127,7 @@ def lookaheads(scene, times: Sequence[float], drive=None, start: Optional[dateti
     volume = drive.volume if drive is not None else None
     keywords = member_steps(steps)
     for t in times:
-        while sim.advance(t, volume=volume, align=True, max_steps=1):
+        while sim.advance(t, volume=volume, align=history is None, max_steps=1):
             screening.screen_simulation(sim)
         yield LookAhead(sim, screening, drive=drive, start=start, **keywords)
 
@@ -140,6 +161,44 @@ def run_member(index: int, scene_dict: dict, overrides: dict, times: Sequence[fl
     run.wall_s = _time.perf_counter() - wall0
     run.cpu_s = _time.process_time() - cpu0
     return run
+
+
+#: the bulk stores of this process, by ensemble (a worker keeps its latest ensemble's only)
+_STORES: dict = {}
+
+
+def run_members(ensemble: str, calls: Sequence[tuple]) -> list[MemberRun]:
+    """Several members in turn (the arguments of :func:`run_member` each), as one task: the
+    members of one ``ensemble`` (any id, the same for all its tasks) run in one process share
+    the bulk's order, symbolic analyses and, where their bulks are equal, factors
+    (:mod:`~fault_screen.shared_bulk`: bit-identical to each member run alone). A process keeps
+    the store of the latest ensemble it ran only; :func:`release` drops it."""
+    from ..shared_bulk import SharedBulk, sharing
+
+    store = _STORES.get(ensemble)
+    if store is None:
+        _STORES.clear()
+        store = _STORES[ensemble] = SharedBulk()
+    out = []
+    with sharing(store):
+        for call in calls:
+            made, shared = store.made, store.shared
+            run = run_member(*call)
+            run.factorizations, run.shared_factorizations = store.made - made, store.shared - shared
+            out.append(run)
+    return out
+
+
+def release(ensemble: str) -> bool:
+    """Drop this process's store of ``ensemble`` (after an ensemble run in this process)."""
+    return _STORES.pop(ensemble, None) is not None
+
+
+def chunks(calls: Sequence, workers: int, per_worker: int = 2) -> list[list]:
+    """``calls`` dealt into ``per_worker`` tasks per worker (one task for no workers), round
+    robin so that the tasks cost alike; order kept within each."""
+    n = max(1, min(len(calls), max(int(workers), 1) * per_worker if workers > 0 else 1))
+    return [list(calls[k::n]) for k in range(n) if calls[k::n]]
 
 
 #: the series of a forecast a member sends back (for the figure's band)

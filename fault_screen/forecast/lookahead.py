@@ -44,7 +44,8 @@ class Forecast:
     when not within the horizon); ``peak_slip_rate`` (m/s) and ``max_utilisation`` (-): the
     largest over the rows ahead; ``induced_slip_at_horizon`` (m); ``advised_rate`` (m3/s, or Pa
     under pressure control) when advice was asked; ``wall_s``: the wall time it took.
-    ``time``, ``metrics`` and ``level``: the rows ahead (the "now" row first), for figures."""
+    ``time``, ``metrics`` and ``level``: the rows ahead (the "now" row first), for figures;
+    ``iterations``: the Newton iterations of its steps (what a step costs grows with them)."""
 
     made_at: float
     plan: str
@@ -63,6 +64,7 @@ class Forecast:
     metrics: dict = field(default_factory=dict, repr=False)
     level: np.ndarray = field(default=None, repr=False)
     stopped: Optional[str] = None
+    iterations: int = 0
 
     def reaches(self, level: int) -> bool:
         """Does the level reach ``level`` at a row ahead (the "now" row not counted)?"""
@@ -135,6 +137,8 @@ class LookAhead:
         self.time_steps = (_time_steps(sim.scene, growth, dt_max) if ladder is None
                            else ladder.scene_for(sim.scene))
         self._rungs = None if ladder is None else ladder.rungs(sim.dt)
+        # the "now" row's metrics, the first row of every plan's forecast
+        self._first = {k.rsplit("/", 1)[1]: v for k, v in _now_record(self.state, self.screening).items()}
 
     @property
     def control(self) -> str:
@@ -153,9 +157,8 @@ class LookAhead:
         # the look-ahead reads each newest row once (its metrics are kept below): the fork's
         # recorder keeps no more than that row
         sim.recorder.rows = collections.deque(sim.recorder.rows, maxlen=1)
-        first = {k.rsplit("/", 1)[1]: v for k, v in _now_record(self.state, screening).items()}
-        times, levels = [self.made_at], [self.level_now]
-        rows = {k: [v] for k, v in first.items()}
+        times, levels, iterations = [self.made_at], [self.level_now], 0
+        rows = {k: [v] for k, v in self._first.items()}
         end = self.made_at + float(horizon)
         ladder = self.ladder
         while True:
@@ -166,6 +169,7 @@ class LookAhead:
             if ladder is not None:
                 ladder.keep(sim, made)
             record, level = _screen_newest(screening, sim)
+            iterations += int(sim.last_row.get("iterations", 0))
             times.append(float(sim.time))
             levels.append(int(level))
             for k, v in record.items():
@@ -176,9 +180,11 @@ class LookAhead:
         if until is not None and levels[-1] >= until and len(levels) > 1 and sim.time < end * (1 - 1e-12):
             stopped = (f"look-ahead stopped at t = {sim.time:.6g} s, where it reached "
                        f"{LEVEL_NAMES[levels[-1]]}")
-        return _summarise(self.made_at, plan.name, float(horizon), np.array(times), np.array(levels),
-                          {k: np.asarray(v, dtype=float) for k, v in rows.items()},
-                          _time.perf_counter() - wall0, stopped)
+        forecast = _summarise(self.made_at, plan.name, float(horizon), np.array(times), np.array(levels),
+                              {k: np.asarray(v, dtype=float) for k, v in rows.items()},
+                              _time.perf_counter() - wall0, stopped)
+        forecast.iterations = iterations
+        return forecast
 
 
 class StepLadder:

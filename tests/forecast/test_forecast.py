@@ -118,6 +118,9 @@ def test_the_scene_plan_reproduces_the_uninterrupted_run(bundled_run, rustrel_no
                  "injection_overpressure", "induced_slip"):
         assert np.array_equal(f.metrics[name], sc[name][rows]), name
     assert f.induced_slip_at_horizon == sc["induced_slip"][rows][-1]
+    # the Newton iterations of its steps: the whole run's over the same steps (rows after now)
+    ahead = slice(i0 + 1, i0 + len(f.time))
+    assert f.iterations == int(np.sum(reference.solver["iterations"][ahead])) > len(f.time) - 1
 
 
 def test_stop_never_gives_a_higher_injection_pressure_than_hold(rustrel_now):

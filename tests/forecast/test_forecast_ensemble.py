@@ -60,9 +60,11 @@ def draws(friction_file):
 @pytest.fixture(scope="module")
 def made(tmp_path_factory, friction_file):
     """Six members made at 300 s, 100 s ahead (the scene turns yellow at 390 s and sticks until
-    after 400 s), plans scene and stop, advice at confidence 0.75, in this process."""
+    after 400 s), plans scene and stop, advice at confidence 0.75, in this process, on the
+    scene's own steps (exact: the default with --members is a step ladder)."""
     out = tmp_path_factory.mktemp("ens") / "f.csv"
     res = CliRunner().invoke(main, ["forecast", IMPERMEABLE, "--at", "300", "--horizon", "100",
+                                    "--scene-steps",
                                     "--plan", "scene", "--plan", "stop", "--vary", str(friction_file),
                                     "--members", str(MEMBERS), "--distribution", "uniform",
                                     "--seed", str(SEED), "--workers", "0", "--advise",
@@ -121,6 +123,39 @@ def test_the_advised_rate_brackets_the_confidence(made, draws):
     reached = [[f.reaches(YELLOW) for f in m.forecasts] for m in made_live]
     assert np.mean(reached[0]) <= 0.25 < np.mean(reached[1])
     assert at.p_yellow == np.mean(reached[0])           # green now: reaching = yellow within
+
+
+def test_the_default_ladder_gives_p_yellow_of_the_members_own_ladder_lookaheads(tmp_path, friction_file, draws):
+    """With --members and neither --ladder nor --scene-steps the look-aheads take a step ladder
+    to ENSEMBLE_LADDER (160 s); the ensemble's P(yellow) and percentiles are those of each
+    member's own look-ahead on such a ladder (its history on the scene's steps)."""
+    from fault_screen.ensemble import scene_with
+    from fault_screen.forecast.ensemble import ENSEMBLE_LADDER
+
+    out = tmp_path / "f.csv"
+    res = CliRunner().invoke(main, ["forecast", IMPERMEABLE, "--at", "300", "--horizon", "100",
+                                    "--plan", "scene", "--plan", "stop", "--vary", str(friction_file),
+                                    "--members", str(MEMBERS), "--distribution", "uniform",
+                                    "--seed", str(SEED), "--workers", "0", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert ENSEMBLE_LADDER == 160.0 and "step ladder to 160 s" in res.output
+    rows = {r["plan"]: r for r in _rows(out)[1]}
+    scene = Scene.from_toml(IMPERMEABLE)
+    plans = [parse_plan("scene"), parse_plan("stop")]
+    own = []
+    for d in draws:
+        ahead = next(lookaheads(scene_with(scene, {"fault.friction": d}), [300.0], steps={"ladder": 160.0}))
+        own.append([ahead.run(p, 100.0) for p in plans])
+    for k, plan in enumerate(("scene", "stop")):
+        fs = [member[k] for member in own]
+        assert len(fs[0].time) < 21             # a ladder's steps, not the scene's 20 of 5 s
+        expected = sum(f.max_level >= YELLOW for f in fs) / MEMBERS
+        assert float(rows[plan]["p_yellow"]) == expected, plan
+        tty = np.array([math.inf if f.time_to_yellow is None else f.time_to_yellow for f in fs])
+        for q in (10, 50, 90):
+            cell, want = rows[plan][f"time_to_yellow_p{q}"], time_percentile(tty, q)
+            assert (cell == "") if want is None else float(cell) == want, (plan, q)
+    assert 0 < float(rows["scene"]["p_yellow"]) < 1 and float(rows["stop"]["p_yellow"]) == 0.0
 
 
 @pytest.fixture(scope="module")
@@ -229,6 +264,7 @@ def test_ensemble_advice_is_the_member_rate_that_leaves_the_allowed_fraction_abo
     (["--confidence", "0.9", "--advise"], "--confidence is for an ensemble"),
     (["--scheduler", "tcp://127.0.0.1:1"], "--scheduler is for an ensemble"),
     (["--vary", "{vary}", "--members", "2", "--free", "rock.porosity"], "rock.porosity"),
+    (["--vary", "{vary}", "--members", "2", "--scene-steps", "--ladder", "40"], "--scene-steps or --ladder"),
 ])
 def test_bad_ensemble_options_exit_2_with_a_message(args, message, tmp_path, friction_file):
     args = [a.replace("{vary}", str(friction_file)) for a in args]

@@ -1,0 +1,101 @@
+"""Bulk factorisations shared by the simulations of one process that factorise the same matrix.
+
+The members of an ensemble are separate scenes, but the parameters an ensemble varies often
+leave the bulk (the linear block the solver factorises per step size) as it is: the friction
+and the number of fractures enter the fault's nonlinear terms and the source only. Inside
+``with sharing():`` every :class:`~fault_screen.linear_system.CondensedSystem` of the process
+takes its fill-reducing order, its symbolic analyses and its factors from here when a
+simulation before it made them for exactly the same input (decided by a hash of the bytes:
+pattern and coordinates for the order, pattern and values for the factors), and makes them
+otherwise. Equal input gives equal factors, so a shared run is bit-identical to one made
+alone. The factors are read-only for their users (a step replaces them, never writes into
+them, as forks already rely on); the Schur complement, which its owner takes and overwrites,
+is handed out as a copy. Outside ``sharing()`` nothing is kept.
+"""
+from __future__ import annotations
+
+import contextlib
+import copy
+import hashlib
+import threading
+
+import numpy as np
+
+from .ldl import SymbolicAnalyses
+
+__all__ = ["sharing", "SharedBulk", "active", "MAX_FACTORS"]
+
+_LOCAL = threading.local()
+
+#: factorisations a store keeps at most (the oldest goes first): members whose bulks all differ
+#: (a varied aperture enters the fault's storage) then hold no more than these
+MAX_FACTORS = 8
+
+
+def _digest(*arrays) -> bytes:
+    h = hashlib.blake2b(digest_size=20)
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(str((a.dtype.str, a.shape)).encode())
+        h.update(a.data)
+    return h.digest()
+
+
+class SharedBulk:
+    """What the simulations inside one ``sharing()`` block share (see the module docstring).
+    ``made`` / ``shared``: factorisations made here / handed out again."""
+
+    def __init__(self, max_factors: int = MAX_FACTORS):
+        self.analyses = SymbolicAnalyses()   # (keyed by pattern itself)
+        self._orders = {}
+        self._factors = {}                   # in the order made: the oldest goes first
+        self.max_factors = int(max_factors)
+        self.made = 0
+        self.shared = 0
+
+    def order(self, pattern, coordinates, make):
+        """``make()`` (the bulk's order and split), or what it gave for the same ``pattern``
+        (sparse) and ``coordinates``."""
+        pattern = pattern.tocsr()
+        key = _digest(pattern.indptr, pattern.indices, np.asarray(pattern.shape), coordinates)
+        if key not in self._orders:
+            self._orders[key] = make()
+        return self._orders[key]
+
+    def factors(self, matrix_arrays, n_linear: int, split, factorise):
+        """``factorise()``, or the factors it gave for the same matrix (``matrix_arrays``: the
+        arrays that define it exactly, pattern and values) with the same ``n_linear`` and
+        ``split``: the same object, its Schur complement a copy of its own."""
+        key = _digest(*matrix_arrays, np.asarray([n_linear]),
+                      np.asarray(split if split is not None else [], dtype=np.int64))
+        kept = self._factors.get(key)
+        if kept is None:
+            lu = factorise()
+            while self._factors and len(self._factors) >= self.max_factors:
+                del self._factors[next(iter(self._factors))]
+            self._factors[key] = kept = (lu, lu.schur.copy(order="K"))
+            self.made += 1
+        else:
+            self.shared += 1
+        lu, schur = kept
+        twin = copy.copy(lu)
+        twin.schur = schur.copy(order="K")   # (its memory layout kept: the products that read it round alike)
+        return twin
+
+
+def active() -> SharedBulk | None:
+    """The store of the innermost ``sharing()`` block of this thread, or None."""
+    return getattr(_LOCAL, "store", None)
+
+
+@contextlib.contextmanager
+def sharing(store: SharedBulk | None = None):
+    """Share bulk orders and factors among the simulations built and stepped inside (in this
+    thread); yields the :class:`SharedBulk` (a new one unless given)."""
+    store = SharedBulk() if store is None else store
+    before = active()
+    _LOCAL.store = store
+    try:
+        yield store
+    finally:
+        _LOCAL.store = before

@@ -1,0 +1,124 @@
+"""Members of an ensemble run in one process share the bulk's order, symbolic analyses and, where
+their bulks are equal, its factors (fault_screen/shared_bulk.py, forecast.ensemble.run_members):
+every array of every forecast must equal the member's run alone, bit for bit.
+
+The scene: the SI calibrated Rustrel scene (rock pore pressure: the bulk is factorised per step
+size) on a 20 x 21 mesh, 60 s of history, then 60 s ahead on a step ladder to 40 s (steps of
+10, 20, 20 and 10 s): three factorisations a member, 5, 10 and 20 s. The number of fractures
+enters the source only, so members varying it factorise equal matrices. The friction leaves the
+bulk as it is but enters the contact's tangent, and so the scaling of the fault's unknowns, which
+borders the factorised matrix: a member of another friction makes its own factors (their
+order and symbolic analysis are the pattern's, shared). The hydraulic aperture enters the
+storage of the rock's pressure next to the fault: the bulk itself differs."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from conftest import CONFIGS
+from fault_screen import Scene
+from fault_screen.ensemble import Runner
+from fault_screen.forecast import parse_plan
+from fault_screen.forecast.ensemble import chunks, release, run_member, run_members
+from fault_screen.shared_bulk import SharedBulk, active, sharing
+
+AT, HORIZON = 60.0, 60.0
+PLANS = [parse_plan(p) for p in ("hold", "stop")]
+EQUAL_BULKS = [{"injection.number_of_fractures": 40.0}, {"injection.number_of_fractures": 90.0}, {}]
+OTHERS = [{"fault.friction": 0.62, "injection.number_of_fractures": 40.0}, {"fault.hydraulic_aperture": 2.0e-5}]
+
+
+@pytest.fixture(scope="module")
+def scene_dict():
+    s = Scene.from_toml(CONFIGS / "rustrel-2015-calibrated.toml")
+    small = dataclasses.replace(s.mesh, nx=20, ny=21)
+    return s.replace(mesh=small, time=dataclasses.replace(s.time, end=AT + HORIZON)).to_dict()
+
+
+def _calls(scene_dict, draws, steps={"ladder": 40.0}):
+    return [(i, scene_dict, d, [AT], PLANS, HORIZON, None, None, None, steps) for i, d in enumerate(draws)]
+
+
+@pytest.fixture(scope="module")
+def alone(scene_dict):
+    return [run_member(*c) for c in _calls(scene_dict, EQUAL_BULKS + OTHERS)]
+
+
+def _assert_same(a, b):
+    assert a.ok and b.ok, (a.error, b.error)
+    assert len(a.forecasts) == len(b.forecasts) == len(PLANS)
+    for fa, fb in zip(a.forecasts, b.forecasts):
+        ra, rb = fa.row(), fb.row()
+        ra.pop("wall_s"), rb.pop("wall_s")
+        assert ra == rb
+        assert np.array_equal(fa.time, fb.time) and np.array_equal(fa.level, fb.level)
+        assert fa.metrics.keys() == fb.metrics.keys() and fa.metrics
+        for k in fa.metrics:
+            assert np.array_equal(fa.metrics[k], fb.metrics[k]), k
+
+
+def test_members_sharing_factors_equal_each_member_run_alone(scene_dict, alone):
+    from fault_screen.forecast import ensemble
+
+    shared = run_members("test-shared", _calls(scene_dict, EQUAL_BULKS + OTHERS))
+    store = ensemble._STORES["test-shared"]
+    assert release("test-shared") and not release("test-shared")
+    for a, b in zip(alone, shared):
+        _assert_same(a, b)
+    # the 5, 10 and 20-s factors: made by the first member, taken from the store by the next
+    # two (equal matrices); the friction's and the aperture's members make their own
+    assert [r.factorizations for r in shared] == [3, 0, 0, 3, 3]
+    assert [r.shared_factorizations for r in shared] == [0, 3, 3, 0, 0]
+    assert all(r.factorizations == r.shared_factorizations == 0 for r in alone)
+    assert len(store._orders) == 1 and len(store.analyses._held) == 1   # one pattern
+
+
+def test_a_chunked_dask_run_equals_the_per_member_run(scene_dict, alone):
+    """Two tasks of members on one Dask worker process: the second task's members find the
+    factors the first task's made (the worker keeps the ensemble's store between its tasks)."""
+    calls = _calls(scene_dict, EQUAL_BULKS + OTHERS)
+    dealt = chunks(calls, workers=1)
+    assert [[c[0] for c in chunk] for chunk in dealt] == [[0, 2, 4], [1, 3]]
+    runs = {}
+    with Runner(1) as runner:
+        for k, chunk in runner.each(run_members, [("test-dask", chunk) for chunk in dealt]):
+            assert not isinstance(chunk, BaseException), chunk
+            runs.update((r.index, r) for r in chunk)
+    assert sorted(runs) == [0, 1, 2, 3, 4]
+    for a in alone:
+        _assert_same(a, runs[a.index])
+    assert [runs[i].shared_factorizations for i in range(5)] == [0, 3, 3, 0, 0]
+
+
+def test_a_store_keeps_at_most_its_number_of_factorisations(scene_dict):
+    store = SharedBulk(max_factors=2)
+    with sharing(store):
+        assert active() is store
+        run = run_member(*_calls(scene_dict, [{}])[0])
+    assert active() is None
+    assert run.ok and store.made == 3 and len(store._factors) == 2
+
+
+def test_chunks_deal_every_call_once():
+    calls = list(range(7))
+    for workers, n in ((0, 1), (1, 2), (2, 4), (8, 7)):
+        dealt = chunks(calls, workers)
+        assert len(dealt) == n
+        assert sorted(sum(dealt, [])) == calls
+        assert max(map(len, dealt)) - min(map(len, dealt)) <= 1
+
+
+def test_a_history_on_longer_steps_ends_on_the_forecast_time(scene_dict):
+    """history_dt_max = 20 s: the history steps 5, 10, 20, 20 s (55 s), then 5 s to end on 60 s,
+    and its next step is 20 s again (where a ladder starts); the scene's own steps take twelve
+    of 5 s."""
+    from fault_screen.forecast.ensemble import lookaheads
+
+    scene = Scene.from_dict(scene_dict)
+    longer = next(lookaheads(scene, [AT], steps={"history_dt_max": 20.0}))
+    own = next(lookaheads(scene, [AT]))
+    assert longer.made_at == own.made_at == AT
+    assert (longer.state.steps, own.state.steps) == (5, 12)
+    assert longer.state.time == AT and (longer.state.dt, own.state.dt) == (20.0, 5.0)
+    bad = run_member(0, scene_dict, {}, [AT], PLANS, HORIZON, steps={"history_dt_max": 0.0})
+    assert not bad.ok and "history steps: dt_max 0.0 must be > 0" in bad.error
