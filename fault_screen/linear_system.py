@@ -273,16 +273,21 @@ class CondensedSystem:
                 D = sp.diags(self.scale)
                 held = [(D @ L @ D).tocsr()[self._order][:, self._order].tocsc()]
                 del L
-                store = shared_bulk.active()
-                if store is None:
-                    self.lu = bordered_lu(held.pop, len(B), self._split, self._analyses)
-                else:   # (the key needs the matrix: held here until factorised)
-                    M = held.pop()
-                    self.lu = store.factors(
-                        (M.indptr, M.indices, M.data, np.asarray(M.shape)), len(B), self._split,
-                        lambda: bordered_lu(lambda: M, len(B), self._split, self._analyses))
-                    del M
-            else:   # the symmetric form (see the class docstring); L goes first (the peak)
+                self.lu = self._factorise_held(held, len(B))
+            elif self._bulk is None and L is not None:
+                # the symmetric form (see the class docstring) at the run's first step size,
+                # summed the general way: the fixed pattern (``_factorise_symmetric``) is made
+                # when the step size first changes, and never for a run on one step size (on
+                # 200 x 201 it cost 3.9 s of 24); its values equal these bit for bit
+                D = sp.diags(self.scale)
+                held = [(D @ L @ D).tocsr()[self._order][:, self._order].tocsc()]
+                del L
+                self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
+                held[0].data *= self._row_factor[held[0].indices]
+                if self._analyses is None:
+                    self._analyses = _with_shared(lambda store, make: store.analyses, SymbolicAnalyses)
+                self.lu = self._factorise_held(held, len(B))
+            else:   # the symmetric form in its fixed pattern; L goes first (the peak)
                 L = None
                 self.lu = self._factorise_symmetric(dt)
             self.factorizations += 1
@@ -315,22 +320,40 @@ class CondensedSystem:
             setattr(self, name, made)
         return made
 
+    def _factorise_held(self, held, n_linear):
+        """``bordered_lu`` of the one matrix in the list ``held`` (emptied, so that the
+        factorisation's peak holds no copy of it), or the factors of an equal matrix inside
+        ``shared_bulk.sharing()``."""
+        store = shared_bulk.active()
+        if store is None:
+            return bordered_lu(held.pop, n_linear, self._split, self._analyses)
+        M = held.pop()   # (the key needs the matrix: held here until factorised)
+        return store.factors((M.indptr, M.indices, M.data, np.asarray(M.shape)), n_linear,
+                             self._split, lambda: bordered_lu(lambda: M, n_linear, self._split,
+                                                              self._analyses))
+
+    def fixed_bulk(self):
+        """The poroelastic bulk's fixed pattern (``fixed_pattern.FixedBulk``), made at the first
+        call (the solver's: when the step size first changes) with its symmetry check."""
+        if self._bulk is None:
+            nB = len(self.B)
+            self._bulk = FixedBulk((self.A, self.C, self.Hf), self.time_weight, self._order,
+                                   self.scale, ~self._mechanical[self._order], nB)
+            self._bulk_symmetric = all(_linear_rows_symmetric(X, nB)
+                                       for X in self._bulk.components())
+            self.bulk_patterns += 1
+        return self._bulk
+
     def _factorise_symmetric(self, dt):
         """The bulk's factors at step size dt in the symmetric form, its values written into
         the fixed pattern (``fixed_pattern.FixedBulk``, made with its symmetry check at the
         first step: every later matrix is X + dt Y + Z / dt of the same three parts, so it is
         symmetric, to their round-off, when they are)."""
         nB = len(self.B)
-        if self._bulk is None:
-            self._bulk = FixedBulk((self.A, self.C, self.Hf), self.time_weight, self._order,
-                                   self.scale, ~self._mechanical[self._order], nB)
-            self._bulk_symmetric = all(_linear_rows_symmetric(X, nB)
-                                       for X in self._bulk.components())
-            self.bulk_patterns += 1
+        bulk = self.fixed_bulk()
         if self._analyses is None:
             self._analyses = _with_shared(lambda store, make: store.analyses, SymbolicAnalyses)
         self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
-        bulk = self._bulk
         values = [bulk.values(dt)]
 
         def parts():
