@@ -257,38 +257,35 @@ class CondensedSystem:
         # complement L_NN - P is not held: one n_N x n_N array less), and P is made with them
         self._LNN_entries = self._linear_entries(dt)
         if factorise:
-            if self._order is None:  # the pattern of B is that of every step size
+            Ls = None
+            if L is not None:   # (first step; an elastic bulk's one factorisation)
                 D = sp.diags(self.scale)
                 Ls = (D @ L @ D).tocsr()
+                del L
+            if self._order is None:  # the pattern of B is that of every step size
                 self._order, self._split = _with_shared(
                     lambda store, make: store.order(Ls[B][:, B], self._coordinates()[B], make),
                     lambda: self._bulk_order(Ls))
-                del Ls
             self._row_factor = None
             self.lu = None  # the old factors go before the new ones are made (peak memory)
             release_freed_memory()
-            if self.factors_any_dt:
+            if Ls is not None:
                 # the factorisation's peak (SuperLU's storage and the factors copied out of it)
                 # is reached holding neither L nor the matrix factorised
-                D = sp.diags(self.scale)
-                held = [(D @ L @ D).tocsr()[self._order][:, self._order].tocsc()]
-                del L
+                held = [Ls[self._order][:, self._order].tocsc()]
+                del Ls
+                if not self.factors_any_dt:
+                    # the symmetric form (see the class docstring) at the run's first step size,
+                    # summed the general way: the fixed pattern (``_factorise_symmetric``) is
+                    # made when the step size first changes, and never for a run on one step
+                    # size (on 200 x 201 it cost 3.9 s of 24); its values equal these bit for bit
+                    self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
+                    held[0].data *= self._row_factor[held[0].indices]
+                    if self._analyses is None:
+                        self._analyses = _with_shared(lambda store, make: store.analyses,
+                                                      SymbolicAnalyses)
                 self.lu = self._factorise_held(held, len(B))
-            elif self._bulk is None and L is not None:
-                # the symmetric form (see the class docstring) at the run's first step size,
-                # summed the general way: the fixed pattern (``_factorise_symmetric``) is made
-                # when the step size first changes, and never for a run on one step size (on
-                # 200 x 201 it cost 3.9 s of 24); its values equal these bit for bit
-                D = sp.diags(self.scale)
-                held = [(D @ L @ D).tocsr()[self._order][:, self._order].tocsc()]
-                del L
-                self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
-                held[0].data *= self._row_factor[held[0].indices]
-                if self._analyses is None:
-                    self._analyses = _with_shared(lambda store, make: store.analyses, SymbolicAnalyses)
-                self.lu = self._factorise_held(held, len(B))
-            else:   # the symmetric form in its fixed pattern; L goes first (the peak)
-                L = None
+            else:   # the symmetric form in its fixed pattern
                 self.lu = self._factorise_symmetric(dt)
             self.factorizations += 1
             if self._row_factor is not None:   # (the Schur complement of the rows as they are)
