@@ -1,0 +1,228 @@
+"""The per-step sweeps through the bulk's factors on the large scenes (issue 28): bytes and times.
+
+    python benchmarks/sweeps.py                     # Rustrel 200 x 201 and the fine 30-degree scene
+    python benchmarks/sweeps.py --scenes rustrel    # the bundled 50 x 51 (one part)
+
+Each scene is stepped three times (its factors made as in a run), then its factors are read as the
+solver holds them (``bordered_lu.BorderedLU``, or ``SplitBorderedLU``'s parts) and each sweep is
+timed on them alone. Per part:
+
+- what its packed factor holds, in MB: ``values`` (all of them), of which ``upper`` (the zeros
+  above each supernode's diagonal block: stored only by a square layout), ``diag`` (L's unit
+  diagonal), ``zeros`` (other zeros: the amalgamated supernodes' fill) and ``border`` (the rows
+  of the condensed unknowns and separators, L21: both sweeps read them), and ``rows`` (the row
+  indices);
+- ``least``: what a sweep must read at the least, L's entries below the diagonal (amalgamation's
+  zeros counted: they are the layout's, not the padding's) with their row indices, and the
+  right-hand side read and written once;
+- ``fwd``/``bwd``: the least CPU time of a forward and a backward sweep of the part in ms (the
+  kernels alone, ``--repeat`` times), and the rate at which each reads the packed factor (its
+  values and row indices over that time, GB/s).
+
+Then the whole step's sweeps of a split block (``forward``/``backward``, with the separator's dense
+solves): one thread against two (``bordered_lu._each_part``), wall and process CPU time, least of
+``--repeat``, side by side in one run; and the dense separator's LU solve (``lu_solve``: getrs on
+R_SS) with the products beside it. On a shared machine wall times measure the other processes
+too: compare the rows of one run, and read the CPU columns.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+SCENES = ("rustrel-200x201", "fine-T0.7-dip30", "rustrel")
+
+
+def _scene(name):
+    from fault_screen import Scene
+
+    if name.startswith("rustrel"):
+        s = Scene.from_toml(ROOT / "configs" / "rustrel-2015-calibrated.toml")
+        return s.replace(mesh=replace(s.mesh, nx=200, ny=201)) if name == "rustrel-200x201" else s
+    from verification_cost import scaled_scene
+
+    return scaled_scene("fluid-driven-slip-T0.7-dip30", 0.5)
+
+
+def factors_of(name):
+    """The bulk's factors of the scene after three steps, as its solver holds them."""
+    from fault_screen import Simulation
+
+    scene = _scene(name)
+    sim = Simulation(scene)
+    sim.advance(3 * scene.time.dt)
+    return sim.solver.system.lu
+
+
+def accounting(part):
+    """MB of each kind in a part's packed factor (see the module docstring)."""
+    first, width, row_at, value_at, rows, values = part._L.arrays
+    if part._U is not None:   # (SuperLU's unsymmetric form: U packed beside L, counted with it)
+        values = np.concatenate([values, part._U.arrays[5]])
+    m = np.diff(row_at)
+    diagonal = int(width.sum()) * (1 if part._U is None else 2)
+    upper = int((width * (width - 1) // 2).sum()) * (1 if part._U is None else 2)
+    border = 0
+    for t in range(len(width)):
+        border += int(np.count_nonzero(rows[row_at[t]:row_at[t + 1]] >= part.n_linear)) * int(width[t])
+    zeros = int(np.count_nonzero(values == 0.0)) - upper
+    index_bytes = rows.nbytes * (1 if part._U is None else 2)
+    least = (values.size - upper - diagonal) * 8 + index_bytes + 2 * 8 * part.n
+    mb = 1e-6 * 8
+    return dict(values=values.size * mb, upper=upper * mb, diag=diagonal * mb, zeros=zeros * mb,
+                border=border * mb, rows=1e-6 * index_bytes, least=1e-6 * least,
+                streamed=1e-6 * (values.nbytes + index_bytes), m_max=int(m.max()),
+                width_mean=float(width.mean()))
+
+
+def least_cpu(fn, repeat):
+    """The least thread CPU time of ``repeat`` calls (s), and the least wall time."""
+    cpu = wall = np.inf
+    for _ in range(repeat):
+        w, c = time.perf_counter(), time.thread_time()
+        fn()
+        cpu, wall = min(cpu, time.thread_time() - c), min(wall, time.perf_counter() - w)
+    return cpu, wall
+
+
+def part_sweeps(part, repeat):
+    """Least CPU time of the part's forward and backward kernels (s)."""
+    from fault_screen.bordered_lu import _backward_sweep, _forward_sweep
+
+    r = np.random.default_rng(0).standard_normal(part.n)
+
+    def forward():
+        _forward_sweep(*part._L.arrays, r.copy())
+
+    def backward():
+        if part._U is None:
+            _backward_sweep(*part._L.arrays, part._D, True, r.copy())
+        else:
+            _backward_sweep(*part._U.arrays, part._D, False, r.copy())
+
+    return least_cpu(forward, repeat)[0], least_cpu(backward, repeat)[0]
+
+
+def whole(lu, repeat):
+    """Forward then backward of the whole block, one thread against two (a split block), side by
+    side, alternating: least wall and process CPU of each (s), and for two threads the critical
+    path, the larger of the two threads' CPU in the parts' sweeps (what the wall would be on two
+    otherwise idle cores: each thread's CPU time includes its waits for memory, so it counts the
+    two streams' contention, which a busy machine's wall time cannot show)."""
+    from fault_screen.bordered_lu import SplitBorderedLU
+
+    r = np.random.default_rng(1).standard_normal(lu.n)
+    nB = lu.n_linear
+    forms = {"1 thread": lu}
+    spent = {}   # thread name -> CPU in the parts' sweeps
+
+    if isinstance(lu, SplitBorderedLU) and lu._halves is not None:
+        alone = SplitBorderedLU.__new__(SplitBorderedLU)
+        alone.__dict__.update(lu.__dict__, _halves=None)
+        threaded = SplitBorderedLU.__new__(SplitBorderedLU)
+        threaded.__dict__.update(lu.__dict__)
+        threaded._parts = [_Timed(part, spent) for part in lu._parts]
+        forms = {"1 thread": alone, "2 threads": threaded}
+    best = {k: [np.inf] * 6 for k in forms}
+    for _ in range(repeat):
+        for k, f in forms.items():
+            spent.clear()
+            w, c = time.perf_counter(), time.process_time()
+            swept, _ = f.forward(r[:nB], r[nB:])
+            w1, c1 = time.perf_counter(), time.process_time()
+            path_forward = max(spent.values(), default=np.nan)
+            spent.clear()
+            f.backward(swept, r[nB:])
+            w2, c2 = time.perf_counter(), time.process_time()
+            path_backward = max(spent.values(), default=np.nan)
+            b = best[k]
+            b[:] = (min(b[0], w1 - w), min(b[1], c1 - c), min(b[2], w2 - w1), min(b[3], c2 - c1),
+                    np.fmin(b[4], path_forward), np.fmin(b[5], path_backward))
+    return best
+
+
+class _Timed:
+    """A part whose sweeps add their thread's CPU time to ``spent`` under the thread's name."""
+
+    def __init__(self, part, spent):
+        self.part, self.spent = part, spent
+
+    def _timed(self, sweep, *args):
+        import threading
+
+        c = time.thread_time()
+        out = sweep(*args)
+        name = threading.current_thread().name
+        self.spent[name] = self.spent.get(name, 0.0) + time.thread_time() - c
+        return out
+
+    def forward(self, *args):
+        return self._timed(self.part.forward, *args)
+
+    def backward(self, *args):
+        return self._timed(self.part.backward, *args)
+
+
+def separator(lu, repeat):
+    """The split block's dense separator solves a step makes: getrs on R_SS (each sweep way one),
+    and the products with R_NS and S_from_N, least CPU (s)."""
+    from fault_screen.bordered_lu import lu_solve
+
+    g = np.random.default_rng(2).standard_normal(len(lu._R_SS[0]))
+    xN = np.random.default_rng(3).standard_normal(lu._S_from_N.shape[1])
+    return dict(n_S=len(g), n_N=len(xN),
+                getrs=least_cpu(lambda: lu_solve(lu._R_SS, g), repeat)[0],
+                R_NS=least_cpu(lambda: lu._R_NS @ g, repeat)[0],
+                S_from_N=least_cpu(lambda: lu._S_from_N @ xN, repeat)[0])
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scenes", nargs="*", default=list(SCENES[:2]), choices=SCENES)
+    ap.add_argument("--repeat", type=int, default=15)
+    args = ap.parse_args(argv)
+    print(f"load average at start: {os.getloadavg()[0]:.1f}")
+    for name in args.scenes:
+        lu = factors_of(name)
+        parts = getattr(lu, "_parts", [lu])
+        print(f"\n## {name}: {lu.n} unknowns, {lu.n_linear} linear, {len(parts)} part(s)")
+        print("| part | unknowns | values MB | upper | diag | zeros | border | rows MB | least MB "
+              "| fwd ms | fwd GB/s | bwd ms | bwd GB/s |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        total = dict(fwd=0.0, bwd=0.0)
+        for i, part in enumerate(parts):
+            a = accounting(part)
+            fwd, bwd = part_sweeps(part, args.repeat)
+            total["fwd"] += fwd
+            total["bwd"] += bwd
+            print(f"| {i} | {part.n} | {a['values']:.1f} | {a['upper']:.1f} | {a['diag']:.2f} "
+                  f"| {a['zeros']:.1f} | {a['border']:.1f} | {a['rows']:.2f} | {a['least']:.1f} "
+                  f"| {1e3 * fwd:.2f} | {1e-3 * a['streamed'] / fwd:.1f} "
+                  f"| {1e3 * bwd:.2f} | {1e-3 * a['streamed'] / bwd:.1f} |")
+        print(f"kernels' CPU, all parts: forward {1e3 * total['fwd']:.2f} ms, backward "
+              f"{1e3 * total['bwd']:.2f} ms")
+        for k, (wf, cf, wb, cb, pf, pb) in whole(lu, args.repeat).items():
+            path = (f", critical path (the busier thread's CPU in the parts) {1e3 * pf:.2f} + "
+                    f"{1e3 * pb:.2f} ms" if k == "2 threads" else "")
+            print(f"whole forward + backward, {k}: wall {1e3 * wf:.2f} + {1e3 * wb:.2f} ms, "
+                  f"process CPU {1e3 * cf:.2f} + {1e3 * cb:.2f} ms{path}")
+        if hasattr(lu, "_R_SS"):
+            s = separator(lu, args.repeat)
+            print(f"separator: R_SS {s['n_S']} x {s['n_S']} getrs {1e3 * s['getrs']:.2f} ms, "
+                  f"R_NS ({s['n_N']} x {s['n_S']}) product {1e3 * s['R_NS']:.2f} ms, "
+                  f"S_from_N product {1e3 * s['S_from_N']:.2f} ms")
+    print(f"\nload average at end: {os.getloadavg()[0]:.1f}")
+
+
+if __name__ == "__main__":
+    main()
