@@ -20,12 +20,14 @@ pattern; nested dissection makes its separators such runs): L by columns, U by r
 of U^T), each stored in the order its sweep reads it, so both read memory forwards. Below its
 triangle a supernode is a dense block: a row index is read once per block row, not per entry,
 and the sums run four at a time (one sum alone is a chain of dependent adds); the sweeps index
-with unsigned integers, which LLVM vectorises along a block row (``_u``). On Rustrel the packed
-factors take a quarter less memory than in CSC (14 against 19 MB) and the two sweeps 0.6 ms
-(1.81 ms reading the CSC factors, 1.13 ms packed with signed indices). No factor is
-ever held twice over. A large linear block is factorised in parts, one after the other
-(``SplitBorderedLU``: halves or quarters), which divides the factorisation's peak memory; an
-elastic (symmetric) one holds L and U's diagonal only.
+with unsigned integers, which LLVM vectorises along a block row (``_u``). A supernode's diagonal
+block is stored up to its diagonal only (a square block's zeros above it were a tenth of the
+values on Rustrel 200 x 201: 124 against 113 MB, and the sweeps read every value stored). The
+sweeps are memory-bound: on the two cores of the reference machine one thread streams 10-13 GB/s
+through factors larger than the cache. No factor is ever held twice over. A large linear
+block is factorised in parts, one after the other (``SplitBorderedLU``: halves or quarters),
+which divides the factorisation's peak memory, and its parts are swept by two threads
+(``_each_part``); an elastic (symmetric) one holds L and U's diagonal only.
 """
 from __future__ import annotations
 
@@ -103,14 +105,29 @@ def _supernodes(indptr, indices, n):
     return starts[:count + 1]
 
 
+@helper
+def _triangle(w):
+    """Values of a supernode's w x w diagonal block stored by rows, up to its diagonal."""
+    return w * (w + 1) // 2
+
+
+@helper
+def _below(v0, w):
+    """Where a block whose values start at ``v0`` would hold its row 0 if every row were w
+    long: row k >= w (below the triangle) starts at ``_below(v0, w) + k * w``."""
+    return v0 + _triangle(w) - w * w
+
+
 @kernel
 def _pack(indptr, indices, data, n, for_backward):
-    """The first ``n`` columns of a lower triangular CSC matrix by supernodes (``_supernodes``),
-    each a dense block: supernode t
-    (columns j0 .. j0 + w - 1 from ``first``/``width``, the m rows ``rows[row_at[t]:row_at[t+1]]``
-    of column j0, its own first) is a row-major m x w block at ``values[value_at[t]:]``, zeros
-    above the diagonal. ``for_backward``: last supernode first, the order of a backward sweep,
-    so that it too reads memory forwards."""
+    """The first ``n`` columns of a lower triangular CSC matrix by supernodes (``_supernodes``):
+    supernode t (columns j0 .. j0 + w - 1 from ``first``/``width``, the m rows
+    ``rows[row_at[t]:row_at[t+1]]`` of column j0, its own first) is a dense block at
+    ``values[value_at[t]:]``, by rows: its triangle (row k, k < w, holds columns 0..k: the
+    diagonal block without the zeros above its diagonal, which a square block would store, a
+    tenth of Rustrel's factors), then the m - w rows below, w values each (``_below``).
+    ``for_backward``: last supernode first, the order of a backward sweep, so that it too reads
+    memory forwards."""
     starts = _supernodes(indptr, indices, n)
     n_sn = len(starts) - 1
     first = np.empty(n_sn, dtype=np.int64)
@@ -123,7 +140,7 @@ def _pack(indptr, indices, data, n, for_backward):
         m = indptr[j0 + 1] - indptr[j0]
         first[t], width[t] = j0, w
         row_at[t + 1] = row_at[t] + m
-        value_at[t + 1] = value_at[t] + m * w
+        value_at[t + 1] = value_at[t] + _triangle(w) + (m - w) * w
     rows = np.empty(row_at[n_sn], dtype=indices.dtype)
     values = np.zeros(value_at[n_sn])
     for t in range(n_sn):
@@ -132,11 +149,37 @@ def _pack(indptr, indices, data, n, for_backward):
         m = row_at[t + 1] - r0
         for k in range(m):
             rows[r0 + k] = indices[indptr[j0] + k]
+        below = _below(v0, w)
         for c in range(w):  # column j0 + c holds rows[c:]
             col = indptr[j0 + c] - c
-            for k in range(c, m):
-                values[v0 + k * w + c] = data[col + k]
+            for k in range(c, w):
+                values[v0 + _triangle(k) + c] = data[col + k]
+            for k in range(w, m):
+                values[below + k * w + c] = data[col + k]
     return first, width, row_at, value_at, rows, values
+
+
+@kernel
+def _compact(width, value_at, values):
+    """Factors packed with square diagonal blocks (each supernode a row-major m x w block, zeros
+    above its diagonal: ``ldl.factorise``'s layout) in ``_pack``'s layout: (value_at, values)."""
+    n_sn = len(width)
+    at = np.zeros(n_sn + 1, dtype=np.int64)
+    for t in range(n_sn):
+        w = width[t]
+        m = (value_at[t + 1] - value_at[t]) // w
+        at[t + 1] = at[t] + _triangle(w) + (m - w) * w
+    out = np.empty(at[n_sn])
+    for t in range(n_sn):
+        w, v0, a0 = width[t], value_at[t], at[t]
+        for k in range(w):
+            for c in range(k + 1):
+                out[a0 + _triangle(k) + c] = values[v0 + k * w + c]
+        a = a0 + _triangle(w)
+        for i in range(v0 + w * w, value_at[t + 1]):   # (the rows below: as they are)
+            out[a] = values[i]
+            a += 1
+    return at, out
 
 
 @sweep_kernel
@@ -161,14 +204,15 @@ def _forward_sweep(first, width, row_at, value_at, rows, values, r):
         if not nonzero:
             continue
         for k in range(1, w):  # the triangle by rows: dot products along a block row
-            b = v0 + k * w
+            b = v0 + _triangle(k)
             a0 = 0.0
             for c in range(k):
                 a0 += values[_u(b + c)] * r[_u(j0 + c)]
             r[_u(j0 + k)] -= a0
+        below = _below(v0, w)
         k = w
         while k + 4 <= m:
-            b = v0 + k * w
+            b = below + k * w
             a0 = a1 = a2 = a3 = 0.0
             for c in range(w):
                 yc = r[_u(j0 + c)]
@@ -182,7 +226,7 @@ def _forward_sweep(first, width, row_at, value_at, rows, values, r):
             r[_u(rows[_u(r0 + k + 3)])] -= a3
             k += 4
         for k in range(k, m):
-            b = v0 + k * w
+            b = below + k * w
             a0 = 0.0
             for c in range(w):
                 a0 += values[_u(b + c)] * r[_u(j0 + c)]
@@ -216,13 +260,14 @@ def _backward_sweep(first, width, row_at, value_at, rows, values, diagonal, reve
         m = row_at[t + 1] - r0
         for c in range(w):
             acc[_u(c)] = 0.0
+        below = _below(v0, w)
         groups = (m - w) // 4
         for g in range(groups):
             # the rows below the triangle four at a time: from the block's end when reverse
             k = m - 4 * (g + 1) if reverse else w + 4 * g
             x0, x1 = x[_u(rows[_u(r0 + k)])], x[_u(rows[_u(r0 + k + 1)])]
             x2, x3 = x[_u(rows[_u(r0 + k + 2)])], x[_u(rows[_u(r0 + k + 3)])]
-            b = v0 + k * w
+            b = below + k * w
             if reverse:
                 for cc in range(w):
                     c = w - 1 - cc
@@ -236,11 +281,11 @@ def _backward_sweep(first, width, row_at, value_at, rows, values, diagonal, reve
         for i in range(left):
             k = w + left - 1 - i if reverse else w + 4 * groups + i
             xk = x[_u(rows[_u(r0 + k)])]
-            b = v0 + k * w
+            b = below + k * w
             for c in range(w):
                 acc[_u(c)] += values[_u(b + c)] * xk
         for c in range(w - 1, -1, -1):  # the triangle: each unknown, once known, into the
-            b = v0 + c * w             # sums of those before it (along its block row)
+            b = v0 + _triangle(c)      # sums of those before it (along its block row)
             if scaled:   # (x_j = (c_j - d_j sum_k L_kj x_k) / d_j)
                 d = diagonal[_u(j0 + c)]
                 xc = (x[_u(j0 + c)] - d * acc[_u(c)]) / d
@@ -371,6 +416,7 @@ class BorderedLU:
 
     def _take(self, packed, diagonal, schur, nnz):
         (first, width, row_at, value_at, rows, values), self._D, self.schur = packed, diagonal, schur
+        value_at, values = _compact(width, value_at, values)   # (the square blocks go here)
         self.quasi_definite = True
         self.nnz = 2 * nnz   # (as L + U)
         self._row_B = np.arange(self.n_linear)
