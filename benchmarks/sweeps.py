@@ -7,11 +7,12 @@ Each scene is stepped three times (its factors made as in a run), then its facto
 solver holds them (``bordered_lu.BorderedLU``, or ``SplitBorderedLU``'s parts) and each sweep is
 timed on them alone. Per part:
 
-- what its packed factor holds, in MB: ``values`` (all of them), of which ``upper`` (the zeros
-  above each supernode's diagonal block: stored only by a square layout), ``diag`` (L's unit
-  diagonal), ``zeros`` (other zeros: the amalgamated supernodes' fill) and ``border`` (the rows
-  of the condensed unknowns and separators, L21: both sweeps read them), and ``rows`` (the row
-  indices);
+- what its packed factor holds, in MB: ``values`` (all of them; ``square``: what square
+  diagonal blocks would hold, the layout before the triangles were stored up to their
+  diagonal), of which ``upper`` (zeros stored above a supernode's diagonal: none in that
+  layout), ``diag`` (the diagonal), ``zeros`` (other zeros: the amalgamated supernodes' fill)
+  and ``border`` (the rows of the condensed unknowns and separators, L21: both sweeps read
+  them), and ``rows`` (the row indices);
 - ``least``: what a sweep must read at the least, L's entries below the diagonal (amalgamation's
   zeros counted: they are the layout's, not the padding's) with their row indices, and the
   right-hand side read and written once;
@@ -70,8 +71,10 @@ def accounting(part):
     if part._U is not None:   # (SuperLU's unsymmetric form: U packed beside L, counted with it)
         values = np.concatenate([values, part._U.arrays[5]])
     m = np.diff(row_at)
-    diagonal = int(width.sum()) * (1 if part._U is None else 2)
-    upper = int((width * (width - 1) // 2).sum()) * (1 if part._U is None else 2)
+    factors = 1 if part._U is None else 2
+    diagonal = int(width.sum()) * factors
+    square = int((m * width).sum()) * factors   # (values in square diagonal blocks)
+    upper = values.size - int((width * (width + 1) // 2 + (m - width) * width).sum()) * factors
     border = 0
     for t in range(len(width)):
         border += int(np.count_nonzero(rows[row_at[t]:row_at[t + 1]] >= part.n_linear)) * int(width[t])
@@ -79,7 +82,8 @@ def accounting(part):
     index_bytes = rows.nbytes * (1 if part._U is None else 2)
     least = (values.size - upper - diagonal) * 8 + index_bytes + 2 * 8 * part.n
     mb = 1e-6 * 8
-    return dict(values=values.size * mb, upper=upper * mb, diag=diagonal * mb, zeros=zeros * mb,
+    return dict(values=values.size * mb, square=square * mb, upper=upper * mb, diag=diagonal * mb,
+                zeros=zeros * mb,
                 border=border * mb, rows=1e-6 * index_bytes, least=1e-6 * least,
                 streamed=1e-6 * (values.nbytes + index_bytes), m_max=int(m.max()),
                 width_mean=float(width.mean()))
@@ -196,16 +200,18 @@ def main(argv=None):
         lu = factors_of(name)
         parts = getattr(lu, "_parts", [lu])
         print(f"\n## {name}: {lu.n} unknowns, {lu.n_linear} linear, {len(parts)} part(s)")
-        print("| part | unknowns | values MB | upper | diag | zeros | border | rows MB | least MB "
+        print("| part | unknowns | values MB | square MB | upper | diag | zeros | border | rows MB "
+              "| least MB "
               "| fwd ms | fwd GB/s | bwd ms | bwd GB/s |")
-        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
         total = dict(fwd=0.0, bwd=0.0)
         for i, part in enumerate(parts):
             a = accounting(part)
             fwd, bwd = part_sweeps(part, args.repeat)
             total["fwd"] += fwd
             total["bwd"] += bwd
-            print(f"| {i} | {part.n} | {a['values']:.1f} | {a['upper']:.1f} | {a['diag']:.2f} "
+            print(f"| {i} | {part.n} | {a['values']:.1f} | {a['square']:.1f} | {a['upper']:.1f} "
+                  f"| {a['diag']:.2f} "
                   f"| {a['zeros']:.1f} | {a['border']:.1f} | {a['rows']:.2f} | {a['least']:.1f} "
                   f"| {1e3 * fwd:.2f} | {1e-3 * a['streamed'] / fwd:.1f} "
                   f"| {1e3 * bwd:.2f} | {1e-3 * a['streamed'] / bwd:.1f} |")
