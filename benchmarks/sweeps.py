@@ -77,7 +77,8 @@ def accounting(part):
     upper = values.size - int((width * (width + 1) // 2 + (m - width) * width).sum()) * factors
     border = 0
     for t in range(len(width)):
-        border += int(np.count_nonzero(rows[row_at[t]:row_at[t + 1]] >= part.n_linear)) * int(width[t])
+        on_border = rows[row_at[t]:row_at[t + 1]] >= part.n_linear
+        border += int(np.count_nonzero(on_border)) * int(width[t])
     zeros = int(np.count_nonzero(values == 0.0)) - upper
     index_bytes = rows.nbytes * (1 if part._U is None else 2)
     least = (values.size - upper - diagonal) * 8 + index_bytes + 2 * 8 * part.n
@@ -191,7 +192,8 @@ def separator(lu, repeat):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenes", nargs="*", default=list(SCENES[:2]), choices=SCENES)
     ap.add_argument("--repeat", type=int, default=15)
     args = ap.parse_args(argv)
