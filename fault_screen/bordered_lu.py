@@ -658,7 +658,10 @@ def _each_part(n, halves, sweep):
                 if _sweeper is None:
                     _sweeper = ThreadPoolExecutor(1, thread_name_prefix="fault-screen-sweep")
         mine, theirs = halves
-        future = _sweeper.submit(lambda: [sweep(i) for i in theirs])
+        try:
+            future = _sweeper.submit(lambda: [sweep(i) for i in theirs])
+        except RuntimeError:   # (the interpreter shutting down takes no new work: sweep alone)
+            return [sweep(i) for i in range(n)]
         try:
             done = {i: sweep(i) for i in mine}
         finally:

@@ -6,6 +6,7 @@ separator and the fault's unknowns; also with several callers sweeping the same 
 and the others sweep their parts themselves. And the threaded sweeps solve the system: against
 numpy's dense solves to 1e-11 (tests/solver/test_bordered_lu.py's check)."""
 import threading
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -90,6 +91,18 @@ def test_callers_at_once_each_get_their_own_answer(split):
     for t in threads:
         t.join()
     assert not errors and not wrong
+
+
+def test_a_worker_that_takes_no_work_leaves_the_sweeps_to_the_caller(split, monkeypatch):
+    """A worker shut down (the interpreter exiting while a thread still steps): the caller sweeps
+    every part itself, the same bits."""
+    lu, M, nB = split
+    stopped = ThreadPoolExecutor(1)
+    stopped.shutdown()
+    monkeypatch.setattr(bordered_lu, "_sweeper", stopped)
+    for threaded, alone in zip(_sweeps(lu, 5), _sweeps(_serial(lu), 5)):
+        assert np.array_equal(threaded, alone)
+    assert not bordered_lu._sweeper_busy.locked()
 
 
 def test_small_parts_stay_in_one_thread():
