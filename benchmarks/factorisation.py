@@ -286,15 +286,18 @@ def fronts(key, repeat):
     blas = (w >= ldl.BLAS_MIN_WIDTH) & (u >= ldl.BLAS_MIN_ROWS)
     print(f"\n{key}: bulk {nB} unknowns, N {S.shape[0] - nB}, {len(m)} supernodes "
           f"({int(blas.sum())} through BLAS), L {int(np.sum(m * w))} entries packed")
-    print(f"multiply-adds (M): pivot blocks {pivot.sum() / 1e6:.1f}, rows below {below.sum() / 1e6:.1f}, "
-          f"updates {update.sum() / 1e6:.1f}; total {total.sum() / 1e6:.1f}, of which caused by N "
+    print(f"multiply-adds (M): pivot blocks {pivot.sum() / 1e6:.1f}, "
+          f"rows below {below.sum() / 1e6:.1f}, updates {update.sum() / 1e6:.1f}; "
+          f"total {total.sum() / 1e6:.1f}, of which caused by N "
           f"{by_N.sum() / 1e6:.1f} ({100 * by_N.sum() / total.sum():.0f} %); extend-add entries "
           f"{np.sum((u * (u + 1) / 2.0)[tparent >= 0]) / 1e6:.1f} M")
-    print("| front rows | fronts | multiply-adds (M) | N's share | median width |\n|---|---|---|---|---|")
+    print("| front rows | fronts | multiply-adds (M) | N's share | median width |\n"
+          "|---|---|---|---|---|")
     for lo, hi in ((0, 64), (64, 128), (128, 256), (256, 512), (512, 1 << 40)):
         at = (m >= lo) & (m < hi)
         if at.any():
-            print(f"| {lo}-{hi if hi < 1 << 40 else ''} | {int(at.sum())} | {total[at].sum() / 1e6:.1f} "
+            print(f"| {lo}-{hi if hi < 1 << 40 else ''} | {int(at.sum())} "
+                  f"| {total[at].sum() / 1e6:.1f} "
                   f"| {100 * by_N[at].sum() / total[at].sum():.0f} % | {np.median(w[at]):.0f} |")
     args = (lower.indptr, lower.indices, lower.data, nB, first, width, row_at, srows, tparent,
             children, relative)
@@ -333,7 +336,8 @@ def main(argv=None):
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--no-write", action="store_true", help="print only")
     parser.add_argument("--fronts", action="store_true",
-                        help="where the numeric LDL^T's work goes (see the docstring), printed only")
+                        help="where the numeric LDL^T's work goes (see the docstring), "
+                             "printed only")
     args = parser.parse_args(argv)
     from threadpoolctl import threadpool_limits
 

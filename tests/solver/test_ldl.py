@@ -227,7 +227,8 @@ def test_a_wide_dense_front_by_panels(n, nB):
     """A dense quasi-definite block [[K, Q], [Q^T, -H]] (K, H positive definite), its last
     n - nB unknowns the border: one supernode as wide as the bulk, eliminated a panel of
     ldl.PANEL columns at a time, each panel's rows solved in blocks of ldl.SOLVE_BLOCK and
-    updated in blocks of ldl.UPDATE_BLOCK (several of each, and partial last ones), against numpy to 1e-11 and the backward error below 1e-15."""
+    updated in blocks of ldl.UPDATE_BLOCK (several of each, and partial last ones), against
+    numpy to 1e-11 and the backward error below 1e-15."""
     rng = np.random.default_rng(n)
     k = nB // 2
     G = rng.standard_normal((n, n))
