@@ -36,6 +36,15 @@ Columns: factor time, solve time (one right-hand side), the factors' memory (val
 and the relative residual |M x - b| / |b| of the solve on the unsymmetric M, b random. The
 ``asym`` column is max |S - S^T| / max |S| (0 up to round-off where the symmetric form holds).
 The table is printed and written to docs/performance/factorisation.md (generated: do not edit).
+
+``--fronts`` prints instead, per scene at the largest step size, where the numeric LDL^T's work
+goes: multiply-adds of the pivot blocks, of the rows below them (L21) and of the updates of the
+later rows, with the part that the condensed rows N cause (their rows of L21, their updates of
+S and of the bulk rows), by front size; the entries moved by the extend-add; the CPU time of the
+numeric factorisation with the large fronts through BLAS (``ldl.BLAS_MIN_WIDTH`` and
+``BLAS_MIN_ROWS``) and with every front by loops, the same matrix alternately in one run; and the
+CPU time of numpy's matrix product (BLAS dgemm, one thread) on the very shapes of the products
+the BLAS fronts make, which bounds what those fronts can take.
 Every timing is the least CPU time of ``--repeat`` runs in this one process, with one BLAS
 thread (on a shared machine wall time measures the other processes too); compare rows of one
 run. Each method factorises the whole free matrix in one call: the solver splits a
@@ -257,13 +266,88 @@ def table(rows):
     return "\n".join(lines)
 
 
+def fronts(key, repeat):
+    """The ``--fronts`` report of one scene (see the module docstring), printed."""
+    from fault_screen import ldl
+
+    (M, E, nB), = free_matrices(_scene(key), STEP_SIZES[-1:])[0]
+    S = (sp.diags(E) @ M).tocsc()
+    lower, condensed = ldl._lower(S, nB), S[nB:, nB:].toarray()
+    first, width, row_at, srows, tparent, children, relative = \
+        ldl.SymbolicAnalyses().of(lower, nB).tree
+    m = np.diff(row_at)
+    w = width
+    u = m - w
+    m_N = np.add.reduceat((srows >= nB).astype(np.int64), row_at[:-1]) if len(m) else m
+    u_B = u - m_N
+    pivot, below, update = w ** 3 / 6.0, u * w * w / 2.0, w * u * (u + 1) / 2.0
+    by_N = m_N * w * w / 2.0 + w * (m_N * u_B + m_N * (m_N + 1) / 2.0)
+    total = pivot + below + update
+    blas = (w >= ldl.BLAS_MIN_WIDTH) & (u >= ldl.BLAS_MIN_ROWS)
+    print(f"\n{key}: bulk {nB} unknowns, N {S.shape[0] - nB}, {len(m)} supernodes "
+          f"({int(blas.sum())} through BLAS), L {int(np.sum(m * w))} entries packed")
+    print(f"multiply-adds (M): pivot blocks {pivot.sum() / 1e6:.1f}, "
+          f"rows below {below.sum() / 1e6:.1f}, updates {update.sum() / 1e6:.1f}; "
+          f"total {total.sum() / 1e6:.1f}, of which caused by N "
+          f"{by_N.sum() / 1e6:.1f} ({100 * by_N.sum() / total.sum():.0f} %); extend-add entries "
+          f"{np.sum((u * (u + 1) / 2.0)[tparent >= 0]) / 1e6:.1f} M")
+    print("| front rows | fronts | multiply-adds (M) | N's share | median width |\n"
+          "|---|---|---|---|---|")
+    for lo, hi in ((0, 64), (64, 128), (128, 256), (256, 512), (512, 1 << 40)):
+        at = (m >= lo) & (m < hi)
+        if at.any():
+            print(f"| {lo}-{hi if hi < 1 << 40 else ''} | {int(at.sum())} "
+                  f"| {total[at].sum() / 1e6:.1f} "
+                  f"| {100 * by_N[at].sum() / total[at].sum():.0f} % | {np.median(w[at]):.0f} |")
+    args = (lower.indptr, lower.indices, lower.data, nB, first, width, row_at, srows, tparent,
+            children, relative)
+    times = {"BLAS fronts": np.inf, "loops only": np.inf}
+    for _ in range(repeat):
+        for name, limits in (("BLAS fronts", (ldl.BLAS_MIN_WIDTH, ldl.BLAS_MIN_ROWS)),
+                             ("loops only", (1 << 40, 1 << 40))):
+            t = _best(lambda: ldl._numeric(*args, condensed.copy(), *limits), 1)[0]
+            times[name] = min(times[name], t)
+    shapes = []   # (rows, inner, columns) of each product the BLAS fronts make
+    for t in np.flatnonzero(blas):
+        c0 = 0
+        while c0 < w[t]:
+            b = min(ldl.PANEL, w[t] - c0)
+            n_below = m[t] - c0 - b
+            shapes += [(min(ldl.SOLVE_BLOCK, b - s0), s0, n_below)
+                       for s0 in range(ldl.SOLVE_BLOCK, b, ldl.SOLVE_BLOCK)]
+            shapes += [(min(i0 + ldl.UPDATE_BLOCK, n_below) - i0, b,
+                        min(i0 + ldl.UPDATE_BLOCK, n_below))
+                       for i0 in range(0, n_below, ldl.UPDATE_BLOCK)]
+            c0 += b
+    rng = np.random.default_rng(0)
+    operands = [(rng.random((a, k)), rng.random((c, k)).T) for a, k, c in shapes]
+    t_dot = _best(lambda: [np.dot(x, y) for x, y in operands], repeat)[0]
+    products = sum(a * k * c for a, k, c in shapes)
+    print(f"numeric CPU: {1e3 * times['BLAS fronts']:.1f} ms with the BLAS fronts "
+          f"({total.sum() / times['BLAS fronts'] / 1e9:.1f} G multiply-adds/s), "
+          f"{1e3 * times['loops only']:.1f} ms by loops alone; numpy dot alone on the BLAS "
+          f"fronts' {len(shapes)} product shapes ({products / 1e6:.1f} M multiply-adds): "
+          f"{1e3 * t_dot:.1f} ms ({products / t_dot / 1e9:.1f} G/s)")
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--scenes", nargs="*", default=list(SCENES), choices=SCENES)
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--no-write", action="store_true", help="print only")
+    parser.add_argument("--fronts", action="store_true",
+                        help="where the numeric LDL^T's work goes (see the docstring), "
+                             "printed only")
     args = parser.parse_args(argv)
     from threadpoolctl import threadpool_limits
+
+    if args.fronts:
+        load0 = os.getloadavg()[0]
+        for key in args.scenes:
+            with threadpool_limits(limits=1, user_api="blas"):
+                fronts(key, args.repeat)
+        print(f"\nload average {load0:.1f} before, {os.getloadavg()[0]:.1f} after")
+        return
 
     load0 = os.getloadavg()[0]
     rows = []

@@ -316,15 +316,116 @@ def _update_rows4(front, panel_t, m, w, i):
         _update_row(front, panel_t, m, w, i + t, i + 1)
 
 
+#: a front goes through BLAS-3 (``_panel_by_blas``) when its supernode is at least this wide
+#: and it has at least this many rows below it (on paper-units Rustrel any limits from 8 wide
+#: and 16 rows to 32 wide and 128 rows took the same time to a few per cent: the fronts below
+#: them hold 10 % of the work; ``benchmarks/factorisation.py --fronts``)
+BLAS_MIN_WIDTH = 16
+BLAS_MIN_ROWS = 32
+#: such a front's columns are eliminated a panel of at most this many at a time, each panel's
+#: rows below it and their update of all the later rows by BLAS (the pivot blocks by loops)
+PANEL = 96
+#: the rows of L21^T solved together (their sum over the earlier rows is one product), and
+#: the rows of the trailing block updated together (``_panel_by_blas``)
+SOLVE_BLOCK = 16
+UPDATE_BLOCK = 128
+
+
+@helper
+def _pivot_block(front, m, o, w, diagonal, j0, column_d):
+    """F11 = L11 D L11^T of the w x w block at ``front[o]`` (row stride m), right-looking, each
+    pivot's column (d l) kept in column_d so that the rows' updates run along contiguous
+    memory; the pivots into ``diagonal[j0:j0 + w]``, L11 in the block's lower triangle."""
+    for c in range(w):
+        d = front[o + c * m + c]
+        diagonal[j0 + c] = d
+        for k in range(c + 1, w):
+            column_d[k] = front[o + k * m + c]
+            front[o + k * m + c] = column_d[k] / d
+        for i in range(c + 1, w):
+            li = front[_u(o + i * m + c)]
+            row = o + i * m
+            for k in range(c + 1, i + 1):
+                front[_u(row + k)] -= li * column_d[_u(k)]
+
+
+@helper
+def _panel_by_blas(front, m, o, n, w, d, xt, lrows, dlrows, strip, product):
+    """The rows below a factorised pivot block and their update of the trailing block by matrix
+    products (np.dot on contiguous blocks: BLAS's dgemm), for a panel of a large front.
+
+    The panel's block is n x n at ``front[o]`` (row stride m), its pivot block (the first w
+    rows and columns) factorised (``_pivot_block``), ``d`` its pivots. On return the block's
+    first w columns below the pivot block hold L21 = F21 (D L11^T)^-1 and its trailing block
+    (lower triangle) F22 - L21 D L21^T. L21^T is solved in ``xt`` (w x u, u = n - w): row c of
+    it is (F21^T[c] - sum_{k<c} d_k L11[c, k] L21^T[k]) / d_c, each block of rows' sum over
+    the earlier rows one product, the rows within the block by axpys along contiguous rows.
+    The update goes by blocks of rows, each over the columns up to its diagonal only (about half
+    the full product's work), from ``lrows`` = L21 and ``dlrows`` = L21 D (u x w, row-major)."""
+    u = n - w
+    for k in range(u):   # xt = F21^T
+        row = o + (w + k) * m
+        for c in range(w):
+            xt[_u(c * u + k)] = front[_u(row + c)]
+    c0 = 0
+    while c0 < w:
+        c1 = min(c0 + SOLVE_BLOCK, w)
+        h = c1 - c0
+        if c0 > 0:
+            s = strip[:h * c0].reshape(h, c0)
+            for a in range(h):
+                row = o + (c0 + a) * m
+                for k in range(c0):
+                    s[a, k] = d[k] * front[_u(row + k)]
+            out = product[:h * u].reshape(h, u)
+            np.dot(s, xt[:c0 * u].reshape(c0, u), out)
+            for a in range(h):
+                at = (c0 + a) * u
+                for k in range(u):
+                    xt[_u(at + k)] -= out[a, k]
+        for c in range(c0, c1):
+            at = c * u
+            for k in range(c0, c):
+                f = d[k] * front[_u(o + c * m + k)]
+                kt = k * u
+                for r in range(u):
+                    xt[_u(at + r)] -= f * xt[_u(kt + r)]
+            pivot = d[c]
+            for r in range(u):
+                xt[_u(at + r)] /= pivot
+        c0 = c1
+    for k in range(u):   # L21 (into the front and lrows) and L21 D, row-major
+        row = o + (w + k) * m
+        for c in range(w):
+            x = xt[_u(c * u + k)]
+            front[_u(row + c)] = x
+            lrows[_u(k * w + c)] = x
+            dlrows[_u(k * w + c)] = d[c] * x
+    i0 = 0
+    while i0 < u:
+        i1 = min(i0 + UPDATE_BLOCK, u)
+        h = i1 - i0
+        out = product[:h * i1].reshape(h, i1)
+        np.dot(lrows[i0 * w:i1 * w].reshape(h, w), dlrows[:i1 * w].reshape(i1, w).T, out)
+        for a in range(h):
+            row = o + (w + i0 + a) * m + w
+            for k in range(i0 + a + 1):
+                front[_u(row + k)] -= out[a, k]
+        i0 = i1
+
+
 @kernel
 def _numeric(indptr, indices, data, n_linear, first, width, row_at, srows, tparent, children,
-             relative, schur):
+             relative, schur, blas_width=BLAS_MIN_WIDTH, blas_rows=BLAS_MIN_ROWS):
     """The multifrontal LDL^T over the supernodes in postorder (see the module docstring).
 
     ``indptr, indices, data``: the lower triangle of the first n_linear columns (CSC, rows >= the
     column). ``schur`` holds M_NN on entry and the Schur complement on return. Returns the
     packed L (``bordered_lu._pack``'s layout: row-major m x w blocks, unit diagonal), D, and the
-    smallest |d| / largest |d| (0 or NaN: not quasi-definite)."""
+    smallest |d| / largest |d| (0 or NaN: not quasi-definite). A front whose supernode is at
+    least ``blas_width`` wide with at least ``blas_rows`` rows below it takes its rows below
+    and its update by BLAS, a panel of columns at a time (``_panel_by_blas``), the others by
+    the loops here."""
     n_sn = len(first)
     value_at = np.zeros(n_sn + 1, dtype=np.int64)
     largest_front = 0
@@ -332,12 +433,23 @@ def _numeric(indptr, indices, data, n_linear, first, width, row_at, srows, tpare
         m = row_at[t + 1] - row_at[t]
         value_at[t + 1] = value_at[t] + m * width[t]
         largest_front = max(largest_front, m)
-    values = np.zeros(value_at[n_sn])
+    values = np.empty(value_at[n_sn])
     diagonal = np.empty(n_linear)
     front = np.empty(largest_front * largest_front)
     panel_t = np.empty(largest_front * max(1, np.max(width)) if n_sn else 1)
     where = np.full(n_linear + schur.shape[0], -1, dtype=np.int64)
     column_d = np.empty(max(1, np.max(width)) if n_sn else 1)
+    # the BLAS path's buffers, sized for its largest front
+    big_w = big_m = 1
+    for t in range(n_sn):
+        u = row_at[t + 1] - row_at[t] - width[t]
+        if width[t] >= blas_width and u >= blas_rows:
+            big_w, big_m = PANEL, max(big_m, row_at[t + 1] - row_at[t])
+    xt = np.empty(big_w * big_m)
+    lrows = np.empty(big_w * big_m)
+    dlrows = np.empty(big_w * big_m)
+    strip = np.empty(min(SOLVE_BLOCK, big_w) * big_w)
+    product = np.empty(max(SOLVE_BLOCK, UPDATE_BLOCK) * big_m)
     # the update matrices waiting for their parent, stacked (postorder: a parent's are on top)
     stack_size = 0   # (its peak, found by a dry run of the pushes and pops below)
     held = np.zeros(n_sn + 1, dtype=np.int64)
@@ -358,8 +470,9 @@ def _numeric(indptr, indices, data, n_linear, first, width, row_at, srows, tpare
         j0, w = first[t], width[t]
         r0 = row_at[t]
         m = row_at[t + 1] - r0
-        for a in range(m * m):
-            front[a] = 0.0
+        for a in range(m):   # (only the lower triangle is read)
+            for b in range(a + 1):
+                front[_u(a * m + b)] = 0.0
         for k in range(m):
             where[srows[r0 + k]] = k
         for c in range(w):   # the matrix's own entries of the supernode's columns
@@ -374,71 +487,75 @@ def _numeric(indptr, indices, data, n_linear, first, width, row_at, srows, tpare
             u = row_at[child + 1] - c0
             for a in range(u):
                 ra = relative[c0 + a] * m
+                at = base + a * u
                 for b in range(a + 1):
-                    front[ra + relative[c0 + b]] += stack[base + a * u + b]
-        # the supernode's pivots: F11 = L11 D L11^T, right-looking, each pivot's column (d l)
-        # kept in column_d so that the rows' updates run along contiguous memory
-        for c in range(w):
-            d = front[c * m + c]
-            diagonal[j0 + c] = d
-            for k in range(c + 1, w):
-                column_d[k] = front[k * m + c]
-                front[k * m + c] = column_d[k] / d
-            for i in range(c + 1, w):
-                li = front[_u(i * m + c)]
+                    front[_u(ra + relative[_u(c0 + b)])] += stack[_u(at + b)]
+        if w >= blas_width and m - w >= blas_rows:
+            # a panel of columns at a time: its pivots, then its rows below and their update
+            # of all the later rows (also the supernode's later columns) by BLAS
+            c0 = 0
+            while c0 < w:
+                b = min(PANEL, w - c0)
+                o = c0 * m + c0
+                _pivot_block(front, m, o, b, diagonal, j0 + c0, column_d)
+                _panel_by_blas(front, m, o, m - c0, b, diagonal[j0 + c0:j0 + c0 + b], xt,
+                               lrows, dlrows, strip, product)
+                c0 += b
+        else:
+            _pivot_block(front, m, 0, w, diagonal, j0, column_d)
+            # L11^T D, transposed into panel_t (w rows of m): panel_t[c, k] = d_c L[k, c]
+            for c in range(w):
+                d = diagonal[j0 + c]
+                for k in range(w):
+                    panel_t[c * m + k] = d * front[k * m + c] if k > c else (d if k == c else 0.0)
+            # the rows below: L21 = F21 (D L11^T)^-1, a row at a time, each by forward substitution
+            # in axpy form (contiguous in panel_t)
+            i = w
+            while i + 4 <= m:   # four rows at a time: each row of panel_t read once for four
+                row0, row1, row2, row3 = i * m, (i + 1) * m, (i + 2) * m, (i + 3) * m
+                for c in range(w):
+                    pc = c * m
+                    pivot = panel_t[_u(pc + c)]
+                    x0, x1 = front[_u(row0 + c)] / pivot, front[_u(row1 + c)] / pivot
+                    x2, x3 = front[_u(row2 + c)] / pivot, front[_u(row3 + c)] / pivot
+                    front[_u(row0 + c)], front[_u(row1 + c)] = x0, x1
+                    front[_u(row2 + c)], front[_u(row3 + c)] = x2, x3
+                    for k in range(c + 1, w):
+                        entry = panel_t[_u(pc + k)]
+                        front[_u(row0 + k)] -= x0 * entry
+                        front[_u(row1 + k)] -= x1 * entry
+                        front[_u(row2 + k)] -= x2 * entry
+                        front[_u(row3 + k)] -= x3 * entry
+                i += 4
+            for i in range(i, m):
                 row = i * m
-                for k in range(c + 1, i + 1):
-                    front[_u(row + k)] -= li * column_d[_u(k)]
-        # L11^T D, transposed into panel_t (w rows of m): panel_t[c, k] = d_c L[k, c]
-        for c in range(w):
-            d = diagonal[j0 + c]
-            for k in range(w):
-                panel_t[c * m + k] = d * front[k * m + c] if k > c else (d if k == c else 0.0)
-        # the rows below: L21 = F21 (D L11^T)^-1, a row at a time, each by forward substitution
-        # in axpy form (contiguous in panel_t)
-        i = w
-        while i + 4 <= m:   # four rows at a time: each row of panel_t read once for four
-            row0, row1, row2, row3 = i * m, (i + 1) * m, (i + 2) * m, (i + 3) * m
+                for c in range(w):
+                    x = front[row + c] / panel_t[c * m + c]
+                    front[row + c] = x
+                    for k in range(c + 1, w):
+                        front[row + k] -= x * panel_t[c * m + k]
+            # D L21^T into panel_t's columns w..m-1, then the update F22 -= L21 D L21^T (lower)
             for c in range(w):
-                pc = c * m
-                pivot = panel_t[_u(pc + c)]
-                x0, x1 = front[_u(row0 + c)] / pivot, front[_u(row1 + c)] / pivot
-                x2, x3 = front[_u(row2 + c)] / pivot, front[_u(row3 + c)] / pivot
-                front[_u(row0 + c)], front[_u(row1 + c)] = x0, x1
-                front[_u(row2 + c)], front[_u(row3 + c)] = x2, x3
-                for k in range(c + 1, w):
-                    entry = panel_t[_u(pc + k)]
-                    front[_u(row0 + k)] -= x0 * entry
-                    front[_u(row1 + k)] -= x1 * entry
-                    front[_u(row2 + k)] -= x2 * entry
-                    front[_u(row3 + k)] -= x3 * entry
-            i += 4
-        for i in range(i, m):
-            row = i * m
-            for c in range(w):
-                x = front[row + c] / panel_t[c * m + c]
-                front[row + c] = x
-                for k in range(c + 1, w):
-                    front[row + k] -= x * panel_t[c * m + k]
-        # D L21^T into panel_t's columns w..m-1, then the update F22 -= L21 D L21^T (lower)
-        for c in range(w):
-            d = diagonal[j0 + c]
-            for k in range(w, m):
-                panel_t[c * m + k] = d * front[k * m + c]
-        i = w
-        while i + 4 <= m:   # four rows at a time (each column of panel_t read once for four)
-            _update_rows4(front, panel_t, m, w, i)
-            i += 4
-        for i in range(i, m):
-            _update_row(front, panel_t, m, w, i, w)
+                d = diagonal[j0 + c]
+                for k in range(w, m):
+                    panel_t[c * m + k] = d * front[k * m + c]
+            i = w
+            while i + 4 <= m:   # four rows at a time (each column of panel_t read once for four)
+                _update_rows4(front, panel_t, m, w, i)
+                i += 4
+            for i in range(i, m):
+                _update_row(front, panel_t, m, w, i, w)
         # the packed factor: rows 0..m-1, columns 0..w-1, unit diagonal, zeros above it
         v0 = value_at[t]
-        for k in range(m):
+        for k in range(w):
+            for c in range(k):
+                values[_u(v0 + k * w + c)] = front[_u(k * m + c)]
+            values[v0 + k * w + k] = 1.0
+            for c in range(k + 1, w):
+                values[_u(v0 + k * w + c)] = 0.0
+        for k in range(w, m):
             for c in range(w):
-                if c < k:
-                    values[v0 + k * w + c] = front[k * m + c]
-                elif c == k:
-                    values[v0 + k * w + c] = 1.0
+                values[_u(v0 + k * w + c)] = front[_u(k * m + c)]
         # the update: to the parent's stack entry, or (a root) into the Schur complement
         u = m - w
         q = tparent[t]
@@ -454,8 +571,9 @@ def _numeric(indptr, indices, data, n_linear, first, width, row_at, srows, tpare
         else:
             base = stack_at[depth]
             for a in range(u):
+                at, row = base + a * u, (w + a) * m + w
                 for b in range(a + 1):
-                    stack[base + a * u + b] = front[(w + a) * m + w + b]
+                    stack[_u(at + b)] = front[_u(row + b)]
             stack_node[depth] = t
             depth += 1
             stack_at[depth] = base + u * u
@@ -551,7 +669,7 @@ def factorise_lower(lower, schur, n_linear: int, analyses: SymbolicAnalyses):
     first, width, row_at, srows, tparent, children, relative = symbolic.tree
     values, value_at, diagonal, ratio = _numeric(
         lower.indptr, lower.indices, lower.data, n_linear, first, width, row_at, srows,
-        tparent, children, relative, schur)
+        tparent, children, relative, schur, BLAS_MIN_WIDTH, BLAS_MIN_ROWS)
     if not ratio >= PIVOT_RATIO:
         raise NotQuasiDefinite(f"LDL^T pivot ratio {ratio:.1e} below {PIVOT_RATIO:.0e}")
     packed = (first, width, row_at, value_at, symbolic.rows, values)

@@ -268,8 +268,11 @@ class CondensedSystem:
                     lambda: self._bulk_order(Ls))
             self._row_factor = None
             self.lu = None  # the old factors go before the new ones are made (peak memory)
-            release_freed_memory()
             if Ls is not None:
+                # (not at a refactorisation in the fixed pattern: what that frees, the last
+                # factors, are arrays of the sizes it allocates next, which the heap reuses;
+                # handed back, they cost the trim and fresh pages at every step-size change)
+                release_freed_memory()
                 # the factorisation's peak (SuperLU's storage and the factors copied out of it)
                 # is reached holding neither L nor the matrix factorised
                 held = [Ls[self._order][:, self._order].tocsc()]

@@ -179,3 +179,68 @@ def test_the_solver_refactorises_a_poroelastic_bulk_on_one_analysis(poroelastic)
 
 def test_an_elastic_bulk_keeps_superlu(elastic):
     assert elastic.system.factors_any_dt and not elastic.system.lu.quasi_definite
+
+
+def _fronts_by_blas(M, nB):
+    """How many fronts of M's LDL^T meet ldl's thresholds for the BLAS panels."""
+    first, width, row_at = ldl.SymbolicAnalyses().of(ldl._lower(M, nB), nB).tree[:3]
+    below = np.diff(row_at) - width
+    return int(np.count_nonzero((width >= ldl.BLAS_MIN_WIDTH) & (below >= ldl.BLAS_MIN_ROWS)))
+
+
+@pytest.fixture
+def every_front_by_blas(monkeypatch):
+    """Every front with rows below its pivots through the BLAS panels (``_panel_by_blas``),
+    not only the large ones."""
+    monkeypatch.setattr(ldl, "BLAS_MIN_WIDTH", 1)
+    monkeypatch.setattr(ldl, "BLAS_MIN_ROWS", 1)
+
+
+@pytest.mark.parametrize("kind", ["poroelastic-5", "poroelastic-600", "elastic", "split"])
+def test_the_blas_panels_against_dense(poroelastic, elastic, every_front_by_blas, kind):
+    """The fronts by matrix products on blocks of each kind, every front of them so (the real
+    blocks here are too small for the thresholds): against numpy's dense solves to 1e-11 and a
+    backward error below 1e-15 (``_check_against_dense``), and against the loops' factors to
+    1e-12 relative (round-off: the products sum in another order)."""
+    if kind == "split":
+        M, nB = _free_block(elastic, elastic.system.dt, symmetric_form=False)
+        lu = SplitBorderedLU(M, nB, elastic.system.split, ldl.SymbolicAnalyses())
+        assert all(part.quasi_definite for part in lu._parts)
+        _check_against_dense(lu, M, nB, 7)
+        return
+    if kind == "elastic":
+        M, nB = _free_block(elastic, elastic.system.dt, symmetric_form=False)
+    else:
+        M, nB = _free_block(poroelastic, float(kind.split("-")[1]), symmetric_form=True)
+    assert _fronts_by_blas(M, nB) > 10
+    lu = BorderedLU(M, nB, ldl.SymbolicAnalyses())
+    assert lu.quasi_definite
+    _check_against_dense(lu, M, nB, 6)
+    ldl.BLAS_MIN_WIDTH = ldl.BLAS_MIN_ROWS = 10**9   # (the loops alone)
+    loops = BorderedLU(M, nB, ldl.SymbolicAnalyses())
+    assert _rel(lu.schur, loops.schur) < 1e-12 and _rel(lu._D, loops._D) < 1e-12
+    assert _rel(lu._L.arrays[-1], loops._L.arrays[-1]) < 1e-12
+
+
+@pytest.mark.parametrize("n, nB", [(260, 200), (140, 100), (133, 97)])
+def test_a_wide_dense_front_by_panels(n, nB):
+    """A dense quasi-definite block [[K, Q], [Q^T, -H]] (K, H positive definite), its last
+    n - nB unknowns the border: one supernode as wide as the bulk, eliminated a panel of
+    ldl.PANEL columns at a time, each panel's rows solved in blocks of ldl.SOLVE_BLOCK and
+    updated in blocks of ldl.UPDATE_BLOCK (several of each, and partial last ones), against
+    numpy to 1e-11 and the backward error below 1e-15."""
+    rng = np.random.default_rng(n)
+    k = nB // 2
+    G = rng.standard_normal((n, n))
+    A = G @ G.T / n + np.eye(n)
+    A[k:, k:] = -A[k:, k:]
+    A[:k, k:] *= 0.3
+    A[k:, :k] = A[:k, k:].T
+    M = sp.csc_matrix(A)
+    first, width, row_at = ldl.SymbolicAnalyses().of(ldl._lower(M, nB), nB).tree[:3]
+    assert len(first) == 1 and width[0] == nB
+    assert _fronts_by_blas(M, nB) == 1
+    lu = BorderedLU(M, nB, ldl.SymbolicAnalyses())
+    assert lu.quasi_definite
+    assert np.all(lu._D[:k] > 0) and np.all(lu._D[k:] < 0)
+    _check_against_dense(lu, M, nB, 8)
