@@ -77,3 +77,32 @@ def test_poroelastic_bulk_keeps_its_diagonal_pivots(dt):
     lu = system.lu
     parts = getattr(lu, "_parts", [lu])
     assert all(part._U is None for part in parts)
+
+
+@pytest.mark.parametrize("index_type", [np.int32, np.int64])
+def test_whole_products_are_scipys_products_bit_for_bit(index_type):
+    """The convergence test's products in one pass (``_whole_products``: A x, Hf x, C x and
+    C x - C x_n) equal scipy's CSR products and their difference exactly (0 difference, not a
+    round-off bound: each row is summed in the same order), with either index width (the
+    indices are read unsigned)."""
+    from fault_screen.linear_system import unsigned_indices
+    from fault_screen.solver import _whole_products
+
+    solver = NewtonSolver(discretise(_scene("poroelastic")))
+    rng = np.random.default_rng(3)
+    # displacements (mm), pressures (MPa), multipliers: magnitudes of a run's unknowns
+    x = rng.standard_normal(solver.disc.n_dofs) * np.where(rng.random(solver.disc.n_dofs) < 0.5,
+                                                          1e-3, 1e6)
+    x_n = x * (1.0 + 1e-3 * rng.standard_normal(x.shape))
+    mats = []
+    for M in (solver.A, solver.Hf, solver.C):
+        M = M.copy()
+        M.indptr, M.indices = M.indptr.astype(index_type), M.indices.astype(index_type)
+        assert M.nnz > solver.disc.n_dofs    # (not trivially empty)
+        mats.append(M)
+    A, Hf, C = mats
+    arrays = [a for M in mats for a in (unsigned_indices(M.indptr), unsigned_indices(M.indices), M.data)]
+    AHx, Cx, Cd = _whole_products(*arrays, x, C @ x_n)
+    assert np.array_equal(AHx, np.concatenate([A @ x, Hf @ x]))
+    assert np.array_equal(Cx, C @ x)
+    assert np.array_equal(Cd, C @ x - C @ x_n)
