@@ -20,7 +20,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import xfem
-from ._jit import kernel
 from .kernels import basis, contact, rock
 from .mesh import StructuredMesh, build_mesh
 from .physics import Physics, effects_on, terms_for
@@ -269,7 +268,7 @@ class Discretisation:
         std_w = np.broadcast_to(0.25 * hs[:, :1] * hs[:, 1:], (len(hs), nq)).copy()
 
         # cut elements: 8 displacement functions (4 standard, 4 Heaviside), 8 pressure functions
-        cut_Nu, cut_gu, cut_Np, cut_gp = _tabulate_cut(
+        cut_Nu, cut_gu, cut_Np, cut_gp = xfem.tabulate_cut(
             np.asarray(f.cut_elements, dtype=np.int64), self.elements, f.node_phi, sizes,
             np.ascontiguousarray(f.cut_qp, dtype=np.float64),
             np.ascontiguousarray(f.cut_side, dtype=np.float64))
@@ -468,41 +467,6 @@ class Discretisation:
         slip, opening = contact.fault_jumps(x, inj.N[None, :], inj.jump_dofs[None, :],
                                             self.fault.tangent, self.fault.normal)
         return float(slip[0]), float(opening[0])
-
-
-@kernel
-def _tabulate_cut(cut_elements, elements, node_phi, sizes, cut_qp, cut_side):
-    """The cut elements' functions at their quadrature points (the padding points of an element
-    with fewer too, at their reference position, as the weights there are zero): the 4 standard and 4 shifted-Heaviside displacement functions and their gradients (Nu, gu),
-    the 4 standard and 4 modified-level-set pressure functions and theirs (Np, gp). One kernel
-    call: the loop in Python made four kernel calls a point (a third of the set-up of the
-    bundled scene)."""
-    nc, nqc = cut_qp.shape[0], cut_qp.shape[1]
-    cut_Nu = np.zeros((nc, nqc, 8))
-    cut_gu = np.zeros((nc, nqc, 8, 2))
-    cut_Np = np.zeros((nc, nqc, 8))
-    cut_gp = np.zeros((nc, nqc, 8, 2))
-    phi_e = np.empty(4)
-    node_side = np.empty(4)
-    for k in range(nc):
-        e = cut_elements[k]
-        for a in range(4):
-            phi_e[a] = node_phi[elements[e, a]]
-            node_side[a] = 1.0 if phi_e[a] > 0 else 0.0
-        hx, hy = sizes[e, 0], sizes[e, 1]
-        for q in range(nqc):
-            xi, eta = cut_qp[k, q, 0], cut_qp[k, q, 1]
-            Nq = basis.shape(xi, eta)
-            dN = basis.shape_gradient(xi, eta, hx, hy)
-            Nh, dNh = basis.heaviside_basis(Nq, dN, cut_side[k, q], node_side)
-            Nl, dNl = basis.level_set_basis(Nq, dN, phi_e)
-            for a in range(4):
-                cut_Nu[k, q, a], cut_Nu[k, q, 4 + a] = Nq[a], Nh[a]
-                cut_Np[k, q, a], cut_Np[k, q, 4 + a] = Nq[a], Nl[a]
-                for d in range(2):
-                    cut_gu[k, q, a, d], cut_gu[k, q, 4 + a, d] = dN[a, d], dNh[a, d]
-                    cut_gp[k, q, a, d], cut_gp[k, q, 4 + a, d] = dN[a, d], dNl[a, d]
-    return cut_Nu, cut_gu, cut_Np, cut_gp
 
 
 def discretise(scene: Scene) -> Discretisation:
