@@ -434,7 +434,7 @@ class CondensedSystem:
         else:   # (the factors are of the rows times _row_factor: so is the right-hand side)
             f = self._row_factor
             nB = len(linear)
-            swept, g = self.lu.forward(f[:nB] * -sR[linear], f[nB:] * rN)
+            swept, g = self.lu.forward(_negated_at(sR, unsigned_indices(linear), f), f[nB:] * rN)
             g /= f[nB:]
         dxN = dense.solve(g) if len(N) else g
         out[N] = dxN
@@ -459,9 +459,8 @@ class CondensedSystem:
         """Bring x[B] up to date with the pending bulk answer (one backward sweep) and the
         residual's rows of fixed unknowns (the reactions) with it: the other rows are up to date
         (see ``NewtonSolver._step``) and the nonlinear terms read no bulk unknown."""
-        rows = self.linear_order()
-        dxB = self.scale[rows] * self.lu.backward(pending.swept, pending.fault)
-        x[rows] += dxB
+        dxB = _scaled_update(x, unsigned_indices(self.linear_order()), self.scale,
+                             self.lu.backward(pending.swept, pending.fault))
         R[self._fixed] += self._L_fixed_B @ dxB
 
     @contextlib.contextmanager
@@ -509,6 +508,26 @@ class CondensedSystem:
     def _linear_entries(self, dt):
         """L_NN's entries at step size dt (scaled; rows, columns, values)."""
         return self._fixed_sum("_sum_NN", self._blocks_NN).entries(dt)
+
+
+@kernel
+def _scaled_update(x, at, scale, y):
+    """x[at] += scale[at] * y, in one pass; returns scale[at] * y."""
+    d = np.empty(y.shape[0])
+    for k in range(y.shape[0]):
+        i = at[k]
+        d[k] = scale[i] * y[k]
+        x[i] += d[k]
+    return d
+
+
+@kernel
+def _negated_at(v, at, factor):
+    """factor[k] * -v[at[k]] for every k of ``at``, in one pass."""
+    out = np.empty(at.shape[0])
+    for k in range(at.shape[0]):
+        out[k] = factor[k] * -v[at[k]]
+    return out
 
 
 def unsigned_indices(index):

@@ -233,7 +233,9 @@ class NewtonSolver:
         self.system = CondensedSystem(self.A, self.C, self.Hf, self.time_weight, self.free,
                                       self._fixed, nonlinear, disc.dof_coordinates, mech)
         self.N, self.B = self.system.N, self.system.B
-        self._mech_B = self.mech_free[~nonlinear[self.free]]
+        mech_B = self.mech_free[~nonlinear[self.free]]
+        # the bulk's unknowns of each field (``_bulk_in_balance``)
+        self._B_mech, self._B_flow = self.B[mech_B], self.B[~mech_B]
         self.n_index = self.system.n_index
         # the bulk update may wait until a convergence check needs it only when the nonlinear
         # terms read nothing but condensed unknowns (the fault's jump and pressure DOFs)
@@ -457,10 +459,9 @@ class NewtonSolver:
     def _bulk_in_balance(self, sR, ref):
         """Is the scaled residual of the linear rows below BULK_BALANCE of what the convergence
         test resolves, in each field? Solving it away would then change nothing the test sees."""
-        rB = sR[self.B]
-        mB = self._mech_B
         lim = BULK_BALANCE * self.tol
-        return (np.linalg.norm(rB[mB]) <= lim * ref[0]) and (np.linalg.norm(rB[~mB]) <= lim * ref[1])
+        return (np.linalg.norm(sR[self._B_mech]) <= lim * ref[0]
+                and np.linalg.norm(sR[self._B_flow]) <= lim * ref[1])
 
     def _step(self, x_n, history, dt, injection_value, damped, x0):
         disc = self.disc
@@ -554,14 +555,22 @@ class NewtonSolver:
             # already (a bulk that does not depend on the step: only the fault's load changed)
             eliminated = it > 0 or (ref is not None and self._bulk_in_balance(sR, ref))
             dx, dxN, swept = self.system.solve(sR, dense, bulk_eliminated=eliminated, defer=defer)
-            dx *= scale
-            if not np.all(np.isfinite(dx)):
-                raise StepFailed("non-finite Newton update")
             alpha = 1.0
-            if damped and it > 0:  # the first update solves the linear flow part: take it whole
-                alpha = self._line_search(x, dx, dxN, pending, norms, ref, rhs, history, dt)
-                dx *= alpha
-            x += dx
+            if dxN is not None and not damped:
+                # dx is zero off N (the bulk's answer is pending): the update and its test there
+                N = self.N
+                dx_N = dx[N] * scale[N]
+                if not np.all(np.isfinite(dx_N)):
+                    raise StepFailed("non-finite Newton update")
+                x[N] += dx_N
+            else:
+                dx *= scale
+                if not np.all(np.isfinite(dx)):
+                    raise StepFailed("non-finite Newton update")
+                if damped and it > 0:  # the first update solves the linear flow part: take it whole
+                    alpha = self._line_search(x, dx, dxN, pending, norms, ref, rhs, history, dt)
+                    dx *= alpha
+                x += dx
             if dxN is not None:
                 if pending is None:
                     pending = PendingBulk(len(self.N))

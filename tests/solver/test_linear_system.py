@@ -106,3 +106,24 @@ def test_whole_products_are_scipys_products_bit_for_bit(index_type):
     assert np.array_equal(AHx, np.concatenate([A @ x, Hf @ x]))
     assert np.array_equal(Cx, C @ x)
     assert np.array_equal(Cd, C @ x - C @ x_n)
+
+
+def test_fused_bulk_passes_are_the_numpy_expressions_bit_for_bit():
+    """The one-pass kernels of a step's bulk update (x[B] += s[B] y) and of the forward sweep's
+    right-hand side (f * -r[B]) equal the numpy expressions they replace exactly (0 difference),
+    on a permuted subset of the unknowns as the factors' order gives it."""
+    from fault_screen.linear_system import _negated_at, _scaled_update, unsigned_indices
+
+    rng = np.random.default_rng(5)
+    n = 500
+    at = rng.permutation(n)[:350]
+    scale = np.exp(rng.uniform(-20.0, 5.0, n))
+    y = rng.standard_normal(350) * 1e6
+    x = rng.standard_normal(n)
+    expected_x = x.copy()
+    expected_d = scale[at] * y
+    expected_x[at] += expected_d
+    d = _scaled_update(x, unsigned_indices(at), scale, y)
+    assert np.array_equal(d, expected_d) and np.array_equal(x, expected_x)
+    factor = np.where(rng.random(n) < 0.5, 1.0, -37.5)
+    assert np.array_equal(_negated_at(x, unsigned_indices(at), factor), factor[:350] * -x[at])
