@@ -162,10 +162,19 @@ class CondensedSystem:
         # the step size enters only the storage (C) and the theta-weighted conduction (Hf): when
         # neither touches a linear unknown, the factors serve every step size and only the N block
         # of the Schur complement changes with it
-        CH = (abs(C) + abs(Hf)).tocsr()[free][:, free].tocsc()
-        on_B = np.zeros(len(free), dtype=bool)
-        on_B[~nl_free] = True
-        self.factors_any_dt = not (CH[on_B].nnz or CH[:, on_B].nnz)
+        self.factors_any_dt = not any(self._touches_linear(M) for M in (C, Hf))
+
+    def _touches_linear(self, M) -> bool:
+        """Has M a nonzero entry between two free unknowns, one of them linear (in B)? Read off
+        its entries (slicing M's free block for it cost more than the rest of this set-up)."""
+        M = M.tocsr()
+        free = np.zeros(self.n_dofs, dtype=bool)
+        free[self.free] = True
+        linear = np.zeros(self.n_dofs, dtype=bool)
+        linear[self.B] = True
+        rows = np.repeat(np.arange(self.n_dofs), np.diff(M.indptr))
+        cols = M.indices
+        return bool(np.any((M.data != 0.0) & free[rows] & free[cols] & (linear[rows] | linear[cols])))
 
     def checkpoint_state(self) -> dict:
         """Arrays that a restored solver needs to take bit-identical steps: the nonlinear tangent

@@ -127,3 +127,17 @@ def test_fused_bulk_passes_are_the_numpy_expressions_bit_for_bit():
     assert np.array_equal(d, expected_d) and np.array_equal(x, expected_x)
     factor = np.where(rng.random(n) < 0.5, 1.0, -37.5)
     assert np.array_equal(_negated_at(x, unsigned_indices(at), factor), factor[:350] * -x[at])
+
+
+@pytest.mark.parametrize("kind", ["elastic", "poroelastic"])
+def test_factors_serve_every_step_size_exactly_without_rock_pore_pressure(kind):
+    """The step size enters C and Hf only; without rock pore pressure neither touches a linear
+    unknown (the fault's flow unknowns are condensed), with it both do: ``factors_any_dt``
+    agrees with the free block of |C| + |Hf| sliced on the linear unknowns."""
+    system = NewtonSolver(discretise(_scene(kind))).system
+    assert system.factors_any_dt == (kind == "elastic")
+    linear = np.zeros(system.n_dofs, dtype=bool)
+    linear[system.B] = True
+    CH = (abs(system.C) + abs(system.Hf)).tocsr()[system.free][:, system.free]
+    on_B = linear[system.free]
+    assert system.factors_any_dt == (CH[on_B].nnz == 0 and CH[:, on_B].nnz == 0)
