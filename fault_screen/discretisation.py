@@ -268,26 +268,10 @@ class Discretisation:
         std_w = np.broadcast_to(0.25 * hs[:, :1] * hs[:, 1:], (len(hs), nq)).copy()
 
         # cut elements: 8 displacement functions (4 standard, 4 Heaviside), 8 pressure functions
-        nc, nqc = f.cut_qp.shape[:2]
-        cut_Nu = np.zeros((nc, nqc, 8))
-        cut_gu = np.zeros((nc, nqc, 8, 2))
-        cut_Np = np.zeros((nc, nqc, 8))
-        cut_gp = np.zeros((nc, nqc, 8, 2))
-        for k, e in enumerate(f.cut_elements):
-            nodes = self.elements[e]
-            phi_e = f.node_phi[nodes]
-            node_side = (phi_e > 0).astype(np.float64)
-            hx, hy = sizes[e]
-            for q in range(nqc):
-                xi, eta = f.cut_qp[k, q]
-                Nq = basis.shape(xi, eta)
-                dN = basis.shape_gradient(xi, eta, hx, hy)
-                Nh, dNh = basis.heaviside_basis(Nq, dN, float(f.cut_side[k, q]), node_side)
-                Nl, dNl = basis.level_set_basis(Nq, dN, phi_e)
-                cut_Nu[k, q, :4], cut_Nu[k, q, 4:] = Nq, Nh
-                cut_gu[k, q, :4], cut_gu[k, q, 4:] = dN, dNh
-                cut_Np[k, q, :4], cut_Np[k, q, 4:] = Nq, Nl
-                cut_gp[k, q, :4], cut_gp[k, q, 4:] = dN, dNl
+        cut_Nu, cut_gu, cut_Np, cut_gp = xfem.tabulate_cut(
+            np.asarray(f.cut_elements, dtype=np.int64), self.elements, f.node_phi, sizes,
+            np.ascontiguousarray(f.cut_qp, dtype=np.float64),
+            np.ascontiguousarray(f.cut_side, dtype=np.float64))
 
         # local -> global maps
         std_nodes = self.elements[std_elements]

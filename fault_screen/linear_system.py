@@ -162,10 +162,19 @@ class CondensedSystem:
         # the step size enters only the storage (C) and the theta-weighted conduction (Hf): when
         # neither touches a linear unknown, the factors serve every step size and only the N block
         # of the Schur complement changes with it
-        CH = (abs(C) + abs(Hf)).tocsr()[free][:, free].tocsc()
-        on_B = np.zeros(len(free), dtype=bool)
-        on_B[~nl_free] = True
-        self.factors_any_dt = not (CH[on_B].nnz or CH[:, on_B].nnz)
+        self.factors_any_dt = not any(self._touches_linear(M) for M in (C, Hf))
+
+    def _touches_linear(self, M) -> bool:
+        """Has M a nonzero entry between two free unknowns, one of them linear (in B)? Read off
+        its entries (slicing M's free block for it cost more than the rest of this set-up)."""
+        M = M.tocsr()
+        free = np.zeros(self.n_dofs, dtype=bool)
+        free[self.free] = True
+        linear = np.zeros(self.n_dofs, dtype=bool)
+        linear[self.B] = True
+        rows = np.repeat(np.arange(self.n_dofs), np.diff(M.indptr))
+        cols = M.indices
+        return bool(np.any((M.data != 0.0) & free[rows] & free[cols] & (linear[rows] | linear[cols])))
 
     def checkpoint_state(self) -> dict:
         """Arrays that a restored solver needs to take bit-identical steps: the nonlinear tangent
@@ -437,7 +446,7 @@ class CondensedSystem:
         else:   # (the factors are of the rows times _row_factor: so is the right-hand side)
             f = self._row_factor
             nB = len(linear)
-            swept, g = self.lu.forward(f[:nB] * -sR[linear], f[nB:] * rN)
+            swept, g = self.lu.forward(_negated_at(sR, unsigned_indices(linear), f), f[nB:] * rN)
             g /= f[nB:]
         dxN = dense.solve(g) if len(N) else g
         out[N] = dxN
@@ -462,9 +471,8 @@ class CondensedSystem:
         """Bring x[B] up to date with the pending bulk answer (one backward sweep) and the
         residual's rows of fixed unknowns (the reactions) with it: the other rows are up to date
         (see ``NewtonSolver._step``) and the nonlinear terms read no bulk unknown."""
-        rows = self.linear_order()
-        dxB = self.scale[rows] * self.lu.backward(pending.swept, pending.fault)
-        x[rows] += dxB
+        dxB = _scaled_update(x, unsigned_indices(self.linear_order()), self.scale,
+                             self.lu.backward(pending.swept, pending.fault))
         R[self._fixed] += self._L_fixed_B @ dxB
 
     @contextlib.contextmanager
@@ -512,6 +520,33 @@ class CondensedSystem:
     def _linear_entries(self, dt):
         """L_NN's entries at step size dt (scaled; rows, columns, values)."""
         return self._fixed_sum("_sum_NN", self._blocks_NN).entries(dt)
+
+
+@kernel
+def _scaled_update(x, at, scale, y):
+    """x[at] += scale[at] * y, in one pass; returns scale[at] * y."""
+    d = np.empty(y.shape[0])
+    for k in range(y.shape[0]):
+        i = at[k]
+        d[k] = scale[i] * y[k]
+        x[i] += d[k]
+    return d
+
+
+@kernel
+def _negated_at(v, at, factor):
+    """factor[k] * -v[at[k]] for every k of ``at``, in one pass."""
+    out = np.empty(at.shape[0])
+    for k in range(at.shape[0]):
+        out[k] = factor[k] * -v[at[k]]
+    return out
+
+
+def unsigned_indices(index):
+    """An index array (int32 or int64, non-negative) viewed as its unsigned type, no copy: a
+    kernel indexing with a signed integer tests it for a negative (wrap-around) index at every
+    read, which made a CSR product in numba twice as slow as scipy's."""
+    return index.view(np.uint32 if index.dtype == np.int32 else np.uint64)
 
 
 def _with_shared(shared, make):
@@ -652,8 +687,9 @@ class _BlockPattern:
         self.tangent_slots = np.full(len(rows), -1, dtype=np.int64)
         self.tangent_slots[kept] = slots[len(linear[0]):]
         self.weight = np.where(kept, scale[rows] * scale[cols], 0.0)
-        self.rows, self.cols = self.keys // n, self.keys % n
-        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(self.rows, minlength=n))])
+        rows = self.keys // n
+        self.indptr = unsigned_indices(np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=n))]))
+        self.rows, self.cols = unsigned_indices(rows), unsigned_indices(self.keys % n)
 
     def holds(self, linear, tangent):
         """Are these L_NN entries and tangent triplets at this pattern's positions, in its order?

@@ -14,6 +14,7 @@ support is cut into a thin sliver well conditioned (the Jacobi part of Béchet e
 from __future__ import annotations
 
 import copy
+import functools
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -23,7 +24,7 @@ import scipy.sparse as sp
 from ._jit import helper, kernel
 from .assembly import TripletBuilder
 from .discretisation import Discretisation
-from .linear_system import CondensedSystem, PendingBulk
+from .linear_system import CondensedSystem, PendingBulk, unsigned_indices
 from .physics import ConstantMatrices, Term
 
 
@@ -136,6 +137,34 @@ def _scaled_field_norms(R, scale, mech_at, flow_at):
     return sR, mech, flow, finite_mech and finite_flow
 
 
+@helper
+def _csr_row_times(indptr, indices, data, v, i):
+    """Row i of a CSR matrix times v, summed from 0.0 over the row's entries in order (as
+    scipy's csr_matvec sums it: the same bits)."""
+    acc = 0.0
+    for k in range(indptr[i], indptr[i + 1]):
+        acc += data[k] * v[indices[k]]
+    return acc
+
+
+@kernel
+def _whole_products(A_indptr, A_indices, A_data, H_indptr, H_indices, H_data, C_indptr,
+                    C_indices, C_data, x, Cx_n):
+    """[A x; Hf x], C x and C x - C x_n in one pass over the rows (three CSR products and a
+    difference that took five calls and passes); each row's sums as ``A @ x`` makes them."""
+    n = x.shape[0]
+    AHx = np.empty(2 * n)
+    Cx = np.empty(n)
+    Cd = np.empty(n)
+    for i in range(n):
+        AHx[i] = _csr_row_times(A_indptr, A_indices, A_data, x, i)
+        AHx[n + i] = _csr_row_times(H_indptr, H_indices, H_data, x, i)
+        c = _csr_row_times(C_indptr, C_indices, C_data, x, i)
+        Cx[i] = c
+        Cd[i] = c - Cx_n[i]
+    return AHx, Cx, Cd
+
+
 @kernel
 def _reference_norms(scale, AHx, Cd, dt, flow_known, mech_at, flow_at):
     """The convergence test's reference magnitudes: |scale A x| over the free mechanical
@@ -187,8 +216,10 @@ class NewtonSolver:
         mech[b.u] = True
         mech[b.a] = True
         self.mech_free = mech[self.free]
-        self._free_mech = self.free[self.mech_free]    # (the two fields' free unknowns)
-        self._free_flow = self.free[~self.mech_free]
+        # the two fields' free unknowns, unsigned for the kernels that gather over them (see
+        # ``unsigned_indices``)
+        self._free_mech = unsigned_indices(self.free[self.mech_free])
+        self._free_flow = unsigned_indices(self.free[~self.mech_free])
         nonlinear = np.zeros(disc.n_dofs, dtype=bool)
         for term in disc.physics.terms:
             nonlinear[term.nonlinear_dofs(disc)] = True
@@ -202,7 +233,9 @@ class NewtonSolver:
         self.system = CondensedSystem(self.A, self.C, self.Hf, self.time_weight, self.free,
                                       self._fixed, nonlinear, disc.dof_coordinates, mech)
         self.N, self.B = self.system.N, self.system.B
-        self._mech_B = self.mech_free[~nonlinear[self.free]]
+        mech_B = self.mech_free[~nonlinear[self.free]]
+        # the bulk's unknowns of each field (``_bulk_in_balance``)
+        self._B_mech, self._B_flow = self.B[mech_B], self.B[~mech_B]
         self.n_index = self.system.n_index
         # the bulk update may wait until a convergence check needs it only when the nonlinear
         # terms read nothing but condensed unknowns (the fault's jump and pressure DOFs)
@@ -308,7 +341,8 @@ class NewtonSolver:
             last = self._products = _Products(x_n, x_n.copy(), self._AH_times(x_n),
                                               np.zeros_like(x_n), True, self._C_times_start(x_n))
         n = self.disc.n_dofs
-        return last.AHx[:n] + stored_n + self.time_weight * last.AHx[n:]
+        th = self.time_weight
+        return last.AHx[:n] + stored_n + (last.AHx[n:] if th == 1.0 else th * last.AHx[n:])
 
     def _residual(self, x, rhs, history, dt, pending, Lx=None):
         """Residual at x and the nonlinear terms' tangent and fault state. ``pending``
@@ -338,11 +372,12 @@ class NewtonSolver:
         with self.blas_threads():
             return self._step(x_n, history, dt, injection_value, damped, x0)
 
-    def _reference(self, x, x_n, dt, ref0, flow_known):
+    def _reference(self, x, x_n, dt, ref0, flow_known, at_start=False):
         """Reference magnitudes of the convergence test at x: internal forces (mechanics);
         stored-volume rate plus conduction plus sources (flow); never below the step's first
-        residual norms ``ref0``."""
-        AHx, Cd = self._linear_products(x, x_n)
+        residual norms ``ref0``. ``at_start``: x is the step's first guess x_n (see
+        ``_linear_products``)."""
+        AHx, Cd = self._linear_products(x, x_n, at_start)
         mech, flow = _reference_norms(self.scale, AHx, Cd, dt, flow_known, self._free_mech,
                                       self._free_flow)
         return max(ref0[0], mech, self._in_situ_reference()), max(ref0[1], flow)
@@ -368,13 +403,19 @@ class NewtonSolver:
             self._in_situ_floor = IN_SITU_ROUNDOFF * np.finfo(float).eps * magnitude / self.tol
         return self._in_situ_floor
 
-    def _linear_products(self, x, x_n):
+    def _linear_products(self, x, x_n, at_start=False):
         """[A; Hf] x and C (x - x_n), for the reference magnitudes. While the bulk's answer is
         deferred (``_step``), Newton changes x in its condensed unknowns only: the products of
         the last call are then brought up to date through those columns alone; and a step
         starts where the last one was accepted, whose products are at hand. (Across steps only
-        products computed whole are reused, so that a restored run repeats them bit for bit.)"""
+        products computed whole are reused, so that a restored run repeats them bit for bit.)
+        ``at_start``: x equals x_n and the products at hand are whole at x_n
+        (``_linear_times_start`` made sure): the comparisons below would find that."""
         last = self._products
+        if at_start:
+            if last.x_n is not x_n:
+                last = self._products = _Products(x_n, x.copy(), last.AHx, np.zeros_like(x), True)
+            return last.AHx, last.Cd
         if last is not None and (last.x_n is x_n or last.whole):
             d = x - last.x
             dN = d[self.N]
@@ -390,10 +431,16 @@ class NewtonSolver:
                     Cd = np.zeros_like(x) if np.array_equal(x, x_n) else self.C @ (x - x_n)
                     self._products = _Products(x_n, x.copy(), last.AHx, Cd, True)
                     return last.AHx, Cd
-        AHx, Cx = self._AH_times(x), self.C @ x
-        Cd = Cx - self._C_times_start(x_n)
+        AHx, Cx, Cd = _whole_products(*self._csr_arrays, x, self._C_times_start(x_n))
         self._products = _Products(x_n, x.copy(), AHx, Cd, True, Cx)
         return AHx, Cd
+
+    @functools.cached_property
+    def _csr_arrays(self):
+        """A, Hf and C as (indptr, indices, data) each, for ``_whole_products`` (the index
+        arrays unsigned: ``unsigned_indices``)."""
+        return tuple(a for M in (self.A, self.Hf, self.C)
+                     for a in (unsigned_indices(M.indptr), unsigned_indices(M.indices), M.data))
 
     def _C_times_start(self, x_n):
         """C x_n: the last whole product C x when x_n is that x (the step starts where the last
@@ -412,10 +459,9 @@ class NewtonSolver:
     def _bulk_in_balance(self, sR, ref):
         """Is the scaled residual of the linear rows below BULK_BALANCE of what the convergence
         test resolves, in each field? Solving it away would then change nothing the test sees."""
-        rB = sR[self.B]
-        mB = self._mech_B
         lim = BULK_BALANCE * self.tol
-        return (np.linalg.norm(rB[mB]) <= lim * ref[0]) and (np.linalg.norm(rB[~mB]) <= lim * ref[1])
+        return (np.linalg.norm(sR[self._B_mech]) <= lim * ref[0]
+                and np.linalg.norm(sR[self._B_flow]) <= lim * ref[1])
 
     def _step(self, x_n, history, dt, injection_value, damped, x0):
         disc = self.disc
@@ -490,7 +536,8 @@ class NewtonSolver:
             # at the first iteration the reference serves the deferred update and the bulk
             # balance test, which only a step-size-independent bulk can pass
             if pending is None and (check or (it == 0 and (defer or self.static_B))):
-                ref = exact_ref = self._reference(x, x_n, dt, ref0, flow_known)
+                ref = exact_ref = self._reference(x, x_n, dt, ref0, flow_known,
+                                                  at_start=it == 0 and x0 is None)
                 if check and norms[0] <= tol * ref[0] and norms[1] <= tol * ref[1]:
                     reactions = np.zeros(disc.n_dofs)
                     reactions[self._fixed] = R[self._fixed]
@@ -508,14 +555,22 @@ class NewtonSolver:
             # already (a bulk that does not depend on the step: only the fault's load changed)
             eliminated = it > 0 or (ref is not None and self._bulk_in_balance(sR, ref))
             dx, dxN, swept = self.system.solve(sR, dense, bulk_eliminated=eliminated, defer=defer)
-            dx *= scale
-            if not np.all(np.isfinite(dx)):
-                raise StepFailed("non-finite Newton update")
             alpha = 1.0
-            if damped and it > 0:  # the first update solves the linear flow part: take it whole
-                alpha = self._line_search(x, dx, dxN, pending, norms, ref, rhs, history, dt)
-                dx *= alpha
-            x += dx
+            if dxN is not None and not damped:
+                # dx is zero off N (the bulk's answer is pending): the update and its test there
+                N = self.N
+                dx_N = dx[N] * scale[N]
+                if not np.all(np.isfinite(dx_N)):
+                    raise StepFailed("non-finite Newton update")
+                x[N] += dx_N
+            else:
+                dx *= scale
+                if not np.all(np.isfinite(dx)):
+                    raise StepFailed("non-finite Newton update")
+                if damped and it > 0:  # the first update solves the linear flow part: take it whole
+                    alpha = self._line_search(x, dx, dxN, pending, norms, ref, rhs, history, dt)
+                    dx *= alpha
+                x += dx
             if dxN is not None:
                 if pending is None:
                     pending = PendingBulk(len(self.N))
