@@ -88,7 +88,9 @@ def record() -> dict:
 
 def measure() -> dict:
     with tempfile.TemporaryDirectory() as cache:
-        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+        # Python's bytecode cache on, as an installed package has it (benchmarks/performance.py)
+        env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+        env["NUMBA_CACHE_DIR"] = cache
         env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
         out = subprocess.run([sys.executable, __file__, "--child"], capture_output=True, text=True,
                              cwd=ROOT, env=env)
