@@ -2,6 +2,7 @@
 
     python benchmarks/performance.py                 # every row (several minutes on 2 cores)
     python benchmarks/performance.py --skip fine tests refined   # leave out the longest rows
+    python benchmarks/performance.py --only cold compile --no-doc  # the start-up rows alone
 
 The table is printed and written to docs/performance/performance.md (--no-doc: printed only).
 
@@ -18,6 +19,9 @@ Rows (keys for --skip in brackets):
   empty numba cache (JIT compilation included), then three more with that cache (best and
   slowest); where a warm `fault-screen run` spends its time (imports, numba's cache loads of
   the kernels, the rest), timed inside one process; `fault-screen --help` in a new process.
+- [compile] the first `fault-screen run` again, in-process with a listener on numba's compile
+  event (benchmarks/cold_compile.py): the CPU time of the compilation, the number of kernels
+  compiled, the three that take longest, the process's peak memory.
 - [busy] the warm replay again while two CPU-bound processes run (3 processes on 2 cores), right
   after the same replay alone, with the default BLAS threading (no OPENBLAS_NUM_THREADS set) and
   with OPENBLAS_NUM_THREADS=1: wall against the isolated run, CPU against the isolated run's
@@ -57,6 +61,8 @@ SLIP_SCENES = ["fluid-driven-slip-T0.4-horizontal", "fluid-driven-slip-T0.4-dip3
                "fluid-driven-slip-T0.7-horizontal", "fluid-driven-slip-T0.7-dip30"]
 #: a case that runs longer than this is stopped and reported as such (s)
 CASE_TIMEOUT = 600
+#: the rows' keys (--skip, --only)
+ROWS = ["replay", "cold", "compile", "busy", "slip", "refined", "fine", "stepsize", "tests"]
 
 
 # ------------------------------------------------------------------ cases (in a child process)
@@ -187,8 +193,12 @@ def cli_help(env) -> float:
 
 
 def _env(tree=ROOT, **extra):
-    """The environment of a case's process: default BLAS threading, ``tree``'s fault_screen."""
-    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    """The environment of a case's process: default BLAS threading, ``tree``'s fault_screen,
+    Python's bytecode cache on (an installed package has its .pyc files; with
+    PYTHONDONTWRITEBYTECODE set, every start would compile fault_screen's sources again, about
+    0.1 s of CPU counted as imports)."""
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("OPENBLAS_NUM_THREADS", "PYTHONDONTWRITEBYTECODE")}
     env["PYTHONPATH"] = str(tree) + os.pathsep + env.get("PYTHONPATH", "")
     env["FAULT_SCREEN_TREE"] = str(tree)
     env.update(extra)
@@ -207,11 +217,14 @@ def _wc(r):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--skip", nargs="*", default=[],
-                    choices=["replay", "cold", "busy", "slip", "refined", "fine", "stepsize", "tests"])
+    ap.add_argument("--skip", nargs="*", default=[], choices=ROWS)
+    ap.add_argument("--only", nargs="*", choices=ROWS,
+                    help="measure these rows alone (e.g. --only cold compile --no-doc)")
     ap.add_argument("--case", help=argparse.SUPPRESS)
     ap.add_argument("--no-doc", action="store_true", help="do not write docs/performance/performance.md")
     args = ap.parse_args()
+    if args.only:
+        args.skip = [r for r in ROWS if r not in args.only]
     if args.case:
         print(json.dumps(run_split() if args.case == "split" else run_case(args.case)), flush=True)
         return
@@ -251,6 +264,17 @@ def main():
         helps = sorted(cli_help(env) for _ in range(3))
         row("`fault-screen --help` in a fresh process (imports no model)", "-", "-",
             f"{_s(helps[0])} (best of 3; slowest {_s(helps[-1])})")
+    if "compile" not in args.skip:
+        from cold_compile import measure
+
+        c = measure()
+        kernels = [k for k in c["compiles"] if k["depth"] == 0]
+        top = sorted(kernels, key=lambda k: -k["cpu"])[:3]
+        row("cold: numba's compilation in the first `fault-screen run` (CPU time: compilation is "
+            "CPU-bound, so this hardly depends on the load)", "-", "-",
+            f"{_s(c['compile_cpu'])} CPU of the process's {_s(c['cpu'])} ({len(kernels)} kernels; most: "
+            + ", ".join(f"{k['kernel'].removeprefix('fault_screen.')} {_s(k['cpu'])}" for k in top)
+            + f"); peak memory {c['peak_mb']:.0f} MB (`python benchmarks/cold_compile.py`: every kernel)")
     if "busy" not in args.skip:
         # isolated and busy back to back, the BLAS threads as the user has them and forced to one:
         # the CPU time shows whether threads spin (CPU above the isolated run's), the CPU share

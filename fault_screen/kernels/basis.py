@@ -4,72 +4,46 @@ Displacement enrichment (paper Eq. 3-4): shifted Heaviside ``N_j (H(x) - H(x_j))
 Pressure enrichment (Eq. 6-7): modified level set ``N_j (psi(x) - psi(x_j))`` with
 ``psi = sum N_i |phi_i| - |sum N_i phi_i|``; ``psi(x_j) = 0`` at every node, so the shift vanishes.
 Both vanish outside cut elements, so there are no blending elements to correct.
+
+Plain numpy, not numba: the set-up calls these a few thousand times from Python, which costs
+less than compiling them (a cold start) or loading them from numba's cache (every start). The
+arithmetic is written in the order the compiled kernels used, sums included, so the values are
+the same to the bit.
 """
 import numpy as np
 
-from .._jit import kernel
 
-
-@kernel
 def shape(xi, eta):
-    N = np.empty(4)
-    N[0] = 0.25 * (1 - xi) * (1 - eta)
-    N[1] = 0.25 * (1 + xi) * (1 - eta)
-    N[2] = 0.25 * (1 + xi) * (1 + eta)
-    N[3] = 0.25 * (1 - xi) * (1 + eta)
-    return N
+    return np.array([0.25 * (1 - xi) * (1 - eta), 0.25 * (1 + xi) * (1 - eta),
+                     0.25 * (1 + xi) * (1 + eta), 0.25 * (1 - xi) * (1 + eta)])
 
 
-@kernel
 def shape_gradient(xi, eta, hx, hy):
     """Physical gradients (4, 2) on an hx by hy rectangle (1/m)."""
-    g = np.empty((4, 2))
-    g[0, 0] = -0.25 * (1 - eta) * 2 / hx
-    g[1, 0] = 0.25 * (1 - eta) * 2 / hx
-    g[2, 0] = 0.25 * (1 + eta) * 2 / hx
-    g[3, 0] = -0.25 * (1 + eta) * 2 / hx
-    g[0, 1] = -0.25 * (1 - xi) * 2 / hy
-    g[1, 1] = -0.25 * (1 + xi) * 2 / hy
-    g[2, 1] = 0.25 * (1 + xi) * 2 / hy
-    g[3, 1] = 0.25 * (1 - xi) * 2 / hy
-    return g
+    return np.array([[-0.25 * (1 - eta) * 2 / hx, -0.25 * (1 - xi) * 2 / hy],
+                     [0.25 * (1 - eta) * 2 / hx, -0.25 * (1 + xi) * 2 / hy],
+                     [0.25 * (1 + eta) * 2 / hx, 0.25 * (1 + xi) * 2 / hy],
+                     [-0.25 * (1 + eta) * 2 / hx, 0.25 * (1 - xi) * 2 / hy]])
 
 
-@kernel
 def heaviside_basis(N, dN, side, node_side):
     """Shifted-Heaviside enriched functions and gradients at a point on ``side`` (0 or 1)."""
-    Ne = np.empty(4)
-    dNe = np.empty((4, 2))
-    for j in range(4):
-        shift = side - node_side[j]
-        Ne[j] = N[j] * shift
-        dNe[j, 0] = dN[j, 0] * shift
-        dNe[j, 1] = dN[j, 1] * shift
-    return Ne, dNe
+    shift = float(side) - np.asarray(node_side, dtype=np.float64)
+    return N * shift, dN * shift[:, None]
 
 
-@kernel
 def level_set_basis(N, dN, phi_e):
     """Modified-level-set enriched functions and gradients (paper Eq. 6-7)."""
-    lin = 0.0
-    absn = 0.0
-    glin = np.zeros(2)
-    gabs = np.zeros(2)
-    for i in range(4):
-        lin += N[i] * phi_e[i]
-        absn += N[i] * abs(phi_e[i])
+    n, g, phi = N.tolist(), dN.tolist(), phi_e.tolist()
+    lin = absn = 0.0
+    glin, gabs = [0.0, 0.0], [0.0, 0.0]
+    for i in range(4):   # (sums in this order: the value is part of the regression baseline)
+        lin += n[i] * phi[i]
+        absn += n[i] * abs(phi[i])
         for d in range(2):
-            glin[d] += dN[i, d] * phi_e[i]
-            gabs[d] += dN[i, d] * abs(phi_e[i])
+            glin[d] += g[i][d] * phi[i]
+            gabs[d] += g[i][d] * abs(phi[i])
     sgn = 1.0 if lin > 0 else (-1.0 if lin < 0 else 0.0)
     psi = absn - abs(lin)
-    gpsi = np.empty(2)
-    for d in range(2):
-        gpsi[d] = gabs[d] - sgn * glin[d]
-    Ne = np.empty(4)
-    dNe = np.empty((4, 2))
-    for j in range(4):
-        Ne[j] = N[j] * psi
-        for d in range(2):
-            dNe[j, d] = dN[j, d] * psi + N[j] * gpsi[d]
-    return Ne, dNe
+    gpsi = np.array([gabs[0] - sgn * glin[0], gabs[1] - sgn * glin[1]])
+    return N * psi, dN * psi + N[:, None] * gpsi[None, :]

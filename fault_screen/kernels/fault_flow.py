@@ -15,37 +15,22 @@ def cubic_law_transmissivity(hydraulic_aperture, viscosity, kappa):
     return hydraulic_aperture ** 3 / (12.0 * viscosity * kappa)
 
 
-@kernel
+# fault_conduction, fault_storage and opening_coupling are plain numpy: the set-up calls them
+# once per fault point from Python, which costs less than compiling or loading a kernel; the
+# products are formed in the order the compiled kernels used (same values to the bit)
 def fault_conduction(dNp_ds, transmissivity, weight):
-    nb = dNp_ds.shape[0]
-    H = np.empty((nb, nb))
-    for a in range(nb):
-        for b in range(nb):
-            H[a, b] = weight * transmissivity * dNp_ds[a] * dNp_ds[b]
-    return H
+    return np.multiply.outer(weight * transmissivity * dNp_ds, dNp_ds)
 
 
-@kernel
 def fault_storage(Np, storativity, weight):
-    nb = Np.shape[0]
-    S = np.empty((nb, nb))
-    for a in range(nb):
-        for b in range(nb):
-            S[a, b] = weight * storativity * Np[a] * Np[b]
-    return S
+    return np.multiply.outer(weight * storativity * Np, Np)
 
 
-@kernel
 def opening_coupling(Np, N, normal, weight):
     """G (nbp x 8): int Np_a N_j n_c -- opening rate in the fault's mass balance, and (transposed)
     the push of fault pressure on its walls in the momentum balance."""
-    nb = Np.shape[0]
-    G = np.empty((nb, 8))
-    for a in range(nb):
-        for j in range(4):
-            for c in range(2):
-                G[a, 2 * j + c] = weight * Np[a] * N[j] * normal[c]
-    return G
+    G = (weight * Np)[:, None, None] * N[None, :, None] * normal[None, None, :]
+    return G.reshape(len(Np), 8)
 
 
 @helper

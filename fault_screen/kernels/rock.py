@@ -9,9 +9,9 @@ import numpy as np
 from .._jit import helper, kernel
 
 
-@kernel
 def plane_strain_elasticity(youngs_modulus, poissons_ratio):
-    """Drained plane-strain stiffness D (3x3), Pa."""
+    """Drained plane-strain stiffness D (3x3), Pa (plain numpy: called once per zone at set-up,
+    cheaper than compiling or loading a kernel)."""
     E, nu = youngs_modulus, poissons_ratio
     c = E / ((1 + nu) * (1 - 2 * nu))
     D = np.zeros((3, 3))
