@@ -15,7 +15,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ._jit import kernel
 from .kernels import basis
 from .mesh import StructuredMesh
 
@@ -360,39 +359,43 @@ def _unique_points(points: np.ndarray) -> np.ndarray:
     return np.array(sorted(set(map(tuple, points.tolist()))), dtype=float).reshape(-1, 2)
 
 
-@kernel
 def tabulate_cut(cut_elements, elements, node_phi, sizes, cut_qp, cut_side):
     """The cut elements' functions at their quadrature points (the padding points of an element
     with fewer too, at their reference position, as the weights there are zero): the 4 standard
     and 4 shifted-Heaviside displacement functions and their gradients (Nu, gu), the 4 standard
-    and 4 modified-level-set pressure functions and theirs (Np, gp). One kernel call: the loop
-    in Python made four kernel calls a point (a third of the set-up of the bundled scene)."""
-    nc, nqc = cut_qp.shape[0], cut_qp.shape[1]
-    cut_Nu = np.zeros((nc, nqc, 8))
-    cut_gu = np.zeros((nc, nqc, 8, 2))
-    cut_Np = np.zeros((nc, nqc, 8))
-    cut_gp = np.zeros((nc, nqc, 8, 2))
-    phi_e = np.empty(4)
-    node_side = np.empty(4)
-    for k in range(nc):
-        e = cut_elements[k]
-        for a in range(4):
-            phi_e[a] = node_phi[elements[e, a]]
-            node_side[a] = 1.0 if phi_e[a] > 0 else 0.0
-        hx, hy = sizes[e, 0], sizes[e, 1]
-        for q in range(nqc):
-            xi, eta = cut_qp[k, q, 0], cut_qp[k, q, 1]
-            Nq = basis.shape(xi, eta)
-            dN = basis.shape_gradient(xi, eta, hx, hy)
-            Nh, dNh = basis.heaviside_basis(Nq, dN, cut_side[k, q], node_side)
-            Nl, dNl = basis.level_set_basis(Nq, dN, phi_e)
-            for a in range(4):
-                cut_Nu[k, q, a], cut_Nu[k, q, 4 + a] = Nq[a], Nh[a]
-                cut_Np[k, q, a], cut_Np[k, q, 4 + a] = Nq[a], Nl[a]
-                for d in range(2):
-                    cut_gu[k, q, a, d], cut_gu[k, q, 4 + a, d] = dN[a, d], dNh[a, d]
-                    cut_gp[k, q, a, d], cut_gp[k, q, 4 + a, d] = dN[a, d], dNl[a, d]
-    return cut_Nu, cut_gu, cut_Np, cut_gp
+    and 4 modified-level-set pressure functions and theirs (Np, gp), for all points at once in
+    numpy (the arithmetic, sums included, in the order of ``kernels.basis``, so the values are
+    the same to the bit as a point at a time)."""
+    nc, nqc = cut_qp.shape[:2]
+    xi, eta = cut_qp[:, :, 0], cut_qp[:, :, 1]
+    hx, hy = sizes[cut_elements, 0][:, None], sizes[cut_elements, 1][:, None]
+    N = np.stack([0.25 * (1 - xi) * (1 - eta), 0.25 * (1 + xi) * (1 - eta),
+                  0.25 * (1 + xi) * (1 + eta), 0.25 * (1 - xi) * (1 + eta)], axis=-1)
+    dN = np.stack([np.stack([-0.25 * (1 - eta) * 2 / hx, -0.25 * (1 - xi) * 2 / hy], axis=-1),
+                   np.stack([0.25 * (1 - eta) * 2 / hx, -0.25 * (1 + xi) * 2 / hy], axis=-1),
+                   np.stack([0.25 * (1 + eta) * 2 / hx, 0.25 * (1 + xi) * 2 / hy], axis=-1),
+                   np.stack([-0.25 * (1 + eta) * 2 / hx, 0.25 * (1 - xi) * 2 / hy], axis=-1)],
+                  axis=2)                                             # (nc, nqc, 4, 2)
+    phi = node_phi[elements[cut_elements]][:, None, :]                # (nc, 1, 4)
+    node_side = (phi > 0).astype(np.float64)
+    shift = cut_side[:, :, None] - node_side                          # (nc, nqc, 4)
+    lin = np.zeros((nc, nqc))
+    absn = np.zeros((nc, nqc))
+    glin = np.zeros((nc, nqc, 2))
+    gabs = np.zeros((nc, nqc, 2))
+    for i in range(4):
+        lin += N[:, :, i] * phi[:, :, i]
+        absn += N[:, :, i] * abs(phi[:, :, i])
+        glin += dN[:, :, i, :] * phi[:, :, i, None]
+        gabs += dN[:, :, i, :] * abs(phi[:, :, i, None])
+    sgn = np.sign(lin)
+    psi = (absn - abs(lin))[:, :, None]
+    gpsi = gabs - sgn[:, :, None] * glin
+    Nu = np.concatenate([N, N * shift], axis=2)
+    gu = np.concatenate([dN, dN * shift[..., None]], axis=2)
+    Np = np.concatenate([N, N * psi], axis=2)
+    gp = np.concatenate([dN, dN * psi[..., None] + N[..., None] * gpsi[:, :, None, :]], axis=2)
+    return Nu, gu, Np, gp
 
 
 def _ref_to_phys(xe: np.ndarray, r: np.ndarray) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""The cut elements' shape functions, tabulated in one kernel (``xfem.tabulate_cut``),
+"""The cut elements' shape functions, tabulated for all points at once (``xfem.tabulate_cut``),
 against the per-point basis functions they are made of and against partition of unity."""
 from dataclasses import replace
 
