@@ -250,7 +250,10 @@ def _backward_sweep(first, width, row_at, value_at, rows, values, diagonal, reve
     entry to its first, so that the whole sweep reads the packed values as one descending stream
     (read block by block forwards, the jumps back to each block's start cost a third more time
     where the factors outgrow the cache: 1.5 against 1.1 ms on the paper-units Rustrel scene)."""
-    acc = np.zeros(max(1, np.max(width)) if len(width) else 1)
+    widest = 1      # a running maximum: np.max would compile numba's reduction for this alone
+    for s in range(len(width)):
+        widest = max(widest, width[s])
+    acc = np.zeros(widest)
     scaled = diagonal.shape[0] > 0
     n_sn = len(first)
     for s in range(n_sn):

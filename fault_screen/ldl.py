@@ -429,16 +429,18 @@ def _numeric(indptr, indices, data, n_linear, first, width, row_at, srows, tpare
     n_sn = len(first)
     value_at = np.zeros(n_sn + 1, dtype=np.int64)
     largest_front = 0
+    widest = 1      # a running maximum: np.max would compile numba's reduction for this alone
     for t in range(n_sn):
         m = row_at[t + 1] - row_at[t]
         value_at[t + 1] = value_at[t] + m * width[t]
         largest_front = max(largest_front, m)
+        widest = max(widest, width[t])
     values = np.empty(value_at[n_sn])
     diagonal = np.empty(n_linear)
     front = np.empty(largest_front * largest_front)
-    panel_t = np.empty(largest_front * max(1, np.max(width)) if n_sn else 1)
+    panel_t = np.empty(largest_front * widest if n_sn else 1)
     where = np.full(n_linear + schur.shape[0], -1, dtype=np.int64)
-    column_d = np.empty(max(1, np.max(width)) if n_sn else 1)
+    column_d = np.empty(widest)
     # the BLAS path's buffers, sized for its largest front
     big_w = big_m = 1
     for t in range(n_sn):
