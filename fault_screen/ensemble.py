@@ -33,9 +33,9 @@ WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THRE
 
 #: Dask settings of every local worker, on top of the user's: no statistical profiler (it walks
 #: the task thread's stack every 10 ms on the worker's event loop) and a slower event-loop tick
-#: (a check for a blocked loop, every 20 ms by default): together about a fifth of a task's CPU
-#: on the Rustrel scenes (benchmarks/forecast_ensemble.py counts each thread's CPU); only the
-#: dashboard's profile and the blocked-loop warning's precision are lost
+#: (a check for a blocked loop, every 20 ms by default): together an eighth to a fifth of a
+#: task's CPU on the Rustrel scenes (benchmarks/forecast_ensemble.py gives the other threads'
+#: share); only the dashboard's profile and the blocked-loop warning's precision are lost
 WORKER_CONFIG = {"distributed": {"worker": {"profile": {"enabled": False}},
                                  "admin": {"tick": {"interval": "500ms"}}}}
 

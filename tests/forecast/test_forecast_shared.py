@@ -91,6 +91,8 @@ def test_a_chunked_dask_run_equals_the_per_member_run(scene_dict, alone):
     for a in alone:
         _assert_same(a, runs[a.index])
     assert [runs[i].shared_factorizations for i in range(5)] == [0, 3, 3, 0, 0]
+    # the task's own thread: part of the worker process's CPU time, most of it
+    assert all(0.5 * r.cpu_s < r.thread_cpu_s <= r.cpu_s for r in runs.values())
 
 
 def test_a_store_keeps_at_most_its_number_of_factorisations(scene_dict):
