@@ -32,12 +32,16 @@ WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THRE
               "NUMBA_NUM_THREADS": "1"}
 
 #: Dask settings of every local worker, on top of the user's: no statistical profiler (it walks
-#: the task thread's stack every 10 ms on the worker's event loop) and a slower event-loop tick
-#: (a check for a blocked loop, every 20 ms by default): together an eighth to a fifth of a
-#: task's CPU on the Rustrel scenes (benchmarks/forecast_ensemble.py gives the other threads'
-#: share); only the dashboard's profile and the blocked-loop warning's precision are lost
-WORKER_CONFIG = {"distributed": {"worker": {"profile": {"enabled": False}},
-                                 "admin": {"tick": {"interval": "500ms"}}}}
+#: the task thread's stack every 10 ms on the worker's event loop), a slower event-loop tick (a
+#: check for a blocked loop, every 20 ms by default) and slower system and memory monitors (the
+#: dashboard's figures; the worker's own spill and pause checks, while the nanny still ends a
+#: worker over its memory limit at its own pace): together an eighth to a fifth of a task's CPU
+#: on the Rustrel scenes with the defaults (benchmarks/forecast_ensemble.py gives the other
+#: threads' share)
+WORKER_CONFIG = {"distributed": {"worker": {"profile": {"enabled": False},
+                                            "memory": {"monitor-interval": "1s"}},
+                                 "admin": {"tick": {"interval": "500ms"},
+                                           "system-monitor": {"interval": "2s"}}}}
 
 
 # ---- scene variants -------------------------------------------------------------------------

@@ -78,16 +78,17 @@ def test_local_dask_cluster_gives_the_in_process_numbers(tiny, tmp_path):
 
 
 def test_local_workers_run_without_the_profiler_and_keep_the_users_settings():
-    """The local workers' own settings (WORKER_CONFIG: no statistical profiler, a 500-ms tick)
-    go on top of the user's: a setting of the user's elsewhere in the same section reaches them."""
+    """The local workers' own settings (WORKER_CONFIG: no statistical profiler, a 500-ms tick, a
+    1-s memory monitor) go on top of the user's: a setting of the user's elsewhere in the same
+    sections reaches them."""
     import dask
 
     keys = ("distributed.worker.profile.enabled", "distributed.admin.tick.interval",
-            "distributed.worker.memory.monitor-interval")
-    with dask.config.set({"distributed.worker.memory.monitor-interval": "250ms"}):
+            "distributed.worker.memory.monitor-interval", "distributed.worker.memory.target")
+    with dask.config.set({"distributed.worker.memory.target": 0.55}):
         with Runner(1) as runner:
             seen = [list(runner.client.run(dask.config.get, key).values()) for key in keys]
-    assert seen == [[False], ["500ms"], ["250ms"]]
+    assert seen == [[False], ["500ms"], ["1s"], [0.55]]
     assert dask.config.get(keys[0]) is True   # this process's settings untouched
 
 
