@@ -17,12 +17,19 @@ the scene's own steps, to show what the ladder saves.
 The table gives the wall time of the ensemble on ``--workers`` local worker processes (one BLAS
 thread each; the cluster's start-up is left out and given apart) and each member's CPU time,
 which does not grow with the load of a shared machine as the wall time does: 32 times the
-median over the workers is what 32 members would take on that many idle cores.
+median over the workers is what 32 members would take on that many idle cores. Of that CPU, the
+worker's other threads (Dask's event loop) take what the next column says.
+
+A first table (``--profile N``, default 3) splits one member's CPU time into its phases, N
+members run in turn in this process after one that loads the compiled kernels (as
+``run_members`` runs them: one store of shared bulk data).
 """
 from __future__ import annotations
 
 import argparse
 import os
+import pickle
+import statistics
 import sys
 import time
 import uuid
@@ -36,7 +43,8 @@ from fault_screen import Scene  # noqa: E402
 from fault_screen.calibration import load_parameters, sample_parameters  # noqa: E402
 from fault_screen.ensemble import Runner  # noqa: E402
 from fault_screen.forecast import parse_plan  # noqa: E402
-from fault_screen.forecast.ensemble import ENSEMBLE_LADDER, chunks, run_members, summarise  # noqa: E402
+from fault_screen.forecast.ensemble import (ENSEMBLE_LADDER, MemberRun, chunks, member_steps,  # noqa: E402
+                                            run_members, summarise)
 
 NOTES = """\
 Why the bulk's factors are shared so little here: the hydraulic aperture enters the storage of
@@ -44,8 +52,11 @@ the rock's pressure next to the fault, so every draw has a bulk of its own; the 
 the bulk as it is but enters the contact's tangent and so the scaling of the fault's unknowns,
 which borders the factorised matrix. Members that differ only in the number of fractures (the
 source) factorise equal matrices and share them (tests/forecast/test_forecast_shared.py).
-The members' own histories (0 to the forecast time on the scene's 5-s steps) are the rest of a
-member's cost next to its look-aheads: each member needs its own.
+What is left of a member's CPU time is the model's own work (first table): its history (0 to the
+forecast time on the scene's 5-s steps: each member needs its own), the factorisations of the
+ladder's step sizes (made by the first plan, which the others reuse) and the look-aheads' steps.
+The history on the look-ahead's ladder (the last table) costs a few of its steps instead of
+the scene's.
 """
 
 #: the scene `fault-screen run` runs (first yellow at 705 s), and its SI reading (stays green)
@@ -89,13 +100,78 @@ def _warm():
 def rows_for(scene_label, label, wall, started, runs, workers):
     ok = [r for r in runs if r.ok]
     cpu = sorted(r.cpu_s for r in ok)
+    others = statistics.median(r.cpu_s - r.thread_cpu_s for r in ok)
     spread = summarise(runs)
     p = "; ".join(f"{m.plan}: {m.p_yellow:.2f}" for m in spread)
     median = cpu[len(cpu) // 2]
     made, shared = sum(r.factorizations for r in ok), sum(r.shared_factorizations for r in ok)
     return [(scene_label, label, f"{len(ok)}/{len(runs)}", f"{wall:.1f}", f"{started:.1f}",
-             f"{median:.2f}", f"{cpu[-1]:.2f}", f"{sum(cpu) / max(workers, 1):.1f}",
+             f"{median:.2f}", f"{others:.2f}", f"{cpu[-1]:.2f}", f"{sum(cpu) / max(workers, 1):.1f}",
              f"{TARGET_MEMBERS * median / max(workers, 1):.0f}", f"{made} / {shared}", p)]
+
+
+def profile(scene, draws, at, horizon, plans, ladder):
+    """({phase: [CPU time (s) of each member]}, {phase: what it did, for the last member}) of
+    ``draws[1:]`` run in turn in this process after ``draws[0]`` (which loads the compiled
+    kernels), one store of shared bulk data for all, as ``run_members`` runs them: the phases of
+    ``run_member`` taken apart."""
+    from fault_screen.ensemble import scene_with
+    from fault_screen.forecast.ensemble import BAND_METRICS
+    from fault_screen.forecast.lookahead import LookAhead
+    from fault_screen.screening.stepwise import StepScreening
+    from fault_screen.shared_bulk import SharedBulk, sharing
+    from fault_screen.stepper import Simulation
+
+    phases, notes, scene_dict = {}, {}, scene.to_dict()
+    with sharing(SharedBulk()):
+        for k, draw in enumerate(draws):
+            seen, clock = {}, [time.process_time()]
+
+            def tick(phase, note=""):
+                now = time.process_time()
+                seen[phase] = seen.get(phase, 0.0) + now - clock[0]
+                clock[0] = now
+                notes[phase] = note
+
+            member = scene_with(Scene.from_dict(scene_dict), draw)
+            tick("scene with the draw")
+            sim = Simulation(member)
+            fp = sim.disc.fault_points
+            screening = StepScreening.for_scene(member, fp.s - sim.disc.injection.s, fp.weight)
+            screening.screen_simulation(sim)
+            tick("set-up: discretisation, solver, screening")
+            while sim.advance(at, align=True, max_steps=1):
+                if sim.steps == 1:
+                    tick("history: first step", "the bulk's fixed pattern, order, first factors")
+                else:
+                    tick("history: the other steps")
+                screening.screen_simulation(sim)
+                tick("history: screening every row")
+            tick("history: the other steps", f"{sim.steps - 1} steps")
+            ahead = LookAhead(sim, screening, **member_steps({"ladder": ladder}))
+            tick("look-ahead: fork and screening state")
+            forecasts = []
+            for plan in plans:
+                made = ahead.ladder.factorizations
+                forecasts.append(ahead.run(plan, horizon))
+                tick(f"look-ahead: plan {plan.name}", f"{len(forecasts[-1].time) - 1} steps, "
+                     f"{ahead.ladder.factorizations - made} factorisations")
+            for f in forecasts:
+                f.metrics = {key: v for key, v in f.metrics.items() if key in BAND_METRICS}
+            size = len(pickle.dumps(MemberRun(index=k, params=draw, ok=True, forecasts=forecasts)))
+            tick("result: lean forecasts, pickled", f"{size / 1e3:.0f} kB")
+            if k:
+                for phase, cpu in seen.items():
+                    phases.setdefault(phase, []).append(cpu)
+    return phases, notes
+
+
+def profile_rows(scene_label, phases, notes):
+    total = [sum(cpu) for cpu in zip(*phases.values())]
+    whole = statistics.median(total)
+    rows = [(scene_label, phase, notes[phase], f"{statistics.median(cpu):.3f}",
+             f"{100 * statistics.median(cpu) / whole:.0f} %") for phase, cpu in phases.items()]
+    return rows + [(scene_label, "the member", f"median of {len(total)}", f"{whole:.3f}", "100 %")]
 
 
 def history_cost(scene_label, label, exact_runs, runs):
@@ -133,45 +209,59 @@ def main(argv=None):
     ap.add_argument("--workers", type=int, default=2, help="local worker processes [2]")
     ap.add_argument("--ladder", type=float, default=ENSEMBLE_LADDER, metavar="DT_MAX",
                     help=f"the ladder's largest step (s) [{ENSEMBLE_LADDER:g}, the --members default]")
-    ap.add_argument("--history-dt-max", type=float, default=40.0, metavar="DT_MAX",
+    ap.add_argument("--history-dt-max", type=float, default=None, metavar="DT_MAX",
                     help="also the ladder's members with their history on steps doubling up to DT_MAX (s) "
-                         "(0: not) [40]")
+                         "(0: not) [the ladder's: the history on the look-ahead's steps]")
+    ap.add_argument("--profile", type=int, default=3, metavar="N",
+                    help="members whose CPU time is split into phases, in this process (0: none) [3]")
     ap.add_argument("--scene", choices=("default", "SI", "both"), default="both", help="scenes [both]")
     ap.add_argument("--quick", action="store_true", help="4 members, 10 min ahead")
     ap.add_argument("--doc", action="store_true", help="write docs/performance/forecast-ensemble.md")
     args = ap.parse_args(argv)
     members, exact, horizon = ((4, min(args.exact_members, 2), 600.0) if args.quick
                                else (args.members, args.exact_members, args.horizon))
+    history = args.ladder if args.history_dt_max is None else args.history_dt_max
+    profiled = min(args.profile, 1) if args.quick else args.profile
     load = os.getloadavg()[0]
     params = load_parameters(PARAMETERS).select(list(FREE))
-    draws = sample_parameters(params, max(members, exact), "normal", 1)
+    draws = sample_parameters(params, max(members, exact, profiled + 1), "normal", 1)
     plans = [parse_plan(p) for p in PLANS]
     print(f"{members} members on a ladder to {args.ladder:g} s and {exact} on the scene's steps x {len(plans)} "
           f"plans ({', '.join(PLANS)}) at {args.at:g} s, {horizon:g} s ahead, {args.workers} workers; "
           f"{os.cpu_count()} cores, load average {load:.1f} at the start", flush=True)
-    rows, costs = [], []
+    rows, costs, phases = [], [], []
     for name in (("default", "SI") if args.scene == "both" else (args.scene,)):
         scene = Scene.from_toml(SCENES[name])
         label = f"{name}, {SCENES[name].name}"
+        if profiled > 0:
+            phases += profile_rows(label, *profile(scene, draws[:profiled + 1], args.at, horizon, plans, args.ladder))
+            print("\n".join(map(str, phases[-3:])), flush=True)
         laddered = ensemble(scene, draws[:members], args.at, horizon, plans, args.workers, {"ladder": args.ladder})
         rows += rows_for(label, f"ladder to {args.ladder:g} s", *laddered, args.workers)
         print(rows[-1], flush=True)
-        if args.history_dt_max > 0:
-            what = f"ladder to {args.ladder:g} s, history on steps to {args.history_dt_max:g} s"
+        if history > 0:
+            what = f"ladder to {args.ladder:g} s, history on steps to {history:g} s"
             longer = ensemble(scene, draws[:members], args.at, horizon, plans, args.workers,
-                              {"ladder": args.ladder, "history_dt_max": args.history_dt_max})
+                              {"ladder": args.ladder, "history_dt_max": history})
             rows += rows_for(label, what, *longer, args.workers)
-            costs += history_cost(label, f"history on steps to {args.history_dt_max:g} s", laddered[2], longer[2])
+            costs += history_cost(label, f"history on steps to {history:g} s", laddered[2], longer[2])
             print(rows[-1], costs[-1], flush=True)
         if exact:
             rows += rows_for(label, "scene's own steps", *ensemble(
                 scene, draws[:exact], args.at, horizon, plans, args.workers), args.workers)
             print(rows[-1], flush=True)
     head = ("scene", "look-ahead steps", "members ok", "wall (s)", "cluster start (s)",
-            "CPU per member, median (s)", "CPU per member, most (s)", f"sum of CPU / {args.workers} workers (s)",
+            "CPU per member, median (s)", "of which the worker's other threads, median (s)",
+            "CPU per member, most (s)", f"sum of CPU / {args.workers} workers (s)",
             f"{TARGET_MEMBERS} members on {args.workers} idle cores, from the median CPU (s)",
             "factorisations made / shared", "P(yellow) per plan")
     lines = table(head, rows)
+    if phases:
+        lines = ([f"One member's CPU time by phase ({profiled} members in turn in this process after one that "
+                  f"loads the compiled kernels, sharing one store as `run_members` does; history on the scene's "
+                  f"steps, look-ahead on the ladder to {args.ladder:g} s):", ""]
+                 + table(("scene", "phase", "what", "CPU, median (s)", "share"), phases)
+                 + ["", "The ensemble on the workers:", ""] + lines)
     if costs:
         lines += ["", "The history on longer steps against the scene's own (the same members, both looking ahead on "
                   "the ladder): the state at the forecast time and what the forecasts say.", ""]
@@ -192,7 +282,8 @@ def main(argv=None):
                  f"{args.ladder:g} s (the default of `fault-screen forecast --members`), {exact} on the scene's own "
                  f"steps. The members go to {args.workers} local workers in {2 * args.workers} tasks "
                  f"(`run_members`: the members of one process share the bulk's order and symbolic analysis, "
-                 f"and the factors of equal bulks). The target (issue 29): {TARGET_MEMBERS} members x 3 plans "
+                 f"the positions of its fixed pattern and the factors of equal bulks; the workers run without "
+                 f"Dask's statistical profiler). The target (issue 29): {TARGET_MEMBERS} members x 3 plans "
                  f"within {TARGET_S:g} s on 2 cores. The CPU time per member does not grow with the machine's "
                  f"load as the wall time does: {TARGET_MEMBERS} times its median over the workers estimates the "
                  f"target's wall time on idle cores.")

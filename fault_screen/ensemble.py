@@ -31,6 +31,18 @@ from .scene import Scene, SceneError
 WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
               "NUMBA_NUM_THREADS": "1"}
 
+#: Dask settings of every local worker, on top of the user's: no statistical profiler (it walks
+#: the task thread's stack every 10 ms on the worker's event loop), a slower event-loop tick (a
+#: check for a blocked loop, every 20 ms by default) and slower system and memory monitors (the
+#: dashboard's figures; the worker's own spill and pause checks, while the nanny still ends a
+#: worker over its memory limit at its own pace): together an eighth to a fifth of a task's CPU
+#: on the Rustrel scenes with the defaults (benchmarks/forecast_ensemble.py gives the other
+#: threads' share)
+WORKER_CONFIG = {"distributed": {"worker": {"profile": {"enabled": False},
+                                            "memory": {"monitor-interval": "1s"}},
+                                 "admin": {"tick": {"interval": "500ms"},
+                                           "system-monitor": {"interval": "2s"}}}}
+
 
 # ---- scene variants -------------------------------------------------------------------------
 def scene_with(scene: Scene, overrides: dict) -> Scene:
@@ -255,14 +267,18 @@ class Variant:
 
 def local_cluster(workers: int):
     """A ``distributed.LocalCluster`` of ``workers`` processes with one thread and one BLAS
-    thread each. The numba cache is the package's own (``__pycache__``) unless NUMBA_CACHE_DIR
-    is set, which the workers inherit: either way every worker shares one compiled cache."""
+    thread each, and :data:`WORKER_CONFIG`. The numba cache is the package's own
+    (``__pycache__``) unless NUMBA_CACHE_DIR is set, which the workers inherit: either way every
+    worker shares one compiled cache."""
+    import dask
     from distributed import LocalCluster
 
     env = dict(WORKER_ENV)
     if "NUMBA_CACHE_DIR" in os.environ:
         env["NUMBA_CACHE_DIR"] = os.environ["NUMBA_CACHE_DIR"]
     return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, env=env,
+                        config=dask.config.merge(dask.config.config, WORKER_CONFIG),  # (the nanny's
+                        # own merge keeps whole sections: the user's settings merged in here)
                         dashboard_address="127.0.0.1:0", silence_logs=40)  # any free local port
 
 

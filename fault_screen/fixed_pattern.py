@@ -17,6 +17,8 @@ to zero the position holds an explicit zero, which adds nothing wherever it is r
 """
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -56,6 +58,15 @@ def _gather(values, at):
     has = at >= 0
     out[has] = values[at[has]]
     return out
+
+
+def _canonical(X):
+    """X as CSR with sorted, summed entries (X itself when it is one)."""
+    X = sp.csr_matrix(X)
+    if not X.has_canonical_format:
+        X = X.copy()
+        X.sum_duplicates()
+    return X
 
 
 def _positions(blocks, shape):
@@ -129,11 +140,7 @@ class FixedBulk:
         # a slice drops no entry, and no number is zero; a stored zero, numbered 0, is dropped
         # as a sparse sum drops it), restricted to the free unknowns in order
         self._data, numbered = [], []
-        for X in blocks:
-            X = sp.csr_matrix(X)
-            if not X.has_canonical_format:
-                X = X.copy()
-                X.sum_duplicates()
+        for X in map(_canonical, blocks):
             self._data.append(X.data)
             number = np.where(X.data != 0.0, np.arange(1, X.nnz + 1, dtype=np.float64), 0.0)
             ids = sp.csr_matrix((number, X.indices, X.indptr), shape=X.shape)[order][:, order]
@@ -149,6 +156,7 @@ class FixedBulk:
             where = np.full(len(union), -1, dtype=_index_type(len(values)))
             where[at] = X.data.astype(np.int64) - 1
             self._at.append(where)
+        self._order = order
         self._scale = np.ascontiguousarray(scale[order])
         self._flow = None if flow is None else np.asarray(flow, dtype=bool)
         # the lower triangle of the first n_linear columns, and the condensed block
@@ -160,6 +168,27 @@ class FixedBulk:
         self._N_at = np.flatnonzero(on_N)
         # (positions in the column-major block)
         self._N_flat = (cols[on_N] - n_linear) * (n - n_linear) + (rows[on_N].astype(np.int64) - n_linear)
+
+    @staticmethod
+    def pattern_key(blocks, order, flow, n_linear):
+        """The arrays that decide every position of a ``FixedBulk`` of these arguments (each
+        block's pattern and nonzero entries, the order, the flow rows, ``n_linear``): equal
+        arrays, equal positions (see ``with_values``)."""
+        key = [np.asarray(order), np.asarray([n_linear, -1 if flow is None else 1]),
+               np.asarray([], dtype=bool) if flow is None else np.asarray(flow, dtype=bool)]
+        for X in map(_canonical, blocks):
+            key += [np.asarray(X.shape), X.indptr, X.indices, X.data != 0.0]
+        return key
+
+    def with_values(self, blocks, time_weight, scale):
+        """This pattern with the values of other ``blocks``, ``time_weight`` and ``scale``,
+        whose ``pattern_key`` (with this bulk's order, flow rows and n_linear) equals this
+        bulk's: a copy sharing the positions (read-only), the same bulk as one made from them."""
+        twin = copy.copy(self)
+        twin._data = [X.data for X in map(_canonical, blocks)]
+        twin._time_weight = time_weight
+        twin._scale = np.ascontiguousarray(scale[self._order])
+        return twin
 
     def _row_factor(self, dt):
         if self._flow is None:

@@ -345,9 +345,12 @@ class CondensedSystem:
         """The poroelastic bulk's fixed pattern (``fixed_pattern.FixedBulk``), made at the first
         call (the solver's: when the step size first changes) with its symmetry check."""
         if self._bulk is None:
-            nB = len(self.B)
-            self._bulk = FixedBulk((self.A, self.C, self.Hf), self.time_weight, self._order,
-                                   self.scale, ~self._mechanical[self._order], nB)
+            nB, blocks, flow = len(self.B), (self.A, self.C, self.Hf), ~self._mechanical[self._order]
+            # (inside sharing(): the positions of an earlier member's equal pattern, its values ours)
+            self._bulk = _with_shared(
+                lambda store, make: store.pattern(FixedBulk.pattern_key(blocks, self._order, flow, nB),
+                                                  make).with_values(blocks, self.time_weight, self.scale),
+                lambda: FixedBulk(blocks, self.time_weight, self._order, self.scale, flow, nB))
             self._bulk_symmetric = all(_linear_rows_symmetric(X, nB)
                                        for X in self._bulk.components())
             self.bulk_patterns += 1

@@ -4,9 +4,10 @@ The members of an ensemble are separate scenes, but the parameters an ensemble v
 leave the bulk (the linear block the solver factorises per step size) as it is: the friction
 and the number of fractures enter the fault's nonlinear terms and the source only. Inside
 ``with sharing():`` every :class:`~fault_screen.linear_system.CondensedSystem` of the process
-takes its fill-reducing order, its symbolic analyses and its factors from here when a
-simulation before it made them for exactly the same input (decided by a hash of the bytes:
-pattern and coordinates for the order, pattern and values for the factors), and makes them
+takes its fill-reducing order, its symbolic analyses, the positions of its poroelastic bulk's
+fixed pattern and its factors from here when a simulation before it made them for exactly the
+same input (decided by a hash of the bytes: pattern and coordinates for the order, the blocks'
+patterns and the order for the positions, pattern and values for the factors), and makes them
 otherwise. Equal input gives equal factors, so a shared run is bit-identical to one made
 alone. The factors are read-only for their users (a step replaces them, never writes into
 them, as forks already rely on); the Schur complement, which its owner takes and overwrites,
@@ -43,11 +44,15 @@ def _digest(*arrays) -> bytes:
 
 class SharedBulk:
     """What the simulations inside one ``sharing()`` block share (see the module docstring).
-    ``made`` / ``shared``: factorisations made here / handed out again."""
+    ``made`` / ``shared``: factorisations made here / handed out again; ``patterns_made`` /
+    ``patterns_shared``: the same for the bulk's fixed pattern (its positions: an equal pattern
+    with other values, ``fixed_pattern.FixedBulk.with_values``)."""
 
     def __init__(self, max_factors: int = MAX_FACTORS):
         self.analyses = SymbolicAnalyses()   # (keyed by pattern itself)
         self._orders = {}
+        self._patterns = {}                  # fixed patterns of the bulk, by their key
+        self.patterns_made = self.patterns_shared = 0
         self._factors = {}                   # in the order made: the oldest goes first
         self.max_factors = int(max_factors)
         self.made = 0
@@ -61,6 +66,16 @@ class SharedBulk:
         if key not in self._orders:
             self._orders[key] = make()
         return self._orders[key]
+
+    def pattern(self, key_arrays, make):
+        """``make()`` (a bulk's fixed pattern), or what it gave for equal ``key_arrays``."""
+        key = _digest(*key_arrays)
+        if key not in self._patterns:
+            self._patterns[key] = make()
+            self.patterns_made += 1
+        else:
+            self.patterns_shared += 1
+        return self._patterns[key]
 
     def factors(self, matrix_arrays, n_linear: int, split, factorise):
         """``factorise()``, or the factors it gave for the same matrix (``matrix_arrays``: the

@@ -73,7 +73,9 @@ class MemberRun:
     """What one member's task returns. ``forecasts``: one :class:`Forecast` per forecast time
     and plan (times outer, plans inner); ``advice``: one :class:`Advice` per forecast time when
     advice was asked (its look-aheads left out); ``wall_s`` / ``cpu_s``: the task's wall and
-    CPU time (s), scene building and history included; ``factorizations`` /
+    CPU time (s; the process's, every thread), scene building and history included;
+    ``thread_cpu_s``: the CPU time of the thread that ran it (the rest of ``cpu_s`` is what the
+    process's other threads took meanwhile: a Dask worker's event loop); ``factorizations`` /
     ``shared_factorizations``: bulk factorisations made / taken from an earlier member of the
     same process (:func:`run_members`; 0 for a member run alone)."""
 
@@ -85,6 +87,7 @@ class MemberRun:
     error: str = ""
     wall_s: float = math.nan
     cpu_s: float = math.nan
+    thread_cpu_s: float = math.nan
     factorizations: int = 0
     shared_factorizations: int = 0
 
@@ -144,7 +147,7 @@ def run_member(index: int, scene_dict: dict, overrides: dict, times: Sequence[fl
     from ..scene import Scene
 
     run = MemberRun(index=index, params=dict(overrides))
-    wall0, cpu0 = _time.perf_counter(), _time.process_time()
+    wall0, cpu0, thread0 = _time.perf_counter(), _time.process_time(), _time.thread_time()
     try:
         scene = scene_with(Scene.from_dict(scene_dict), overrides)
         for ahead in lookaheads(scene, times, drive, start, steps):
@@ -158,8 +161,9 @@ def run_member(index: int, scene_dict: dict, overrides: dict, times: Sequence[fl
         run.error = f"{type(exc).__name__}: {exc}"
         if os.environ.get("FAULT_SCREEN_TRACEBACK"):
             run.error += "\n" + traceback.format_exc()
-    run.wall_s = _time.perf_counter() - wall0
+    run.thread_cpu_s = _time.thread_time() - thread0   # (inside the process's window)
     run.cpu_s = _time.process_time() - cpu0
+    run.wall_s = _time.perf_counter() - wall0
     return run
 
 

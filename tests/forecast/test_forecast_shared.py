@@ -1,5 +1,5 @@
-"""Members of an ensemble run in one process share the bulk's order, symbolic analyses and, where
-their bulks are equal, its factors (fault_screen/shared_bulk.py, forecast.ensemble.run_members):
+"""Members of an ensemble run in one process share the bulk's order, symbolic analyses, the
+positions of its fixed pattern and, where their bulks are equal, its factors (fault_screen/shared_bulk.py, forecast.ensemble.run_members):
 every array of every forecast must equal the member's run alone, bit for bit.
 
 The scene: the SI calibrated Rustrel scene (rock pore pressure: the bulk is factorised per step
@@ -71,6 +71,9 @@ def test_members_sharing_factors_equal_each_member_run_alone(scene_dict, alone):
     assert [r.shared_factorizations for r in shared] == [0, 3, 3, 0, 0]
     assert all(r.factorizations == r.shared_factorizations == 0 for r in alone)
     assert len(store._orders) == 1 and len(store.analyses._held) == 1   # one pattern
+    # the positions of the bulk's fixed pattern: made by the first member, whose values alone
+    # differ from the next four's (the friction's scaling and the aperture's storage included)
+    assert (store.patterns_made, store.patterns_shared) == (1, 4)
 
 
 def test_a_chunked_dask_run_equals_the_per_member_run(scene_dict, alone):
@@ -88,6 +91,8 @@ def test_a_chunked_dask_run_equals_the_per_member_run(scene_dict, alone):
     for a in alone:
         _assert_same(a, runs[a.index])
     assert [runs[i].shared_factorizations for i in range(5)] == [0, 3, 3, 0, 0]
+    # the task's own thread: part of the worker process's CPU time, most of it
+    assert all(0.5 * r.cpu_s < r.thread_cpu_s <= r.cpu_s for r in runs.values())
 
 
 def test_a_store_keeps_at_most_its_number_of_factorisations(scene_dict):

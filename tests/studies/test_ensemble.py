@@ -7,7 +7,7 @@ import pytest
 
 from conftest import CONFIGS
 from fault_screen import Scene, simulate
-from fault_screen.ensemble import (TaskOutcome, Variant, default_summary, reach_probabilities,
+from fault_screen.ensemble import (Runner, TaskOutcome, Variant, default_summary, reach_probabilities,
                                    read_ensemble, run_ensemble, scene_with)
 from fault_screen.scene import SceneError
 
@@ -75,6 +75,21 @@ def test_local_dask_cluster_gives_the_in_process_numbers(tiny, tmp_path):
         assert t.summary["peak_overpressure"] == h.summary["peak_overpressure"]
         assert t.summary["injection_slip"] == h.summary["injection_slip"]
     assert len(read_ensemble(tmp_path / "d.h5")) == 2
+
+
+def test_local_workers_run_without_the_profiler_and_keep_the_users_settings():
+    """The local workers' own settings (WORKER_CONFIG: no statistical profiler, a 500-ms tick, a
+    1-s memory monitor) go on top of the user's: a setting of the user's elsewhere in the same
+    sections reaches them."""
+    import dask
+
+    keys = ("distributed.worker.profile.enabled", "distributed.admin.tick.interval",
+            "distributed.worker.memory.monitor-interval", "distributed.worker.memory.target")
+    with dask.config.set({"distributed.worker.memory.target": 0.55}):
+        with Runner(1) as runner:
+            seen = [list(runner.client.run(dask.config.get, key).values()) for key in keys]
+    assert seen == [[False], ["500ms"], ["1s"], [0.55]]
+    assert dask.config.get(keys[0]) is True   # this process's settings untouched
 
 
 def test_existing_scheduler_gives_the_in_process_numbers(tiny):
