@@ -223,11 +223,11 @@ def locate_fault(mesh: StructuredMesh, point, angle_deg: float, length: float | 
     support = np.zeros(mesh.n_nodes)
     far_side = np.zeros(mesh.n_nodes)
     # the standard shape functions at the points (nq, 4 each), tabulated at once
-    shapes = tabulate_cut(cut.astype(np.int64), elems, phi, sizes, cut_qp,
-                          cut_side.astype(np.float64))[0]
+    shapes = np.ascontiguousarray(np.moveaxis(basis.shape(cut_qp[:, :, 0], cut_qp[:, :, 1]),
+                                              0, -1))
     for k in range(n_cut):
         xe_nodes = cut_nodes[k]
-        shape = shapes[k, :, :4]
+        shape = shapes[k]
         for a in range(4):
             node = xe_nodes[a]
             node_side = 1 if phi[node] > 0 else 0
@@ -369,13 +369,11 @@ def tabulate_cut(cut_elements, elements, node_phi, sizes, cut_qp, cut_side):
     nc, nqc = cut_qp.shape[:2]
     xi, eta = cut_qp[:, :, 0], cut_qp[:, :, 1]
     hx, hy = sizes[cut_elements, 0][:, None], sizes[cut_elements, 1][:, None]
-    N = np.stack([0.25 * (1 - xi) * (1 - eta), 0.25 * (1 + xi) * (1 - eta),
-                  0.25 * (1 + xi) * (1 + eta), 0.25 * (1 - xi) * (1 + eta)], axis=-1)
-    dN = np.stack([np.stack([-0.25 * (1 - eta) * 2 / hx, -0.25 * (1 - xi) * 2 / hy], axis=-1),
-                   np.stack([0.25 * (1 - eta) * 2 / hx, -0.25 * (1 + xi) * 2 / hy], axis=-1),
-                   np.stack([0.25 * (1 + eta) * 2 / hx, 0.25 * (1 + xi) * 2 / hy], axis=-1),
-                   np.stack([-0.25 * (1 + eta) * 2 / hx, 0.25 * (1 - xi) * 2 / hy], axis=-1)],
-                  axis=2)                                             # (nc, nqc, 4, 2)
+    # (basis's formulas are elementwise: on arrays of points they give every point at once;
+    # contiguous, as the products downstream sum in an order that follows the memory layout)
+    N = np.ascontiguousarray(np.moveaxis(basis.shape(xi, eta), 0, -1))      # (nc, nqc, 4)
+    dN = np.ascontiguousarray(np.transpose(basis.shape_gradient(xi, eta, hx, hy),
+                                           (2, 3, 0, 1)))                    # (nc, nqc, 4, 2)
     phi = node_phi[elements[cut_elements]][:, None, :]                # (nc, 1, 4)
     node_side = (phi > 0).astype(np.float64)
     shift = cut_side[:, :, None] - node_side                          # (nc, nqc, 4)

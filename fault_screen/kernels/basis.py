@@ -14,12 +14,15 @@ import numpy as np
 
 
 def shape(xi, eta):
+    """The four bilinear functions at (xi, eta) (4,); elementwise, so arrays of points give
+    (4, *points)."""
     return np.array([0.25 * (1 - xi) * (1 - eta), 0.25 * (1 + xi) * (1 - eta),
                      0.25 * (1 + xi) * (1 + eta), 0.25 * (1 - xi) * (1 + eta)])
 
 
 def shape_gradient(xi, eta, hx, hy):
-    """Physical gradients (4, 2) on an hx by hy rectangle (1/m)."""
+    """Physical gradients (4, 2) on an hx by hy rectangle (1/m); elementwise, so arrays of
+    points (and sizes broadcasting with them) give (4, 2, *points)."""
     return np.array([[-0.25 * (1 - eta) * 2 / hx, -0.25 * (1 - xi) * 2 / hy],
                      [0.25 * (1 - eta) * 2 / hx, -0.25 * (1 + xi) * 2 / hy],
                      [0.25 * (1 + eta) * 2 / hx, 0.25 * (1 + xi) * 2 / hy],
