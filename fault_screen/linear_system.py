@@ -664,10 +664,17 @@ def _tangent_change(n, slot_rows, slot_cols, slots, weight, vals, then):
 def _sparse_times(indptr, indices, values, v, out):
     """out += S v (S in CSR)."""
     for i in range(indptr.shape[0] - 1):
-        acc = 0.0
-        for k in range(indptr[i], indptr[i + 1]):
-            acc += values[k] * v[indices[k]]
-        out[i] += acc
+        out[i] += _csr_row_times(indptr, indices, values, v, i)
+
+
+@helper
+def _csr_row_times(indptr, indices, data, v, i):
+    """Row i of a CSR matrix times v, summed from 0.0 over the row's entries in order (as
+    scipy's csr_matvec sums it: the same bits)."""
+    acc = 0.0
+    for k in range(indptr[i], indptr[i + 1]):
+        acc += data[k] * v[indices[k]]
+    return acc
 
 
 class _BlockPattern:

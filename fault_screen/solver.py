@@ -24,7 +24,7 @@ import scipy.sparse as sp
 from ._jit import helper, kernel
 from .assembly import TripletBuilder
 from .discretisation import Discretisation
-from .linear_system import CondensedSystem, PendingBulk, unsigned_indices
+from .linear_system import CondensedSystem, PendingBulk, _csr_row_times, unsigned_indices
 from .physics import ConstantMatrices, Term
 
 
@@ -135,16 +135,6 @@ def _scaled_field_norms(R, scale, mech_at, flow_at):
     mech, finite_mech = _norm_at(sR, mech_at)
     flow, finite_flow = _norm_at(sR, flow_at)
     return sR, mech, flow, finite_mech and finite_flow
-
-
-@helper
-def _csr_row_times(indptr, indices, data, v, i):
-    """Row i of a CSR matrix times v, summed from 0.0 over the row's entries in order (as
-    scipy's csr_matvec sums it: the same bits)."""
-    acc = 0.0
-    for k in range(indptr[i], indptr[i + 1]):
-        acc += data[k] * v[indices[k]]
-    return acc
 
 
 @kernel
