@@ -68,3 +68,49 @@ def test_graded_line_keeps_the_focus_on_a_node_and_grows_geometrically():
     h = np.diff(x)
     assert np.allclose(h[np.abs(x[:-1] + 0.5 * h) < 10], 1.0)
     assert np.all(h > 0) and h.max() / h.min() < 1.2 ** 30
+
+
+def test_row_sums_are_each_runs_own_sum_to_the_bit():
+    """``xfem._row_sums`` (the sliver test's sums over each node's far side, all elements at
+    once) gives each run's ``np.sum`` exactly, for runs of 0 to 50 values (numpy sums 8 and more
+    pairwise: a sum over a longer row with zeros in place of the others would group them
+    differently)."""
+    rng = np.random.default_rng(7)
+    counts = np.array([0, 1, 5, 0, 7, 8, 9, 0, 0, 15, 16, 17, 33, 50, 2, 0])
+    values = rng.standard_normal(counts.sum()) * 10.0 ** rng.integers(-8, 8, counts.sum())
+    sums = xfem._row_sums(values, counts)
+    starts = np.concatenate([[0], np.cumsum(counts)])
+    expected = np.array([values[a:b].sum() for a, b in zip(starts[:-1], starts[1:])])
+    assert np.array_equal(sums, expected)
+    assert np.array_equal(xfem._row_sums(np.zeros(0), np.zeros(3, dtype=np.int64)), np.zeros(3))
+
+
+@pytest.mark.parametrize("angle,offset", [(0.0, 0.4), (37.0, 0.0), (45.0, 0.0), (-63.0, 0.2)])
+def test_enrichment_and_fault_points_are_those_made_element_by_element(angle, offset):
+    """The sliver test's integrals and the fault's Gauss points, made for all elements at once,
+    equal (to the bit) those made one element and one node at a time; the 45-degree fault passes
+    through the mesh's nodes (moved off them)."""
+    mesh = build_mesh(10, 10, 10.0, 10.0)
+    f = xfem.locate_fault(mesh, (5.0, 5.0 + offset), angle)
+    cut_nodes = mesh.elements[f.cut_elements]
+    support, far_side = np.zeros(mesh.n_nodes), np.zeros(mesh.n_nodes)
+    for k in range(len(f.cut_elements)):
+        shape = np.array([xfem.basis.shape(*q) for q in f.cut_qp[k]])
+        for a in range(4):
+            node = cut_nodes[k, a]
+            wN = f.cut_w[k] * shape[:, a]
+            support[node] += wN.sum()
+            far_side[node] += wN[f.cut_side[k] != (1 if f.node_phi[node] > 0 else 0)].sum()
+    enriched = np.zeros(mesh.n_nodes, dtype=bool)
+    enriched[cut_nodes.ravel()] = True
+    assert np.array_equal(f.heaviside_enriched, enriched & (far_side > 0.0))
+    # every cut element's area is the sum of its nodes' supports there (partition of unity)
+    assert support.sum() == pytest.approx(float(f.cut_w.sum()), rel=1e-13)
+    for k in range(len(f.segment_s)):
+        (s0, s1), (r0, r1) = f.segment_s[k], f.segment_ref[k]
+        for g, (xg, wg) in enumerate(zip(xfem.GL4_X, xfem.GL4_W)):
+            lam = 0.5 * (xg + 1.0)
+            i = 4 * k + g
+            assert np.array_equal(f.gp_ref[i], r0 + lam * (r1 - r0))
+            assert f.gp_w[i] == 0.5 * wg * (s1 - s0) and f.gp_s[i] == s0 + lam * (s1 - s0)
+            assert f.gp_xi1d[i] == lam and f.gp_segment[i] == k and f.gp_element[i] == k
