@@ -220,18 +220,20 @@ def locate_fault(mesh: StructuredMesh, point, angle_deg: float, length: float | 
     cut_nodes = elems[cut]
     enriched = np.zeros(mesh.n_nodes, dtype=bool)
     enriched[cut_nodes.ravel()] = True
-    # each enriched node's function integrated over its cut elements (support) and over their
-    # far side from it (far_side), each element's sums made as a point at a time would make
-    # them (one contiguous row of the element's points each, the rows in the elements' order)
-    shapes = np.ascontiguousarray(np.moveaxis(basis.shape(cut_qp[:, :, 0], cut_qp[:, :, 1]),
-                                              0, -1))                            # (n_cut, nq, 4)
-    wN = np.ascontiguousarray(np.transpose(cut_w[:, :, None] * shapes, (0, 2, 1)))  # (n_cut, 4, nq)
-    node_side = (phi[cut_nodes] > 0).astype(np.int64)                              # (n_cut, 4)
-    far = cut_side[:, None, :] != node_side[:, :, None]                            # (n_cut, 4, nq)
     support = np.zeros(mesh.n_nodes)
-    np.add.at(support, cut_nodes.ravel(), wN.sum(axis=2).ravel())
     far_side = np.zeros(mesh.n_nodes)
-    np.add.at(far_side, cut_nodes.ravel(), _row_sums(wN[far], far.sum(axis=2).ravel()))
+    # the standard shape functions at the points (nq, 4 each), tabulated at once
+    shapes = np.ascontiguousarray(np.moveaxis(basis.shape(cut_qp[:, :, 0], cut_qp[:, :, 1]),
+                                              0, -1))
+    for k in range(n_cut):
+        xe_nodes = cut_nodes[k]
+        shape = shapes[k]
+        for a in range(4):
+            node = xe_nodes[a]
+            node_side = 1 if phi[node] > 0 else 0
+            wN = cut_w[k] * shape[:, a]
+            support[node] += wN.sum()
+            far_side[node] += wN[cut_side[k] != node_side].sum()
     heav = enriched & (far_side > SLIVER_FRACTION * np.maximum(support, 1e-300))
     # past a tip the line crosses elements the fault does not cut: a node of one of them (the
     # tip's edge) gets no jump, so the fault closes at its tip
@@ -275,31 +277,21 @@ def _finite(segment_s, length, h_min):
 
 
 def _fault_gauss_points(segment_s, segment_ref, segment_element) -> dict:
-    """4-point Gauss-Legendre points of every fault segment (the gp_* fields), segment by
-    segment (each point's arithmetic that of one point alone)."""
-    n, ng = len(segment_s), len(GL4_X)
-    lam = 0.5 * (GL4_X + 1.0)
-    r0, r1 = segment_ref[:, None, 0, :], segment_ref[:, None, 1, :]     # (n, 1, 2)
-    s0, s1 = segment_s[:, 0, None], segment_s[:, 1, None]              # (n, 1)
-    return dict(gp_element=np.repeat(np.asarray(segment_element, dtype=np.int64), ng),
-                gp_ref=(r0 + lam[:, None] * (r1 - r0)).reshape(n * ng, 2),
-                gp_w=(0.5 * GL4_W * (s1 - s0)).ravel(),
-                gp_s=(s0 + lam * (s1 - s0)).ravel(),
-                gp_segment=np.repeat(np.arange(n, dtype=np.int64), ng),
-                gp_xi1d=np.tile(lam, n))
-
-
-def _row_sums(values, counts):
-    """The sums of consecutive runs of ``values``, ``counts`` long each (0 for an empty run),
-    each the bits of ``np.sum`` of the run alone: the runs of one length summed together as the
-    rows of one array (numpy sums a row of 8 or more pairwise, so neither zeros added to make
-    the rows one length nor ``np.add.reduceat``, which sums in sequence, would do)."""
-    sums = np.zeros(len(counts))
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-    for length in np.unique(counts[counts > 0]):
-        runs = np.flatnonzero(counts == length)
-        sums[runs] = values[starts[runs][:, None] + np.arange(length)].sum(axis=1)
-    return sums
+    """4-point Gauss-Legendre points of every fault segment (the gp_* fields)."""
+    gp_el, gp_ref, gp_w, gp_s, gp_seg, gp_xi = [], [], [], [], [], []
+    for k in range(len(segment_s)):
+        r0, r1 = segment_ref[k]
+        s0, s1 = segment_s[k]
+        for xg, wg in zip(GL4_X, GL4_W):
+            lam = 0.5 * (xg + 1.0)
+            gp_el.append(segment_element[k])
+            gp_ref.append(r0 + lam * (r1 - r0))
+            gp_w.append(0.5 * wg * (s1 - s0))
+            gp_s.append(s0 + lam * (s1 - s0))
+            gp_seg.append(k)
+            gp_xi.append(lam)
+    return dict(gp_element=np.array(gp_el, dtype=np.int64), gp_ref=np.array(gp_ref), gp_w=np.array(gp_w),
+                gp_s=np.array(gp_s), gp_segment=np.array(gp_seg, dtype=np.int64), gp_xi1d=np.array(gp_xi))
 
 
 def with_node_at(geom: FaultGeometry, s: float) -> FaultGeometry:
