@@ -25,6 +25,17 @@ solves): one thread against two (``bordered_lu._each_part``), wall and process C
 ``--repeat``, side by side in one run; and the dense separator's LU solve (``lu_solve``: getrs on
 R_SS) with the products beside it. On a shared machine wall times measure the other processes
 too: compare the rows of one run, and read the CPU columns.
+
+    python benchmarks/sweeps.py --phases            # where a whole run spends its time
+
+``--phases``: each scene run whole in this process (after a first run that loads its kernels
+from numba's cache, timed too), with timers around the set-up's phases (mesh, fault geometry,
+the fault's points, the elements' tabulation, the rest of the discretisation, the assembly of
+the constant matrices, the fill-reducing order, the factorisations) and the steps' (forward and
+backward sweeps with the separator's solves, the condensed solve, the residual, the contact
+law, the output per step, the rest of the Newton iteration). Each phase's own time (the
+phases it calls subtracted), wall and process CPU (the sweep worker thread's included, in the
+sweeps), in seconds.
 """
 from __future__ import annotations
 
@@ -191,13 +202,143 @@ def separator(lu, repeat):
                 S_from_N=least_cpu(lambda: lu._S_from_N @ xN, repeat)[0])
 
 
+#: (module, attribute, phase) timed by ``--phases``: a function or a method (``Class.name``)
+PHASES = [
+    ("fault_screen.discretisation", "model_mesh", "set-up: mesh"),
+    ("fault_screen.xfem", "locate_fault", "set-up: fault geometry (locate_fault)"),
+    ("fault_screen.discretisation", "Discretisation._tabulate_fault", "set-up: fault points"),
+    ("fault_screen.discretisation", "Discretisation._tabulate_bulk", "set-up: element tabulation"),
+    ("fault_screen.solver", "assemble_constant", "set-up: assembly of the constant matrices"),
+    ("fault_screen.linear_system", "nested_dissection", "set-up: fill-reducing order"),
+    ("fault_screen.linear_system", "CondensedSystem._factorise_held", "factorisations of the bulk"),
+    ("fault_screen.bordered_lu", "BorderedLU.forward", "steps: forward sweeps"),
+    ("fault_screen.bordered_lu", "SplitBorderedLU.forward", "steps: forward sweeps"),
+    ("fault_screen.bordered_lu", "BorderedLU.backward", "steps: backward sweeps"),
+    ("fault_screen.bordered_lu", "SplitBorderedLU.backward", "steps: backward sweeps"),
+    ("fault_screen.linear_system", "CondensedSolver.solve", "steps: condensed solve"),
+    ("fault_screen.solver", "NewtonSolver._residual", "steps: residual"),
+    ("fault_screen.physics.contact", "Contact.residual", "steps: contact law"),
+    ("fault_screen.stepper", "Recorder.record", "steps: output per step"),
+]
+
+
+class _PhaseTimers:
+    """Timers around PHASES (in the main thread only: a split block's worker runs inside the
+    main thread's sweep, whose process CPU time counts it), each phase's own time kept."""
+
+    def __init__(self):
+        import threading
+
+        self.main = threading.main_thread()
+        self.own = {}      # phase -> [wall, cpu, calls]
+        self.stack = []    # [phase, wall0, cpu0, children's wall, children's cpu]
+        self.stage = None  # what the run is doing: "set-up", "steps", "result"
+        self.timed = {}    # stage -> [wall, cpu] inside the phases
+        self.undo = []
+
+    def wrap(self, fn, phase):
+        import functools
+        import threading
+
+        @functools.wraps(fn)
+        def timed(*args, **kwargs):
+            if threading.current_thread() is not self.main:
+                return fn(*args, **kwargs)
+            self.stack.append([phase, time.perf_counter(), time.process_time(), 0.0, 0.0])
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                _, w0, c0, cw, cc = self.stack.pop()
+                wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+                own = self.own.setdefault(phase, [0.0, 0.0, 0])
+                own[0] += wall - cw
+                own[1] += cpu - cc
+                own[2] += 1
+                inside = self.timed.setdefault(self.stage, [0.0, 0.0])
+                inside[0] += wall - cw
+                inside[1] += cpu - cc
+                if self.stack:
+                    self.stack[-1][3] += wall
+                    self.stack[-1][4] += cpu
+        return timed
+
+    def __enter__(self):
+        import importlib
+
+        for module, name, phase in PHASES:
+            owner = importlib.import_module(module)
+            *outer, attr = name.split(".")
+            for part in outer:
+                owner = getattr(owner, part)
+            original = owner.__dict__[attr]
+            setattr(owner, attr, self.wrap(original, phase))
+            self.undo.append((owner, attr, original))
+        return self
+
+    def __exit__(self, *exc):
+        for owner, attr, original in reversed(self.undo):
+            setattr(owner, attr, original)
+
+
+def phases(name):
+    """Seconds (wall, CPU) per phase of a whole run of the scene: (rows, totals)."""
+    from fault_screen import Simulation
+
+    scene = _scene(name)
+    w0, c0 = time.perf_counter(), time.process_time()
+    first = Simulation(scene)       # (the kernels loaded from numba's cache, their first calls)
+    first.advance(scene.time.end)
+    first.result()
+    del first
+    first_run = (time.perf_counter() - w0, time.process_time() - c0)
+    with _PhaseTimers() as timers:
+        w0, c0 = time.perf_counter(), time.process_time()
+        timers.stage = "set-up"
+        sim = Simulation(scene)
+        w1, c1 = time.perf_counter(), time.process_time()
+        timers.stage = "steps"      # (the order and the first factorisation: in the first step)
+        sim.advance(scene.time.end)
+        w2, c2 = time.perf_counter(), time.process_time()
+        timers.stage = "result"
+        sim.result()
+        w3, c3 = time.perf_counter(), time.process_time()
+    own = timers.own
+    inside = {k: timers.timed.get(k, [0.0, 0.0]) for k in ("set-up", "steps", "result")}
+    rest = {"set-up: the rest (Simulation: physics, unknowns, boundary conditions, solver)":
+                (w1 - w0 - inside["set-up"][0], c1 - c0 - inside["set-up"][1]),
+            "steps: the rest (Newton iteration, line search, step control)":
+                (w2 - w1 - inside["steps"][0], c2 - c1 - inside["steps"][1]),
+            "result": (w3 - w2 - inside["result"][0], c3 - c2 - inside["result"][1])}
+    rows = [(phase, wall, cpu, calls) for phase, (wall, cpu, calls) in own.items()]
+    rows += [(phase, wall, cpu, 1) for phase, (wall, cpu) in rest.items()]
+    return rows, dict(steps=len(sim.result().time) - 1, dofs=sim.disc.n_dofs, total=(w3 - w0, c3 - c0),
+                      first_run=first_run)
+
+
+def print_phases(name):
+    rows, totals = phases(name)
+    print(f"\n## {name}: {totals['dofs']} unknowns, {totals['steps']} steps; whole run {totals['total'][0]:.2f} s "
+          f"wall, {totals['total'][1]:.2f} s CPU (the first run in this process, kernels loaded: "
+          f"{totals['first_run'][0]:.2f} s wall, {totals['first_run'][1]:.2f} s CPU)")
+    print("| phase | calls | wall s | CPU s |")
+    print("|---|---|---|---|")
+    for phase, wall, cpu, calls in sorted(rows, key=lambda r: (not r[0].startswith("set-up"), -r[2])):
+        print(f"| {phase} | {calls} | {wall:.2f} | {cpu:.2f} |")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenes", nargs="*", default=list(SCENES[:2]), choices=SCENES)
     ap.add_argument("--repeat", type=int, default=15)
+    ap.add_argument("--phases", action="store_true", help="where a whole run spends its time")
     args = ap.parse_args(argv)
     print(f"load average at start: {os.getloadavg()[0]:.1f}")
+    if args.phases:
+        for name in args.scenes:
+            print_phases(name)
+        print(f"\nload average at end: {os.getloadavg()[0]:.1f}")
+        return
     for name in args.scenes:
         lu = factors_of(name)
         parts = getattr(lu, "_parts", [lu])

@@ -295,43 +295,41 @@ class Discretisation:
 
     # ------------------------------------------------------------------ fault tabulation
     def _tabulate_fault(self):
+        """The fault's Gauss points: their standard shape functions, position, and the pressure
+        functions along the fault (the rock's, standard and level-set enriched, traced along the
+        tangent; or the fault line's own linear ones), all points at once."""
         f = self.fault
         ng = len(f.gp_s)
-        cut_nodes = self.elements[self.cut_elements]
         sizes = self.mesh.element_sizes
-        N = np.zeros((ng, 4))
-        xy = np.zeros((ng, 2))
+        nodes = self.elements[self.cut_elements[f.gp_element]]                  # (ng, 4)
+        xi, eta = f.gp_ref[:, 0], f.gp_ref[:, 1]
+        N = np.ascontiguousarray(basis.shape(xi, eta).T)                        # (ng, 4)
+        # (each point's row times its element's coordinates: the same product as one at a time)
+        xy = np.matmul(N[:, None, :], self.coords[nodes])[:, 0, :]
         # the fault pressure is the trace of the rock pressure unless the fault has its own line
         trace = self.has("c") or (not self.has("pf") and self.has("p"))
         nbp = 8 if trace else 2
-        Np = np.zeros((ng, nbp))
-        dNp = np.zeros((ng, nbp))
         pmap = -np.ones((ng, nbp), dtype=np.int64)
-        for g in range(ng):
-            k = f.gp_element[g]
-            e = self.cut_elements[k]
-            xi, eta = f.gp_ref[g]
-            Ng = basis.shape(xi, eta)
-            N[g] = Ng
-            xy[g] = Ng @ self.coords[cut_nodes[k]]
-            if trace:
-                dN = basis.shape_gradient(xi, eta, sizes[e, 0], sizes[e, 1])
-                Nl, dNl = basis.level_set_basis(Ng, dN, f.node_phi[cut_nodes[k]])
-                Np[g, :4], Np[g, 4:] = Ng, Nl
-                dNp[g, :4], dNp[g, 4:] = dN @ f.tangent, dNl @ f.tangent
-                if self.has("p"):
-                    pmap[g, :4] = self._p_map(cut_nodes[k])
-                if self.has("c"):
-                    pmap[g, 4:] = self._c_map(cut_nodes[k])
-            else:
-                lam = f.gp_xi1d[g]
-                s0, s1 = f.segment_s[f.gp_segment[g]]
-                Np[g] = (1.0 - lam, lam)
-                dNp[g] = (-1.0 / (s1 - s0), 1.0 / (s1 - s0))
-                if self.has("pf"):
-                    pmap[g] = self.blocks.pf.start + f.segment_nodes[f.gp_segment[g]]
+        if trace:
+            e = self.cut_elements[f.gp_element]
+            dN = np.ascontiguousarray(np.transpose(
+                basis.shape_gradient(xi, eta, sizes[e, 0], sizes[e, 1]), (2, 0, 1)))   # (ng, 4, 2)
+            Nl, dNl = xfem.level_set_functions(N, dN, f.node_phi[nodes])
+            Np = np.concatenate([N, Nl], axis=1)
+            dNp = np.concatenate([dN @ f.tangent, dNl @ f.tangent], axis=1)
+            if self.has("p"):
+                pmap[:, :4] = self._p_map(nodes)
+            if self.has("c"):
+                pmap[:, 4:] = self._c_map(nodes)
+        else:
+            lam = f.gp_xi1d
+            s0, s1 = f.segment_s[f.gp_segment, 0], f.segment_s[f.gp_segment, 1]
+            Np = np.column_stack([1.0 - lam, lam])
+            dNp = np.column_stack([-1.0 / (s1 - s0), 1.0 / (s1 - s0)])
+            if self.has("pf"):
+                pmap = self.blocks.pf.start + f.segment_nodes[f.gp_segment]
         self.fault_pressure_is_trace = trace
-        jump = self._a_map(cut_nodes[f.gp_element]) if self.has("a") else -np.ones((ng, 8), dtype=np.int64)
+        jump = self._a_map(nodes) if self.has("a") else -np.ones((ng, 8), dtype=np.int64)
         alpha_gp = self.el_alpha[self.cut_elements[f.gp_element]]
         sigma_n0, tau0, p0 = self.in_situ.fault_tractions(self, xy, alpha_gp)
         self.fault_points = FaultPoints(N=N, jump_dofs=jump, Np=Np, dNp_ds=dNp, p_dofs=pmap,
@@ -426,7 +424,7 @@ class Discretisation:
         jump_dofs = self._a_map(nodes[None, :])[0] if self.has("a") else -np.ones(8, dtype=np.int64)
         if self.fault_pressure_is_trace:
             hx, hy = self.mesh.element_sizes[e]
-            Nl, _ = basis.level_set_basis(Ng, basis.shape_gradient(xi, eta, hx, hy), f.node_phi[nodes])
+            Nl, _ = xfem.level_set_functions(Ng, basis.shape_gradient(xi, eta, hx, hy), f.node_phi[nodes])
             Np = np.concatenate([Ng, Nl])
             pm = -np.ones(8, dtype=np.int64)
             if self.has("p"):
