@@ -386,7 +386,10 @@ class LiveEnsemble:
     of its own; ``drive`` and ``start`` are what the plans read (default: the ensemble's). It
     runs in the caller's thread; :meth:`advance` and the forks a forecast starts from are taken
     under one lock, so a look-ahead worker may call both (stepping N members costs N live
-    steps: keep it off the thread that sends the alerts)."""
+    steps: keep it off the thread that sends the alerts). The members share one
+    :class:`~fault_screen.shared_bulk.SharedBulk` (the bulk's order, symbolic analyses, the
+    positions of its fixed pattern and the factors of equal bulks, as :func:`run_members`
+    shares them: bit-identical to each member alone), in whichever thread steps them."""
 
     def __init__(self, scene, draws: Sequence[dict], *, base: bool = True, drive=None,
                  start: Optional[datetime] = None, advice: Optional[dict] = None,
@@ -399,6 +402,9 @@ class LiveEnsemble:
         self.failed: list[tuple[int, str]] = []
         self.members = []     # (index, params, Simulation, StepScreening)
         self._lock = threading.Lock()
+        from ..shared_bulk import SharedBulk
+
+        self.store = SharedBulk()   # (thread-safe: the members may step in any thread)
         # the members still to build (None once built)
         self._entries = ([(-1, {})] if base else []) + [(i, dict(d)) for i, d in enumerate(draws)]
         if scene is not None:
@@ -440,7 +446,9 @@ class LiveEnsemble:
         ``t_next``), screening every row; returns the steps of the first."""
         if volume is None and pressure is None and self.drive is not None:
             volume = self.drive.volume
-        with self._lock:
+        from ..shared_bulk import sharing
+
+        with self._lock, sharing(self.store):
             return self._advance(t_next, volume, pressure, align)
 
     def _advance(self, t_next, volume, pressure, align=False) -> int:
@@ -467,6 +475,12 @@ class LiveEnsemble:
         member; ``drive``, ``start``: what the plans read (default: the ensemble's)."""
         drive = self.drive if drive is None else drive
         start = self.start if start is None else start
+        from ..shared_bulk import sharing
+
+        with sharing(self.store):
+            return self._run(plans, horizon, sim, screening, drive, start)
+
+    def _run(self, plans, horizon, sim, screening, drive, start):
         runs, base, aheads = [], None, []
         self.last_base = None
         with self._lock:    # every member forked at the same time
