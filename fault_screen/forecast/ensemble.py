@@ -77,7 +77,8 @@ class MemberRun:
     ``thread_cpu_s``: the CPU time of the thread that ran it (the rest of ``cpu_s`` is what the
     process's other threads took meanwhile: a Dask worker's event loop); ``factorizations`` /
     ``shared_factorizations``: bulk factorisations made / taken from an earlier member of the
-    same process (:func:`run_members`; 0 for a member run alone)."""
+    same process (:func:`run_members`; 0 for a member run alone); ``worker``: the id of the
+    process that ran it (which members shared a worker, for the benchmark's balance)."""
 
     index: int
     params: dict
@@ -90,6 +91,7 @@ class MemberRun:
     thread_cpu_s: float = math.nan
     factorizations: int = 0
     shared_factorizations: int = 0
+    worker: int = 0
 
 
 def member_steps(steps: Optional[dict]) -> dict:
@@ -146,7 +148,7 @@ def run_member(index: int, scene_dict: dict, overrides: dict, times: Sequence[fl
     from ..ensemble import scene_with
     from ..scene import Scene
 
-    run = MemberRun(index=index, params=dict(overrides))
+    run = MemberRun(index=index, params=dict(overrides), worker=os.getpid())
     wall0, cpu0, thread0 = _time.perf_counter(), _time.process_time(), _time.thread_time()
     try:
         scene = scene_with(Scene.from_dict(scene_dict), overrides)
@@ -198,10 +200,17 @@ def release(ensemble: str) -> bool:
     return _STORES.pop(ensemble, None) is not None
 
 
-def chunks(calls: Sequence, workers: int, per_worker: int = 2) -> list[list]:
-    """``calls`` dealt into ``per_worker`` tasks per worker (one task for no workers), round
-    robin so that the tasks cost alike; order kept within each."""
-    n = max(1, min(len(calls), max(int(workers), 1) * per_worker if workers > 0 else 1))
+def chunks(calls: Sequence, workers: int, per_worker: Optional[int] = None) -> list[list]:
+    """``calls`` dealt into tasks: one call a task by default (the scheduler hands the next
+    member to whichever worker is free, so the workers end within one member of each other;
+    a worker keeps the ensemble's store between its tasks, so nothing shared is lost), or
+    ``per_worker`` tasks per worker, round robin, order kept within each; one task for no
+    workers (this process)."""
+    if workers <= 0:
+        return [list(calls)] if len(calls) else []
+    if per_worker is None:
+        return [[c] for c in calls]
+    n = max(1, min(len(calls), int(workers) * per_worker))
     return [list(calls[k::n]) for k in range(n) if calls[k::n]]
 
 

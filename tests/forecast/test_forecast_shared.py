@@ -78,11 +78,11 @@ def test_members_sharing_factors_equal_each_member_run_alone(scene_dict, alone):
 
 
 def test_a_chunked_dask_run_equals_the_per_member_run(scene_dict, alone):
-    """Two tasks of members on one Dask worker process: the second task's members find the
-    factors the first task's made (the worker keeps the ensemble's store between its tasks)."""
+    """One task a member on one Dask worker process: the later tasks' members find the factors
+    the first task's made (the worker keeps the ensemble's store between its tasks)."""
     calls = _calls(scene_dict, EQUAL_BULKS + OTHERS)
     dealt = chunks(calls, workers=1)
-    assert [[c[0] for c in chunk] for chunk in dealt] == [[0, 2, 4], [1, 3]]
+    assert [[c[0] for c in chunk] for chunk in dealt] == [[0], [1], [2], [3], [4]]
     runs = {}
     with Runner(1) as runner:
         for k, chunk in runner.each(run_members, [("test-dask", chunk) for chunk in dealt]):
@@ -94,6 +94,7 @@ def test_a_chunked_dask_run_equals_the_per_member_run(scene_dict, alone):
     assert [runs[i].shared_factorizations for i in range(5)] == [0, 3, 3, 0, 0]
     # the task's own thread: part of the worker process's CPU time, most of it
     assert all(0.5 * r.cpu_s < r.thread_cpu_s <= r.cpu_s for r in runs.values())
+    assert len({r.worker for r in runs.values()}) == 1 and runs[0].worker != alone[0].worker
 
 
 def test_live_ensemble_members_share_one_store_and_equal_each_member_run_alone(scene_dict, alone):
@@ -142,11 +143,12 @@ def test_a_store_keeps_at_most_its_number_of_factorisations(scene_dict):
 
 def test_chunks_deal_every_call_once():
     calls = list(range(7))
-    for workers, n in ((0, 1), (1, 2), (2, 4), (8, 7)):
-        dealt = chunks(calls, workers)
+    for workers, per_worker, n in ((0, None, 1), (1, None, 7), (2, None, 7), (1, 2, 2), (2, 2, 4), (8, 2, 7)):
+        dealt = chunks(calls, workers, per_worker)
         assert len(dealt) == n
         assert sorted(sum(dealt, [])) == calls
         assert max(map(len, dealt)) - min(map(len, dealt)) <= 1
+    assert chunks(calls, 2) == [[c] for c in calls] and chunks([], 2) == chunks([], 0) == []
 
 
 def test_a_history_on_longer_steps_ends_on_the_forecast_time(scene_dict):
