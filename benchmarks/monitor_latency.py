@@ -5,6 +5,7 @@ alert hook.
     python benchmarks/monitor_latency.py --lookahead [--plan hold --plan stop] [--horizon 3600]
         [--lookahead-every 60] [--rate 5] [--members 4 [--vary PARAMS.toml] [--free KEYS]]
     python benchmarks/monitor_latency.py --beside [--blocks 4]
+    python benchmarks/monitor_latency.py --handover [--repeat 60]
     python benchmarks/monitor_latency.py --advice [--horizon 1800] [--lookahead-every 300]
         [--until 1500] [--scene configs/rustrel-2015-impermeable.toml]
 
@@ -49,6 +50,12 @@ scene (no log, no polling) in alternating blocks alone and with a worker beside 
 forks continuously, once with the worker at the look-ahead's lower priority (nice +10) and once
 at the same priority; prints the live steps' median and p95 wall time and the live thread's
 median CPU time per step (the work, unchanged: what grows is waiting for a core or the GIL).
+
+``--handover`` times what handing a refresh to the worker costs the live thread, in one run:
+starting a thread for it (``Thread.start`` returns once the new thread runs: on busy cores a
+wait for the scheduler) against putting it in the queue of a worker thread that waits for it
+(what ``LiveLookAhead`` does); both workers at the look-ahead's priority, each refresh a small
+matrix product, waited for before the next.
 """
 from __future__ import annotations
 
@@ -119,6 +126,9 @@ def main(argv=None):
     ap.add_argument("--free", default="fault.hydraulic_aperture,damage_zone.mobility",
                     help="--members: the keys varied [fault.hydraulic_aperture,damage_zone.mobility]")
     ap.add_argument("--seed", type=int, default=1, help="--members: the draws' seed [1]")
+    ap.add_argument("--handover", action="store_true",
+                    help="the live thread's wall time to hand a refresh to a new thread / a waiting one")
+    ap.add_argument("--repeat", type=int, default=60, help="--handover: refreshes handed over [60]")
     ap.add_argument("--bootstrap", type=int, default=2000,
                     help="--lookahead: bootstrap resamples of the difference of medians [2000]")
     ap.add_argument("--advice", action="store_true",
@@ -130,6 +140,8 @@ def main(argv=None):
     a = ap.parse_args(argv)
     if a.beside:
         return worker_beside(a.blocks)
+    if a.handover:
+        return handover(a.repeat)
     if a.advice:
         return advice_reuse(a)
     if a.lookahead:
@@ -364,6 +376,51 @@ def advice_reuse(a):
         print(f"refreshes after the first: CPU time per advice, median {np.median(cpu[:, 0]):.2f} s fresh, "
               f"{np.median(cpu[:, 1]):.2f} s reusing ({np.median(cpu[:, 1] / cpu[:, 0]):.2f} of it); "
               f"largest rate difference {100 * max(abs(r[3].rate - r[1].rate) / r[1].rate for r in later):.2f} %")
+
+
+def handover(repeat):
+    import os
+    import queue
+
+    from fault_screen.monitor.lookahead import lower_worker_priority
+
+    def refresh():
+        x = np.linspace(0.0, 1.0, 40000).reshape(200, 200)
+        return float((x @ x).sum())
+
+    def in_new_thread():
+        lower_worker_priority()
+        refresh()
+
+    jobs = queue.Queue()
+
+    def waiting_worker():
+        lower_worker_priority()
+        for done in iter(jobs.get, None):
+            refresh()
+            done.set()
+
+    threading.Thread(target=waiting_worker, daemon=True).start()
+    started, put = [], []
+    for _ in range(repeat):
+        w = time.perf_counter()
+        th = threading.Thread(target=in_new_thread, daemon=True)
+        th.start()
+        started.append(time.perf_counter() - w)
+        th.join()
+        done = threading.Event()
+        w = time.perf_counter()
+        jobs.put(done)
+        put.append(time.perf_counter() - w)
+        done.wait()
+        time.sleep(0.02)
+    jobs.put(None)
+    print(f"{repeat} refreshes handed over; 2 cores, load average {os.getloadavg()[0]:.1f}")
+    print("| handed to | live thread wall, median (ms) | p95 (ms) | max (ms) |")
+    print("|---|---|---|---|")
+    for name, v in (("a new thread (Thread.start)", started), ("a waiting worker thread (queue put)", put)):
+        v = np.array(v) * 1e3
+        print(f"| {name} | {np.median(v):.3f} | {np.percentile(v, 95):.3f} | {v.max():.3f} |")
 
 
 def worker_beside(blocks):
