@@ -30,8 +30,9 @@ and the load average.  The poll (``--poll``: the source waits up to that long fo
 adds a wait of 0 to one poll interval to every latency, which hides a few milliseconds of
 look-ahead cost: so each run also gives the latency from the stage being fed the line (after
 the read: the live thread's own work), the live thread's CPU time per step (``thread_time`` of
-the thread that runs the service: its steps, screening, the forks and the handling of the
-refreshes' rows, never the worker's look-ahead), the forks' CPU time, and each run with
+the thread that runs the service over the whole run, divided by its steps: its polls of the
+log, steps, screening, result writing, the forks and the handling of the refreshes' rows, never
+the worker's look-ahead), the forks' CPU time, and each run with
 look-ahead the difference of its medians from the run without, with a 95 % bootstrap interval
 (``--bootstrap`` resamples of each run's latencies).  A short poll (``--poll 0.05``) and more
 lines (``--lines 900``) narrow the interval.  With ``--members N`` a third run has the ensemble look-ahead: N parameter
