@@ -8,9 +8,9 @@
 Each member is the calibrated Rustrel scene (the default one in the paper's units, and the SI
 one) with one draw of the varied parameters: it runs its history from 0 to ``--at`` (700 s, on
 the scene's own 5-s steps), forks, and runs each plan over the horizon, screened. Members go to
-the workers in a few tasks each (``fault_screen.forecast.ensemble.run_members``: one process
-runs several members in turn, which share the bulk's order and symbolic analysis, and the
-factors of equal bulks). The look-aheads take the step ladder to 160 s that
+the workers one member a task (``fault_screen.forecast.ensemble.run_members``: a worker keeps
+one store for the ensemble's tasks, so the members it runs share the bulk's order and symbolic
+analysis, and the factors of equal bulks). The look-aheads take the step ladder to 160 s that
 ``fault-screen forecast --members`` takes by default, and (fewer members: ``--exact-members``)
 the scene's own steps, to show what the ladder saves.
 
@@ -81,8 +81,8 @@ def ensemble(scene, draws, at, horizon, plans, workers, steps=None):
             runner.client.run(_warm)
         t1 = time.perf_counter()
         runs = [None] * len(calls)
-        dealt = chunks(calls, workers)
-        for _, chunk in runner.each(run_members, [(uuid.uuid4().hex, chunk) for chunk in dealt]):
+        dealt, ensemble_id = chunks(calls, workers), uuid.uuid4().hex
+        for _, chunk in runner.each(run_members, [(ensemble_id, chunk) for chunk in dealt]):
             if isinstance(chunk, BaseException):
                 raise chunk
             for run in chunk:
@@ -97,8 +97,30 @@ def _warm():
     return True
 
 
+def list_schedule(costs, workers):
+    """When the last of ``workers`` idle cores ends, each taking the next task (cost: its CPU
+    time, s) as it is free, in order: the wall time a dealing gives without other load."""
+    free = [0.0] * max(workers, 1)
+    for cost in costs:
+        k = free.index(min(free))
+        free[k] += cost
+    return max(free)
+
+
+def balance(runs, workers):
+    """(CPU time of the busiest worker (s), the idle-core wall time of one member a task and
+    of two tasks a worker, dealt round robin as before, both from the same members' CPU times)."""
+    per_worker = {}
+    for r in runs:
+        per_worker[r.worker] = per_worker.get(r.worker, 0.0) + r.cpu_s
+    cpu = [r.cpu_s for r in sorted(runs, key=lambda r: r.index)]
+    tasks = [sum(cpu[i] for i in chunk) for chunk in chunks(list(range(len(cpu))), workers, per_worker=2)]
+    return max(per_worker.values()), list_schedule(cpu, workers), list_schedule(tasks, workers)
+
+
 def rows_for(scene_label, label, wall, started, runs, workers):
     ok = [r for r in runs if r.ok]
+    busiest, one_each, in_tasks = balance(ok, workers)
     cpu = sorted(r.cpu_s for r in ok)
     others = statistics.median(r.cpu_s - r.thread_cpu_s for r in ok)
     spread = summarise(runs)
@@ -107,6 +129,7 @@ def rows_for(scene_label, label, wall, started, runs, workers):
     made, shared = sum(r.factorizations for r in ok), sum(r.shared_factorizations for r in ok)
     return [(scene_label, label, f"{len(ok)}/{len(runs)}", f"{wall:.1f}", f"{started:.1f}",
              f"{median:.2f}", f"{others:.2f}", f"{cpu[-1]:.2f}", f"{sum(cpu) / max(workers, 1):.1f}",
+             f"{busiest:.1f}", f"{one_each:.1f} / {in_tasks:.1f}",
              f"{TARGET_MEMBERS * median / max(workers, 1):.0f}", f"{made} / {shared}", p)]
 
 
@@ -253,6 +276,8 @@ def main(argv=None):
     head = ("scene", "look-ahead steps", "members ok", "wall (s)", "cluster start (s)",
             "CPU per member, median (s)", "of which the worker's other threads, median (s)",
             "CPU per member, most (s)", f"sum of CPU / {args.workers} workers (s)",
+            "CPU of the busiest worker (s)",
+            f"the same CPU times on {args.workers} idle cores, one member a task / {2 * args.workers} tasks (s)",
             f"{TARGET_MEMBERS} members on {args.workers} idle cores, from the median CPU (s)",
             "factorisations made / shared", "P(yellow) per plan")
     lines = table(head, rows)
@@ -280,13 +305,16 @@ def main(argv=None):
                  f"{args.at:g} s on the scene's own steps, then the plans {', '.join(f'`{p}`' for p in PLANS)} "
                  f"each {horizon:g} s ahead, screened: {members} members looking ahead on the step ladder to "
                  f"{args.ladder:g} s (the default of `fault-screen forecast --members`), {exact} on the scene's own "
-                 f"steps. The members go to {args.workers} local workers in {2 * args.workers} tasks "
-                 f"(`run_members`: the members of one process share the bulk's order and symbolic analysis, "
-                 f"the positions of its fixed pattern and the factors of equal bulks; the workers run without "
-                 f"Dask's statistical profiler). The target (issue 29): {TARGET_MEMBERS} members x 3 plans "
-                 f"within {TARGET_S:g} s on 2 cores. The CPU time per member does not grow with the machine's "
-                 f"load as the wall time does: {TARGET_MEMBERS} times its median over the workers estimates the "
-                 f"target's wall time on idle cores.")
+                 f"steps. The members go to {args.workers} local workers one member a task, a free worker "
+                 f"taking the next (`run_members`: the members one process runs share the bulk's order and "
+                 f"symbolic analysis, the positions of its fixed pattern and the factors of equal bulks; the "
+                 f"workers run without Dask's statistical profiler). The target (issue 29): {TARGET_MEMBERS} "
+                 f"members x 3 plans within {TARGET_S:g} s on 2 cores. The CPU time per member does not grow "
+                 f"with the machine's load as the wall time does: {TARGET_MEMBERS} times its median over the "
+                 f"workers estimates the target's wall time on idle cores; the balance columns give the CPU "
+                 f"time of the busiest worker, and when the last of {args.workers} idle cores would end with "
+                 f"the members' own CPU times dealt one a task (as now) or in {2 * args.workers} tasks of "
+                 f"several members round robin (as before).")
         print(write("forecast-ensemble", "Ensemble forecast speed", intro, lines + ["", *NOTES.splitlines()], load))
     return 0
 

@@ -5,6 +5,7 @@ alert hook.
     python benchmarks/monitor_latency.py --lookahead [--plan hold --plan stop] [--horizon 3600]
         [--lookahead-every 60] [--rate 5] [--members 4 [--vary PARAMS.toml] [--free KEYS]]
     python benchmarks/monitor_latency.py --beside [--blocks 4]
+    python benchmarks/monitor_latency.py --handover [--repeat 60]
     python benchmarks/monitor_latency.py --advice [--horizon 1800] [--lookahead-every 300]
         [--until 1500] [--scene configs/rustrel-2015-impermeable.toml]
 
@@ -25,7 +26,16 @@ step is then the wall time from the append of the line that completed it to the 
 screening, when its alerts, had it any, are in the outbox (the stage hands them over as it
 raises them, before the next step or a look-ahead fork).  Prints median, p95
 and max of each run, the forks' wall time on the live thread, the refreshes made and skipped,
-and the load average.  With ``--members N`` a third run has the ensemble look-ahead: N parameter
+and the load average.  The poll (``--poll``: the source waits up to that long for new lines)
+adds a wait of 0 to one poll interval to every latency, which hides a few milliseconds of
+look-ahead cost: so each run also gives the latency from the stage being fed the line (after
+the read: the live thread's own work), the live thread's CPU time per step (``thread_time`` of
+the thread that runs the service over the whole run, divided by its steps: its polls of the
+log, steps, screening, result writing, the forks and the handling of the refreshes' rows, never
+the worker's look-ahead), the forks' CPU time, and each run with
+look-ahead the difference of its medians from the run without, with a 95 % bootstrap interval
+(``--bootstrap`` resamples of each run's latencies).  A short poll (``--poll 0.05``) and more
+lines (``--lines 900``) narrow the interval.  With ``--members N`` a third run has the ensemble look-ahead: N parameter
 draws of ``--vary`` (default: the calibration's parameters file, ``--free`` its keys varied),
 each a model of its own stepped in the worker from the samples received.
 
@@ -41,6 +51,12 @@ scene (no log, no polling) in alternating blocks alone and with a worker beside 
 forks continuously, once with the worker at the look-ahead's lower priority (nice +10) and once
 at the same priority; prints the live steps' median and p95 wall time and the live thread's
 median CPU time per step (the work, unchanged: what grows is waiting for a core or the GIL).
+
+``--handover`` times what handing a refresh to the worker costs the live thread, in one run:
+starting a thread for it (``Thread.start`` returns once the new thread runs: on busy cores a
+wait for the scheduler) against putting it in the queue of a worker thread that waits for it
+(what ``LiveLookAhead`` does); both workers at the look-ahead's priority, each refresh a small
+matrix product, waited for before the next.
 """
 from __future__ import annotations
 
@@ -111,6 +127,11 @@ def main(argv=None):
     ap.add_argument("--free", default="fault.hydraulic_aperture,damage_zone.mobility",
                     help="--members: the keys varied [fault.hydraulic_aperture,damage_zone.mobility]")
     ap.add_argument("--seed", type=int, default=1, help="--members: the draws' seed [1]")
+    ap.add_argument("--handover", action="store_true",
+                    help="the live thread's wall time to hand a refresh to a new thread / a waiting one")
+    ap.add_argument("--repeat", type=int, default=60, help="--handover: refreshes handed over [60]")
+    ap.add_argument("--bootstrap", type=int, default=2000,
+                    help="--lookahead: bootstrap resamples of the difference of medians [2000]")
     ap.add_argument("--advice", action="store_true",
                     help="advice CPU time per refresh, fresh and reusing the previous advice")
     ap.add_argument("--until", type=float, default=1500.0,
@@ -120,6 +141,8 @@ def main(argv=None):
     a = ap.parse_args(argv)
     if a.beside:
         return worker_beside(a.blocks)
+    if a.handover:
+        return handover(a.repeat)
     if a.advice:
         return advice_reuse(a)
     if a.lookahead:
@@ -199,10 +222,11 @@ def _log_samples(lines):
 
 def step_latencies(a, lookahead):
     """One monitor run following the log as it is written, screened by the scene's rules:
-    (step latencies in s, fork wall times in s, the stage)."""
+    (step latencies from the append in s, the same from the stage being fed the line in s, the
+    forks' (wall, live thread CPU) in s, the live thread's CPU time per step in s, the stage)."""
     scene = Scene.from_toml(ROOT / "configs" / "rustrel-2015-calibrated.toml")
     t, q = _log_samples(a.lines)
-    forks = []
+    forks, fed = [], {}
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "live.csv"
         path.write_text("elapsed[s],flow_rate[m3/s]\n")
@@ -212,7 +236,14 @@ def step_latencies(a, lookahead):
         handed = []
         service = MonitorService(scene, cfg)
         stage = service.stage
-        screen_step = stage._screen_step
+        screen_step, feed_samples = stage._screen_step, stage.feed_samples
+
+        def timed_feed(times, *args, **kw):
+            w0 = time.perf_counter()
+            for sample_time in times:
+                fed.setdefault(float(sample_time), w0)
+            return feed_samples(times, *args, **kw)
+        stage.feed_samples = timed_feed
 
         def timed_screen_step(row, upd):
             screen_step(row, upd)          # its alerts, had it any, are in the outbox now
@@ -223,19 +254,34 @@ def step_latencies(a, lookahead):
             refresh = la.refresh
 
             def timed_refresh(*args, **kw):
-                w0 = time.perf_counter()
+                w0, c0 = time.perf_counter(), time.thread_time()
                 started = refresh(*args, **kw)
                 if started:
-                    forks.append(time.perf_counter() - w0)
+                    forks.append((time.perf_counter() - w0, time.thread_time() - c0))
                 return started
             la.refresh = timed_refresh
+        cpu0 = time.thread_time()         # (the service runs in this thread: the live thread)
         appended = follow_written(service, path, t, q, a.rate)
-    lat = []
+        live_cpu = time.thread_time() - cpu0
+    lat, from_fed = [], []
     for t_step, wall in handed:
         k = int(np.searchsorted(t, t_step - 1e-9))
         if 0 < k < t.size - 1:
             lat.append(wall - appended[k])
-    return np.array(lat[1:]), np.array(forks), service.stage
+            from_fed.append(wall - fed[float(t[k])])
+    steps = max(len(handed), 1)
+    return (np.array(lat[1:]), np.array(from_fed[1:]), np.array(forks).reshape(-1, 2),
+            live_cpu / steps, service.stage)
+
+
+def median_difference(with_, without, resamples, seed=1):
+    """(median(with_) - median(without), and the 2.5 and 97.5 percentiles of that difference
+    over ``resamples`` bootstrap resamples of each, drawn with replacement)."""
+    rng = np.random.default_rng(seed)
+    a = with_[rng.integers(0, with_.size, (resamples, with_.size))]
+    b = without[rng.integers(0, without.size, (resamples, without.size))]
+    d = np.median(a, axis=1) - np.median(b, axis=1)
+    return float(np.median(with_) - np.median(without)), *np.percentile(d, [2.5, 97.5])
 
 
 def compare_lookahead(a):
@@ -257,16 +303,28 @@ def compare_lookahead(a):
                      dict(settings, ensemble={"draws": draws, "confidence": None})))
     print(f"{a.lines} lines at {a.rate:g} line/s, poll {a.poll:g} s; 2 cores, load average "
           f"{load:.1f} at the start (busy: compare the two rows, not absolute values)")
-    print("| run | steps | median (ms) | p95 (ms) | max (ms) | forks on the live thread (ms, median) "
+    print("| run | steps | median (ms) | p95 (ms) | max (ms) | from the stage fed, median (ms) | p95 (ms) "
+          "| live thread CPU per step (ms) | forks on the live thread, wall / CPU (ms, median) "
           "| refreshes made / skipped |")
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    measured = []
     for name, la in runs:
-        lat, forks, stage = step_latencies(a, la)
-        fork = f"{np.median(forks) * 1e3:.0f}" if forks.size else "-"
+        lat, from_fed, forks, live_cpu, stage = step_latencies(a, la)
+        measured.append((name, lat, from_fed))
+        fork = (f"{np.median(forks[:, 0]) * 1e3:.2f} / {np.median(forks[:, 1]) * 1e3:.2f}" if forks.size
+                else "-")
         made = (f"{stage.lookahead.made} / {stage.lookahead.skipped}" if stage.lookahead is not None
                 else "-")
         print(f"| {name} | {lat.size} | {np.median(lat) * 1e3:.1f} | "
-              f"{np.percentile(lat, 95) * 1e3:.1f} | {lat.max() * 1e3:.1f} | {fork} | {made} |")
+              f"{np.percentile(lat, 95) * 1e3:.1f} | {lat.max() * 1e3:.1f} | {np.median(from_fed) * 1e3:.1f} | "
+              f"{np.percentile(from_fed, 95) * 1e3:.1f} | {live_cpu * 1e3:.2f} | {fork} | {made} |", flush=True)
+    _, lat0, fed0 = measured[0]
+    for name, lat, from_fed in measured[1:]:
+        parts = []
+        for what, x, x0 in (("from the append", lat, lat0), ("from the stage fed", from_fed, fed0)):
+            d, lo, hi = median_difference(x, x0, a.bootstrap)
+            parts.append(f"{what} {d * 1e3:+.1f} ms [{lo * 1e3:+.1f}, {hi * 1e3:+.1f}]")
+        print(f"{name}, median minus the run without (95 % bootstrap interval): {'; '.join(parts)}")
 
 
 def advice_reuse(a):
@@ -319,6 +377,51 @@ def advice_reuse(a):
         print(f"refreshes after the first: CPU time per advice, median {np.median(cpu[:, 0]):.2f} s fresh, "
               f"{np.median(cpu[:, 1]):.2f} s reusing ({np.median(cpu[:, 1] / cpu[:, 0]):.2f} of it); "
               f"largest rate difference {100 * max(abs(r[3].rate - r[1].rate) / r[1].rate for r in later):.2f} %")
+
+
+def handover(repeat):
+    import os
+    import queue
+
+    from fault_screen.monitor.lookahead import lower_worker_priority
+
+    def refresh():
+        x = np.linspace(0.0, 1.0, 40000).reshape(200, 200)
+        return float((x @ x).sum())
+
+    def in_new_thread():
+        lower_worker_priority()
+        refresh()
+
+    jobs = queue.Queue()
+
+    def waiting_worker():
+        lower_worker_priority()
+        for done in iter(jobs.get, None):
+            refresh()
+            done.set()
+
+    threading.Thread(target=waiting_worker, daemon=True).start()
+    started, put = [], []
+    for _ in range(repeat):
+        w = time.perf_counter()
+        th = threading.Thread(target=in_new_thread, daemon=True)
+        th.start()
+        started.append(time.perf_counter() - w)
+        th.join()
+        done = threading.Event()
+        w = time.perf_counter()
+        jobs.put(done)
+        put.append(time.perf_counter() - w)
+        done.wait()
+        time.sleep(0.02)
+    jobs.put(None)
+    print(f"{repeat} refreshes handed over; 2 cores, load average {os.getloadavg()[0]:.1f}")
+    print("| handed to | live thread wall, median (ms) | p95 (ms) | max (ms) |")
+    print("|---|---|---|---|")
+    for name, v in (("a new thread (Thread.start)", started), ("a waiting worker thread (queue put)", put)):
+        v = np.array(v) * 1e3
+        print(f"| {name} | {np.median(v):.3f} | {np.percentile(v, 95):.3f} | {v.max():.3f} |")
 
 
 def worker_beside(blocks):

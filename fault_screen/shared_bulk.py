@@ -12,6 +12,11 @@ otherwise. Equal input gives equal factors, so a shared run is bit-identical to 
 alone. The factors are read-only for their users (a step replaces them, never writes into
 them, as forks already rely on); the Schur complement, which its owner takes and overwrites,
 is handed out as a copy. Outside ``sharing()`` nothing is kept.
+
+One store may serve several threads (a live ensemble's members stepped by the look-ahead
+worker of one refresh while the next refresh forks them): a lock makes each look-up and the
+making of what it misses one step, so two threads asking for the same order or factors get the
+one object, made once. The symbolic analyses handed out are the store's, behind the same lock.
 """
 from __future__ import annotations
 
@@ -42,14 +47,29 @@ def _digest(*arrays) -> bytes:
     return h.digest()
 
 
+class _LockedAnalyses(SymbolicAnalyses):
+    """The store's symbolic analyses: a look-up that makes one holds the store's lock (a
+    system keeps this object and may factorise later outside ``sharing()``)."""
+
+    def __init__(self, lock):
+        super().__init__()
+        self._lock = lock
+
+    def of(self, lower, n_linear):
+        with self._lock:
+            return super().of(lower, n_linear)
+
+
 class SharedBulk:
     """What the simulations inside one ``sharing()`` block share (see the module docstring).
     ``made`` / ``shared``: factorisations made here / handed out again; ``patterns_made`` /
     ``patterns_shared``: the same for the bulk's fixed pattern (its positions: an equal pattern
-    with other values, ``fixed_pattern.FixedBulk.with_values``)."""
+    with other values, ``fixed_pattern.FixedBulk.with_values``). Safe to share between threads."""
 
     def __init__(self, max_factors: int = MAX_FACTORS):
-        self.analyses = SymbolicAnalyses()   # (keyed by pattern itself)
+        # (re-entrant: making factors looks up the symbolic analyses under the same lock)
+        self._lock = threading.RLock()
+        self.analyses = _LockedAnalyses(self._lock)   # (keyed by pattern itself)
         self._orders = {}
         self._patterns = {}                  # fixed patterns of the bulk, by their key
         self.patterns_made = self.patterns_shared = 0
@@ -63,19 +83,21 @@ class SharedBulk:
         (sparse) and ``coordinates``."""
         pattern = pattern.tocsr()
         key = _digest(pattern.indptr, pattern.indices, np.asarray(pattern.shape), coordinates)
-        if key not in self._orders:
-            self._orders[key] = make()
-        return self._orders[key]
+        with self._lock:
+            if key not in self._orders:
+                self._orders[key] = make()
+            return self._orders[key]
 
     def pattern(self, key_arrays, make):
         """``make()`` (a bulk's fixed pattern), or what it gave for equal ``key_arrays``."""
         key = _digest(*key_arrays)
-        if key not in self._patterns:
-            self._patterns[key] = make()
-            self.patterns_made += 1
-        else:
-            self.patterns_shared += 1
-        return self._patterns[key]
+        with self._lock:
+            if key not in self._patterns:
+                self._patterns[key] = make()
+                self.patterns_made += 1
+            else:
+                self.patterns_shared += 1
+            return self._patterns[key]
 
     def factors(self, matrix_arrays, n_linear: int, split, factorise):
         """``factorise()``, or the factors it gave for the same matrix (``matrix_arrays``: the
@@ -83,15 +105,16 @@ class SharedBulk:
         ``split``: the same object, its Schur complement a copy of its own."""
         key = _digest(*matrix_arrays, np.asarray([n_linear]),
                       np.asarray(split if split is not None else [], dtype=np.int64))
-        kept = self._factors.get(key)
-        if kept is None:
-            lu = factorise()
-            while self._factors and len(self._factors) >= self.max_factors:
-                del self._factors[next(iter(self._factors))]
-            self._factors[key] = kept = (lu, lu.schur.copy(order="K"))
-            self.made += 1
-        else:
-            self.shared += 1
+        with self._lock:
+            kept = self._factors.get(key)
+            if kept is None:
+                lu = factorise()
+                while self._factors and len(self._factors) >= self.max_factors:
+                    del self._factors[next(iter(self._factors))]
+                self._factors[key] = kept = (lu, lu.schur.copy(order="K"))
+                self.made += 1
+            else:
+                self.shared += 1
         lu, schur = kept
         twin = copy.copy(lu)
         twin.schur = schur.copy(order="K")   # (its memory layout kept: the products that read it round alike)

@@ -333,8 +333,9 @@ def _forecast_ensemble(scene, scene_path, drive, start, times, plans, horizon, d
     runner = open_runner(workers, scheduler)
     ensemble_id = uuid.uuid4().hex
     try:
-        # a few tasks per worker, each running its members in turn in one process, where they
-        # share the bulk's order and the factors of equal bulks (forecast.ensemble.run_members)
+        # one task a member: a free worker takes the next, so the workers end together; the
+        # members a worker runs share the bulk's order and the factors of equal bulks
+        # (forecast.ensemble.run_members)
         dealt = chunks(calls, len(runner.client.scheduler_info()["workers"]) if runner.client else 0)
         for k, chunk in runner.each(run_members, [(ensemble_id, chunk) for chunk in dealt]):
             if isinstance(chunk, BaseException):   # the worker died: its members failed

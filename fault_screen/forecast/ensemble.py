@@ -77,7 +77,8 @@ class MemberRun:
     ``thread_cpu_s``: the CPU time of the thread that ran it (the rest of ``cpu_s`` is what the
     process's other threads took meanwhile: a Dask worker's event loop); ``factorizations`` /
     ``shared_factorizations``: bulk factorisations made / taken from an earlier member of the
-    same process (:func:`run_members`; 0 for a member run alone)."""
+    same process (:func:`run_members`; 0 for a member run alone); ``worker``: the id of the
+    process that ran it (which members shared a worker, for the benchmark's balance)."""
 
     index: int
     params: dict
@@ -90,6 +91,7 @@ class MemberRun:
     thread_cpu_s: float = math.nan
     factorizations: int = 0
     shared_factorizations: int = 0
+    worker: int = 0
 
 
 def member_steps(steps: Optional[dict]) -> dict:
@@ -146,7 +148,7 @@ def run_member(index: int, scene_dict: dict, overrides: dict, times: Sequence[fl
     from ..ensemble import scene_with
     from ..scene import Scene
 
-    run = MemberRun(index=index, params=dict(overrides))
+    run = MemberRun(index=index, params=dict(overrides), worker=os.getpid())
     wall0, cpu0, thread0 = _time.perf_counter(), _time.process_time(), _time.thread_time()
     try:
         scene = scene_with(Scene.from_dict(scene_dict), overrides)
@@ -198,10 +200,17 @@ def release(ensemble: str) -> bool:
     return _STORES.pop(ensemble, None) is not None
 
 
-def chunks(calls: Sequence, workers: int, per_worker: int = 2) -> list[list]:
-    """``calls`` dealt into ``per_worker`` tasks per worker (one task for no workers), round
-    robin so that the tasks cost alike; order kept within each."""
-    n = max(1, min(len(calls), max(int(workers), 1) * per_worker if workers > 0 else 1))
+def chunks(calls: Sequence, workers: int, per_worker: Optional[int] = None) -> list[list]:
+    """``calls`` dealt into tasks: one call a task by default (the scheduler hands the next
+    member to whichever worker is free, so the workers end within one member of each other;
+    a worker keeps the ensemble's store between its tasks, so nothing shared is lost), or
+    ``per_worker`` tasks per worker, round robin, order kept within each; one task for no
+    workers (this process)."""
+    if workers <= 0:
+        return [list(calls)] if len(calls) else []
+    if per_worker is None:
+        return [[c] for c in calls]
+    n = max(1, min(len(calls), int(workers) * per_worker))
     return [list(calls[k::n]) for k in range(n) if calls[k::n]]
 
 
@@ -386,7 +395,10 @@ class LiveEnsemble:
     of its own; ``drive`` and ``start`` are what the plans read (default: the ensemble's). It
     runs in the caller's thread; :meth:`advance` and the forks a forecast starts from are taken
     under one lock, so a look-ahead worker may call both (stepping N members costs N live
-    steps: keep it off the thread that sends the alerts)."""
+    steps: keep it off the thread that sends the alerts). The members share one
+    :class:`~fault_screen.shared_bulk.SharedBulk` (the bulk's order, symbolic analyses, the
+    positions of its fixed pattern and the factors of equal bulks, as :func:`run_members`
+    shares them: bit-identical to each member alone), in whichever thread steps them."""
 
     def __init__(self, scene, draws: Sequence[dict], *, base: bool = True, drive=None,
                  start: Optional[datetime] = None, advice: Optional[dict] = None,
@@ -399,6 +411,9 @@ class LiveEnsemble:
         self.failed: list[tuple[int, str]] = []
         self.members = []     # (index, params, Simulation, StepScreening)
         self._lock = threading.Lock()
+        from ..shared_bulk import SharedBulk
+
+        self.store = SharedBulk()   # (thread-safe: the members may step in any thread)
         # the members still to build (None once built)
         self._entries = ([(-1, {})] if base else []) + [(i, dict(d)) for i, d in enumerate(draws)]
         if scene is not None:
@@ -440,7 +455,9 @@ class LiveEnsemble:
         ``t_next``), screening every row; returns the steps of the first."""
         if volume is None and pressure is None and self.drive is not None:
             volume = self.drive.volume
-        with self._lock:
+        from ..shared_bulk import sharing
+
+        with self._lock, sharing(self.store):
             return self._advance(t_next, volume, pressure, align)
 
     def _advance(self, t_next, volume, pressure, align=False) -> int:
@@ -467,6 +484,12 @@ class LiveEnsemble:
         member; ``drive``, ``start``: what the plans read (default: the ensemble's)."""
         drive = self.drive if drive is None else drive
         start = self.start if start is None else start
+        from ..shared_bulk import sharing
+
+        with sharing(self.store):
+            return self._run(plans, horizon, sim, screening, drive, start)
+
+    def _run(self, plans, horizon, sim, screening, drive, start):
         runs, base, aheads = [], None, []
         self.last_base = None
         with self._lock:    # every member forked at the same time

@@ -4,7 +4,10 @@ the live simulation in a worker thread while the live steps go on.
 Every ``every`` seconds of model time (at the first step ending at or after each multiple),
 the stage forks its simulation and copies its screening state on the live thread, between two
 steps, and hands them to a worker thread; the worker runs the plans on them (a
-:class:`Forecaster`) and the stage collects the rows at its next call.  A refresh still running
+:class:`Forecaster`) and the stage collects the rows at its next call.  The worker thread is
+started at the first refresh and then waits for the next: a refresh puts its job in a queue,
+so the live thread never waits for a new thread to be scheduled (on busy cores that wait, not
+the fork, was most of a refresh's wall time on the live thread).  A refresh still running
 when the next is due is not queued: the due one is skipped and logged, so at most one
 refresh runs and none waits.
 
@@ -201,6 +204,7 @@ class _Job:
     start: Optional[datetime] = None
     rows: Optional[List[dict]] = None
     error: Optional[str] = None
+    finished: threading.Event = field(default_factory=threading.Event)
 
 
 @dataclass
@@ -268,7 +272,8 @@ class LiveLookAhead:
             self.next_due = float(self.every)
         if self.summary is None:
             self.summary = [self.quiet] * len(self.plans)
-        self._thread: Optional[threading.Thread] = None
+        self._thread: Optional[threading.Thread] = None   # the worker, once started
+        self._jobs: "queue.Queue[Optional[_Job]]" = queue.Queue()
         self._done: "queue.Queue[_Job]" = queue.Queue()
         self._running: Optional[_Job] = None
         self._stream = False          # rows go to the result file (not kept)
@@ -357,13 +362,31 @@ class LiveLookAhead:
         job = _Job(made_at=float(time), sim=sim.fork(), screening=copy.deepcopy(screening),
                    drive=drive, now_utc=datetime.now(timezone.utc), start=start)
         self._running = job
-        self._thread = threading.Thread(target=self._work, args=(job,), daemon=True,
-                                        name=f"look-ahead at {time:g} s")
-        self._thread.start()
+        if self._thread is None or not self._thread.is_alive():
+            self._thread = threading.Thread(target=self._serve, args=(self._jobs,), daemon=True,
+                                            name="look-ahead worker")
+            self._thread.start()
+        self._jobs.put(job)
         return True
 
-    def _work(self, job: _Job) -> None:
+    def _serve(self, jobs) -> None:
+        """The worker thread: the refreshes one after the other, until :meth:`close`."""
         lower_worker_priority()
+        while True:
+            job = jobs.get()
+            if job is None:
+                return
+            self._work(job)
+
+    def close(self) -> None:
+        """End the worker thread once its refresh (if any) is done (a later refresh starts
+        another)."""
+        if self._thread is not None:
+            self._jobs.put(None)
+            self._jobs = queue.Queue()     # (a later worker takes its jobs from a queue of its own)
+        self._thread = None
+
+    def _work(self, job: _Job) -> None:
         try:
             job.rows = list(self.forecaster.forecast(job.sim, self.plans, self.horizon, job.now_utc,
                                                      screening=job.screening, drive=job.drive,
@@ -373,13 +396,12 @@ class LiveLookAhead:
         finally:
             job.sim = job.screening = None
             self._done.put(job)
+            job.finished.set()
 
     def wait(self, timeout: Optional[float] = None) -> bool:
         """Wait for the refresh that runs (if any); returns whether none runs now."""
-        t = self._thread
-        if t is not None:
-            t.join(timeout)
-        return not (t is not None and t.is_alive())
+        job = self._running
+        return job is None or job.finished.wait(timeout)
 
     def collect(self) -> List[_Job]:
         """The refreshes finished since the last call (on the live thread)."""

@@ -382,7 +382,10 @@ class Stage:
 
     def close(self) -> Optional[Path]:
         """Finish the streamed result file (metadata, level changes, events); returns its path
-        (None when the stage keeps its results in memory: see :meth:`result`)."""
+        (None when the stage keeps its results in memory: see :meth:`result`). The look-ahead
+        worker ends after the refresh it runs."""
+        if self.lookahead is not None:
+            self.lookahead.close()
         if self.out is None or self.sim.writer is None:
             return None
         path = Path(self.sim.close_stream(meta=self._meta(), groups=self._final_groups()))

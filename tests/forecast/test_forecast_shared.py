@@ -11,6 +11,7 @@ borders the factorised matrix: a member of another friction makes its own factor
 order and symbolic analysis are the pattern's, shared). The hydraulic aperture enters the
 storage of the rock's pressure next to the fault: the bulk itself differs."""
 import dataclasses
+import threading
 
 import numpy as np
 import pytest
@@ -19,7 +20,7 @@ from conftest import CONFIGS
 from fault_screen import Scene
 from fault_screen.ensemble import Runner
 from fault_screen.forecast import parse_plan
-from fault_screen.forecast.ensemble import chunks, release, run_member, run_members
+from fault_screen.forecast.ensemble import LiveEnsemble, MemberRun, chunks, release, run_member, run_members
 from fault_screen.shared_bulk import SharedBulk, active, sharing
 
 AT, HORIZON = 60.0, 60.0
@@ -77,11 +78,11 @@ def test_members_sharing_factors_equal_each_member_run_alone(scene_dict, alone):
 
 
 def test_a_chunked_dask_run_equals_the_per_member_run(scene_dict, alone):
-    """Two tasks of members on one Dask worker process: the second task's members find the
-    factors the first task's made (the worker keeps the ensemble's store between its tasks)."""
+    """One task a member on one Dask worker process: the later tasks' members find the factors
+    the first task's made (the worker keeps the ensemble's store between its tasks)."""
     calls = _calls(scene_dict, EQUAL_BULKS + OTHERS)
     dealt = chunks(calls, workers=1)
-    assert [[c[0] for c in chunk] for chunk in dealt] == [[0, 2, 4], [1, 3]]
+    assert [[c[0] for c in chunk] for chunk in dealt] == [[0], [1], [2], [3], [4]]
     runs = {}
     with Runner(1) as runner:
         for k, chunk in runner.each(run_members, [("test-dask", chunk) for chunk in dealt]):
@@ -93,6 +94,42 @@ def test_a_chunked_dask_run_equals_the_per_member_run(scene_dict, alone):
     assert [runs[i].shared_factorizations for i in range(5)] == [0, 3, 3, 0, 0]
     # the task's own thread: part of the worker process's CPU time, most of it
     assert all(0.5 * r.cpu_s < r.thread_cpu_s <= r.cpu_s for r in runs.values())
+    assert len({r.worker for r in runs.values()}) == 1 and runs[0].worker != alone[0].worker
+
+
+def test_live_ensemble_members_share_one_store_and_equal_each_member_run_alone(scene_dict, alone):
+    """LiveEnsemble steps its members inside its own store: every forecast equals the member's
+    run alone, and the store made each equal bulk's 5, 10 and 20-s factors once (3 for the three
+    equal bulks, 3 each for the friction's and the aperture's members: 9 made, 6 shared)."""
+    live = LiveEnsemble(Scene.from_dict(scene_dict), EQUAL_BULKS + OTHERS, base=False, steps={"ladder": 40.0})
+    live.advance(AT, align=True)
+    made, _ = live.run(PLANS, HORIZON)
+    assert [m.plan for m in made] == [p.name for p in PLANS] and all(m.members == 5 for m in made)
+    for j, a in enumerate(alone):
+        _assert_same(a, MemberRun(index=j, params={}, ok=True, forecasts=[m.forecasts[j] for m in made]))
+    store = live.store
+    assert (store.made, store.shared) == (9, 6)
+    assert len(store._orders) == 1 and (store.patterns_made, store.patterns_shared) == (1, 4)
+
+
+def test_two_threads_on_one_store_make_equal_factors_once(scene_dict, alone):
+    """Two members of equal bulks run at the same time in two threads inside one store: the
+    lock makes each of the three factorisations once (3 made, 3 shared), and both forecasts
+    equal their runs alone."""
+    store, calls, out = SharedBulk(), _calls(scene_dict, EQUAL_BULKS[:2]), {}
+
+    def member(call):
+        with sharing(store):
+            out[call[0]] = run_member(*call)
+
+    threads = [threading.Thread(target=member, args=(c,)) for c in calls]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert (store.made, store.shared) == (3, 3)
+    for j in (0, 1):
+        _assert_same(alone[j], out[j])
 
 
 def test_a_store_keeps_at_most_its_number_of_factorisations(scene_dict):
@@ -106,11 +143,12 @@ def test_a_store_keeps_at_most_its_number_of_factorisations(scene_dict):
 
 def test_chunks_deal_every_call_once():
     calls = list(range(7))
-    for workers, n in ((0, 1), (1, 2), (2, 4), (8, 7)):
-        dealt = chunks(calls, workers)
+    for workers, per_worker, n in ((0, None, 1), (1, None, 7), (2, None, 7), (1, 2, 2), (2, 2, 4), (8, 2, 7)):
+        dealt = chunks(calls, workers, per_worker)
         assert len(dealt) == n
         assert sorted(sum(dealt, [])) == calls
         assert max(map(len, dealt)) - min(map(len, dealt)) <= 1
+    assert chunks(calls, 2) == [[c] for c in calls] and chunks([], 2) == chunks([], 0) == []
 
 
 def test_a_history_on_longer_steps_ends_on_the_forecast_time(scene_dict):

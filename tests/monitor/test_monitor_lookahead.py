@@ -368,3 +368,45 @@ def test_refreshes_running_beside_the_live_steps_change_neither(shared, log):
             if c not in ("wall_s", "made_at_utc"):
                 nan = ref[c].dtype.kind == "f"
                 assert np.array_equal(mine[c][i], ref[c][j[0]], equal_nan=nan), c
+
+
+class Recording:
+    """A forecaster that records which thread runs each refresh (one quiet row per plan)."""
+
+    def __init__(self):
+        self.threads = []
+
+    def forecast(self, sim_fork, plans, horizon, now_utc, *, screening, drive, start):
+        self.threads.append(threading.current_thread())   # (an ident is reused once a thread ends)
+        return [dict.fromkeys(LOOKAHEAD_COLUMNS) | dict(made_at=float(sim_fork.time), plan=p.name,
+                                                        horizon=horizon, level_now="green",
+                                                        level_at_horizon="green", max_level="green",
+                                                        made_at_utc=now_utc.isoformat())
+                for p in plans]
+
+
+def test_refreshes_go_to_one_worker_thread_started_once(scene_file, log):
+    """The live thread starts the worker at the first refresh only: the refreshes at 20, 40,
+    ..., 120 s (6) all run in that one thread, never the live one; after close() the worker
+    ends, and a refresh after it starts a new one that makes it (7 made)."""
+    scene = Scene.from_toml(scene_file)
+    rec = Recording()
+    la = LiveLookAhead(plans=["stop"], horizon=60.0, every=20.0, forecaster=rec)
+    stage = Stage(scene, start=log.start, lookahead=la)
+    k = 0
+    while stage.time < 120.0:
+        stage.feed_samples(log.time[k:k + 1], log.flow_rate[k:k + 1])
+        stage.wait_forecasts(30.0)
+        k += 1
+    first = la._thread
+    assert la.made == 6 and len(rec.threads) == 6 and len(set(rec.threads)) == 1
+    assert rec.threads[0] is first is not threading.current_thread()
+    la.close()
+    first.join(30.0)
+    assert not first.is_alive()
+    while la.made < 7:
+        stage.feed_samples(log.time[k:k + 1], log.flow_rate[k:k + 1])
+        stage.wait_forecasts(30.0)
+        k += 1
+    assert len(set(rec.threads)) == 2 and rec.threads[-1] is la._thread is not first
+    la.close()
