@@ -121,7 +121,8 @@ class CondensedSystem:
     shrinks against the coupling): on the paper-units Rustrel scene the factors
     took 3.7 times the memory and 5-6 times the time at dt = 60-600 s that they take at 5 s
     (benchmarks/factorisation.py). The row factors are undone on the right-hand side and on the
-    Schur complement (``_row_factor``)."""
+    Schur complement (``_row_factor``). An elastic bulk (no rock pore pressure: symmetric
+    positive definite, one factorisation a run) takes the same L D L^T."""
 
     _dense = None
     _order = None
@@ -293,9 +294,11 @@ class CondensedSystem:
                     # size (on 200 x 201 it cost 3.9 s of 24); its values equal these bit for bit
                     self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
                     held[0].data *= self._row_factor[held[0].indices]
-                    if self._analyses is None:
-                        self._analyses = _with_shared(lambda store, make: store.analyses,
-                                                      SymbolicAnalyses)
+                # an elastic bulk (positive definite, symmetric) takes the L D L^T too: on the
+                # fine 30 deg scene its factorisation took half SuperLU's CPU time
+                if self._analyses is None:
+                    self._analyses = _with_shared(lambda store, make: store.analyses,
+                                                  SymbolicAnalyses)
                 self.lu = self._factorise_held(held, len(B))
             else:   # the symmetric form in its fixed pattern
                 self.lu = self._factorise_symmetric(dt)
@@ -309,7 +312,10 @@ class CondensedSystem:
             self.P[rows, cols] += vals   # (each position once)
             self.lu.schur = None
             if self._restored_P is not None:
-                self.P, self._restored_P = self._restored_P, None
+                # into the factorisation's own P, so that it keeps its memory layout (the
+                # L D L^T's is Fortran-ordered, a C-ordered copy makes later sums in another order)
+                np.copyto(self.P, self._restored_P)
+                self._restored_P = None
         if self._blocks_fixed is None:  # rows of the fixed unknowns on the linear ones, in order
             self._blocks_fixed = [M[self._fixed].tocsc()[:, self.linear_order()].tocsr()
                                   for M in (self.A, self.C, self.Hf)]

@@ -160,8 +160,7 @@ def test_a_zero_pivot_falls_back_to_superlu():
 
 def test_the_solver_refactorises_a_poroelastic_bulk_on_one_analysis(poroelastic):
     """A step-size change: the bulk's new factors are the LDL^T on the analysis of the first,
-    and its Schur complement matches numpy's at the new step size; an elastic bulk (factorised
-    once for every step size) keeps SuperLU."""
+    and its Schur complement matches numpy's at the new step size."""
     system = poroelastic.system
     assert system.lu.quasi_definite and not system.factors_any_dt
     held, count = list(system._analyses._held), system.factorizations
@@ -177,8 +176,19 @@ def test_the_solver_refactorises_a_poroelastic_bulk_on_one_analysis(poroelastic)
     assert _rel(L_NN - system.P, exact) < TOL
 
 
-def test_an_elastic_bulk_keeps_superlu(elastic):
-    assert elastic.system.factors_any_dt and not elastic.system.lu.quasi_definite
+def test_an_elastic_bulk_takes_the_ldl(elastic):
+    """An elastic bulk (symmetric positive definite, factorised once for every step size) is
+    factorised by the L D L^T too, and the solver's condensation P = L_NN - S matches numpy's
+    dense Schur complement to TOL."""
+    system = elastic.system
+    assert system.factors_any_dt and system.lu.quasi_definite
+    M, nB = _free_block(elastic, system.dt, symmetric_form=False)
+    M = M.toarray()
+    exact = M[nB:, nB:] - M[nB:, :nB] @ np.linalg.solve(M[:nB, :nB], M[:nB, nB:])
+    rows, cols, vals = system._LNN_entries
+    L_NN = np.zeros_like(exact)
+    L_NN[rows, cols] = vals
+    assert _rel(L_NN - system.P, exact) < TOL
 
 
 def _fronts_by_blas(M, nB):
