@@ -292,6 +292,13 @@ class SolverSpec:
     """Newton iterations of a step before it counts as failed (-)."""
     max_step_cuts: int = 8
     """A step whose Newton iteration fails is halved and retried at most this often (-)."""
+    first_guess: str = "previous"
+    """The first Newton iterate of a step (-): 'previous', the state the step starts from;
+    'extrapolated', the last three accepted states extrapolated to the step's end (quadratic in
+    time; linear after the first step). Where the state evolves smoothly (a pressure front, slip
+    from mid-injection) that starts Newton closer to the answer and saves iterations; a step
+    whose extrapolated start fails is solved again from the previous state. Either converges to
+    ``tolerance``."""
     unstable_slip_rate: float = 1e-3
     """Slip rate beyond which the fault counts as unstable (m/s): the quasi-static model cannot
     follow dynamic slip, so the run stops there, keeps every result up to that moment and says
@@ -1076,6 +1083,8 @@ def _validate_solver(sv: SolverSpec):
     _check(0 < sv.tolerance < 1, "solver.tolerance", sv.tolerance, "must be in (0, 1)")
     _check(sv.max_iterations >= 1, "solver.max_iterations", sv.max_iterations, "must be >= 1")
     _check(sv.max_step_cuts >= 0, "solver.max_step_cuts", sv.max_step_cuts, "must be >= 0")
+    _check(sv.first_guess in ("previous", "extrapolated"), "solver.first_guess", sv.first_guess,
+           "must be 'previous' or 'extrapolated'")
     _check(sv.unstable_slip_rate > 0, "solver.unstable_slip_rate", sv.unstable_slip_rate, "must be > 0 m/s")
 
 

@@ -334,6 +334,17 @@ class NewtonSolver:
         th = self.time_weight
         return last.AHx[:n] + stored_n + (last.AHx[n:] if th == 1.0 else th * last.AHx[n:])
 
+    def _linear_times_guess(self, x0, x_n, dt):
+        """L x0 for a step that starts from a first guess x0 other than x_n, from the whole
+        products A x0, Hf x0 and C x0 (kept for the convergence test, which then needs no
+        product at the first iteration) instead of a product with L (not held: see
+        ``CondensedSystem.L``)."""
+        AHx, Cx, Cd = _whole_products(*self._csr_arrays, x0, self._C_times_start(x_n))
+        self._products = _Products(x_n, x0.copy(), AHx, Cd, True, Cx)
+        n = self.disc.n_dofs
+        th = self.time_weight
+        return AHx[:n] + Cx / dt + (AHx[n:] if th == 1.0 else th * AHx[n:])
+
     def _residual(self, x, rhs, history, dt, pending, Lx=None):
         """Residual at x and the nonlinear terms' tangent and fault state. ``pending``
         (``PendingBulk`` or None): the bulk's answer to the step's updates that x[B] does not
@@ -477,7 +488,8 @@ class NewtonSolver:
         rhs -= known
         flow_known = np.abs(rhs - stored_n)  # sources and the known parts of the flow terms
         x = x_n.copy() if x0 is None else x0.copy()  # x0: a better first guess (continuation)
-        Lx = self._linear_times_start(x_n, stored_n) if x0 is None else None
+        Lx = (self._linear_times_start(x_n, stored_n) if x0 is None
+              else self._linear_times_guess(x, x_n, dt))
         tol = self.tol
         # the bulk's answer to every Newton update would cost a backward sweep: it is summed
         # instead (pending) and swept for once, when the fault looks converged; possible when the

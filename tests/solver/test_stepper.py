@@ -57,7 +57,16 @@ def poroelastic_growing():
                      time=dataclasses.replace(s.time, end=600.0, dt=2.0, growth=1.05, dt_max=12.0))
 
 
+def extrapolated_guess():
+    """``hard_rustrel`` with an extrapolated first Newton iterate: each step starts from the last
+    three accepted states (growing steps: unequal intervals), which a checkpoint, a chunk
+    boundary and a fork carry on."""
+    s = hard_rustrel()
+    return s.replace(solver=dataclasses.replace(s.solver, first_guess="extrapolated"))
+
+
 CASES = {"rate, rate-and-state, evolving aperture": hard_rustrel,
+         "extrapolated first guess": extrapolated_guess,
          "pressure control": pressure_controlled,
          "poroelastic, growing steps": poroelastic_growing}
 

@@ -1,0 +1,89 @@
+"""An extrapolated first Newton iterate (``solver.first_guess = 'extrapolated'``): the weights
+are those of the Lagrange polynomial, and the steps converge to the same tolerance as from the
+previous state, in fewer Newton iterations where the state evolves smoothly."""
+import dataclasses
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from conftest import CONFIGS
+from fault_screen import Scene
+from fault_screen.scene import SceneError
+from fault_screen.simulate import simulate
+from fault_screen.stepper import extrapolation_weights
+
+
+@pytest.mark.parametrize("times, at", [([0.0, 5.0, 10.0], 15.0), ([1.0, 1.7, 4.2], 5.5),
+                                       ([2.0, 3.0], 3.6), ([0.3, 0.6, 1.2], 1.21)])
+def test_weights_reproduce_a_polynomial_of_their_degree(times, at):
+    """Against numpy's least-squares fit through the same points (exact for len(times) points
+    and degree len(times) - 1): 1e-12 relative; uniform steps give (1, -3, 3)."""
+    rng = np.random.default_rng(7)
+    coefficients = rng.normal(size=len(times))
+    values = np.polyval(coefficients, times)
+    weights = extrapolation_weights(times, at)
+    expected = np.polyval(np.polyfit(times, values, len(times) - 1), at)
+    assert abs(weights @ values - expected) <= 1e-12 * max(1.0, abs(expected))
+    assert abs(weights.sum() - 1.0) <= 1e-14 * np.abs(weights).sum()   # constants kept
+    if times == [0.0, 5.0, 10.0]:
+        assert np.array_equal(weights, [1.0, -3.0, 3.0])
+
+
+def _paper_units(first_guess):
+    """The bundled paper-units scene on a coarse mesh for its first 600 s (slip from ~300 s)."""
+    s = Scene.from_toml(CONFIGS / "rustrel-2015-calibrated-paper-units.toml")
+    return s.replace(mesh=dataclasses.replace(s.mesh, nx=20, ny=21),
+                     time=dataclasses.replace(s.time, end=600.0),
+                     solver=dataclasses.replace(s.solver, first_guess=first_guess))
+
+
+@pytest.fixture(scope="module")
+def both_guesses():
+    return {guess: simulate(_paper_units(guess)) for guess in ("previous", "extrapolated")}
+
+
+def test_an_extrapolated_guess_saves_newton_iterations(both_guesses):
+    """At most 3/4 of the iterations from the previous state (measured 0.5 on the bundled mesh),
+    and no step cut."""
+    previous = both_guesses["previous"].solver
+    extrapolated = both_guesses["extrapolated"].solver
+    assert extrapolated["iterations"].sum() <= 0.75 * previous["iterations"].sum()
+    assert not extrapolated["step_cuts"].any()
+
+
+def test_both_guesses_converge_to_the_same_states(both_guesses):
+    """Each step's answer is fixed up to the Newton tolerance (1e-8 of the reference
+    magnitudes): pressures, slip and tractions agree to 1e-6 relative to their largest value,
+    a thousand times below the smallest effect of physics the regression baseline detects (1e-4),
+    over 120 steps that each carry the last one's difference on."""
+    a, b = both_guesses["previous"], both_guesses["extrapolated"]
+    assert np.max(np.abs(a.fault["slip"])) > 0   # the fault slips in this window
+    for key in ("slip", "pressure", "effective_normal_stress", "shear_traction"):
+        scale = np.max(np.abs(a.fault[key]))
+        assert np.max(np.abs(a.fault[key] - b.fault[key])) <= 1e-6 * scale, key
+
+
+@given(st.text(max_size=20).filter(lambda v: v not in ("previous", "extrapolated")))
+def test_an_unknown_first_guess_is_a_scene_error(value):
+    with pytest.raises(SceneError, match=r"^solver\.first_guess = .*must be 'previous' or 'extrapolated'$"):
+        Scene.from_dict({"solver": {"first_guess": value}})
+
+
+def test_a_fork_continues_with_the_runs_extrapolation():
+    """A fork made mid-run takes the run's remaining steps bit for bit: it starts from the same
+    earlier states (growing steps, rate-and-state: ``test_stepper.extrapolated_guess``)."""
+    from fault_screen import Simulation
+    from test_stepper import extrapolated_guess
+
+    scene = extrapolated_guess()
+    sim = Simulation(scene)
+    sim.advance(0.5 * scene.time.end)
+    assert len(sim.earlier_states) == 2
+    twin = sim.fork()
+    twin.advance(scene.time.end)
+    sim.advance(scene.time.end)
+    assert twin.steps == sim.steps
+    assert np.array_equal(twin.x, sim.x)
+    assert np.array_equal(twin.history, sim.history)
