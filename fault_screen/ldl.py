@@ -421,7 +421,8 @@ def _numeric(indptr, indices, data, n_linear, first, width, row_at, srows, tpare
 
     ``indptr, indices, data``: the lower triangle of the first n_linear columns (CSC, rows >= the
     column). ``schur`` holds M_NN on entry and the Schur complement on return. Returns the
-    packed L (``bordered_lu._pack``'s layout: row-major m x w blocks, unit diagonal), D, and the
+    packed L (``bordered_lu._pack``'s layout: by rows, the unit diagonal block's triangle, then
+    the rows below it), D, and the
     smallest |d| / largest |d| (0 or NaN: not quasi-definite). A front whose supernode is at
     least ``blas_width`` wide with at least ``blas_rows`` rows below it takes its rows below
     and its update by BLAS, a panel of columns at a time (``_panel_by_blas``), the others by
@@ -432,7 +433,8 @@ def _numeric(indptr, indices, data, n_linear, first, width, row_at, srows, tpare
     widest = 1      # a running maximum: np.max would compile numba's reduction for this alone
     for t in range(n_sn):
         m = row_at[t + 1] - row_at[t]
-        value_at[t + 1] = value_at[t] + m * width[t]
+        w = width[t]
+        value_at[t + 1] = value_at[t] + w * (w + 1) // 2 + (m - w) * w
         largest_front = max(largest_front, m)
         widest = max(widest, width[t])
     values = np.empty(value_at[n_sn])
@@ -547,17 +549,18 @@ def _numeric(indptr, indices, data, n_linear, first, width, row_at, srows, tpare
                 i += 4
             for i in range(i, m):
                 _update_row(front, panel_t, m, w, i, w)
-        # the packed factor: rows 0..m-1, columns 0..w-1, unit diagonal, zeros above it
-        v0 = value_at[t]
+        # the packed factor: the w x w block's rows up to the unit diagonal, then the m - w
+        # rows below, w values each (``bordered_lu._pack``'s layout)
+        v = value_at[t]
         for k in range(w):
             for c in range(k):
-                values[_u(v0 + k * w + c)] = front[_u(k * m + c)]
-            values[v0 + k * w + k] = 1.0
-            for c in range(k + 1, w):
-                values[_u(v0 + k * w + c)] = 0.0
+                values[_u(v + c)] = front[_u(k * m + c)]
+            values[v + k] = 1.0
+            v += k + 1
         for k in range(w, m):
             for c in range(w):
-                values[_u(v0 + k * w + c)] = front[_u(k * m + c)]
+                values[_u(v + c)] = front[_u(k * m + c)]
+            v += w
         # the update: to the parent's stack entry, or (a root) into the Schur complement
         u = m - w
         q = tparent[t]
