@@ -466,6 +466,18 @@ def _numeric(indptr, indices, data, n_linear, first, width, row_at, srows, tpare
             stack_size = max(stack_size, held[depth + 1])
             depth += 1
     stack = np.empty(stack_size)
+    # each front's update on the condensed rows goes straight into ``condensed`` (the sum of
+    # the fronts' parts, lower triangle by rows), not up the tree through every ancestor's
+    # front: nothing in an ancestor reads it (its pivots are linear unknowns)
+    n_N = schur.shape[0]
+    condensed = np.zeros(n_N * n_N)
+    linear_below = np.empty(n_sn, dtype=np.int64)   # of the rows below, the linear ones (first)
+    for t in range(n_sn):
+        count = 0
+        for k in range(row_at[t] + width[t], row_at[t + 1]):
+            if srows[k] < n_linear:
+                count += 1
+        linear_below[t] = count
     stack_at = np.empty(n_sn + 1, dtype=np.int64)
     stack_node = np.empty(n_sn, dtype=np.int64)
     depth = 0
@@ -489,10 +501,11 @@ def _numeric(indptr, indices, data, n_linear, first, width, row_at, srows, tpare
             cw = width[child]
             c0 = row_at[child] + cw
             u = row_at[child + 1] - c0
+            u_B = linear_below[child]
             for a in range(u):
                 ra = relative[c0 + a] * m
                 at = base + a * u
-                for b in range(a + 1):
+                for b in range(min(a + 1, u_B)):
                     front[_u(ra + relative[_u(c0 + b)])] += stack[_u(at + b)]
         if w >= blas_width and m - w >= blas_rows:
             # a panel of columns at a time: its pivots, then its rows below and their update
@@ -561,27 +574,30 @@ def _numeric(indptr, indices, data, n_linear, first, width, row_at, srows, tpare
             for c in range(w):
                 values[_u(v + c)] = front[_u(k * m + c)]
             v += w
-        # the update: to the parent's stack entry, or (a root) into the Schur complement
+        # the update: its condensed rows' part on the condensed columns into ``condensed``, the
+        # rest (none at a root: its rows below are all condensed) to the parent's stack entry
         u = m - w
-        q = tparent[t]
-        if q == -1:
-            for a in range(u):
-                ra = relative[r0 + w + a]
-                for b in range(a + 1):
-                    rb = relative[r0 + w + b]
-                    v = front[(w + a) * m + w + b]
-                    schur[ra, rb] += v
-                    if ra != rb:
-                        schur[rb, ra] += v
-        else:
+        u_B = linear_below[t]
+        for a in range(u_B, u):
+            ra = (srows[r0 + w + a] - n_linear) * n_N - n_linear
+            row = (w + a) * m + w
+            for b in range(u_B, a + 1):
+                condensed[_u(ra + srows[r0 + w + b])] += front[_u(row + b)]
+        if tparent[t] != -1:
             base = stack_at[depth]
             for a in range(u):
                 at, row = base + a * u, (w + a) * m + w
-                for b in range(a + 1):
+                for b in range(min(a + 1, u_B)):
                     stack[_u(at + b)] = front[_u(row + b)]
             stack_node[depth] = t
             depth += 1
             stack_at[depth] = base + u * u
+    for a in range(n_N):   # the Schur complement: M_NN plus the updates (symmetric)
+        for b in range(a):
+            v = condensed[a * n_N + b]
+            schur[a, b] += v
+            schur[b, a] += v
+        schur[a, a] += condensed[a * n_N + a]
     smallest, largest = np.inf, 0.0
     for j in range(n_linear):
         a = abs(diagonal[j])
