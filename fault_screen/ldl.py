@@ -418,7 +418,7 @@ def _panel_by_blas(front, m, o, n, w, d, xt, lrows, dlrows, strip, product):
 
 @kernel
 def _eliminate(begin, end, indptr, indices, data, n_linear, first, width, row_at, srows,
-               tparent, children, relative, value_at, linear_below, values, diagonal, condensed,
+               tparent, children, relative, value_at, values, diagonal, condensed,
                stack, stack_at, stack_node, depth, blas_width, blas_rows):
     """The multifrontal LDL^T of the supernodes ``begin .. end - 1`` (postorder; whole subtrees,
     or the top of the tree once they are done: see ``LDLSymbolic``), their fronts in buffers of
@@ -427,9 +427,8 @@ def _eliminate(begin, end, indptr, indices, data, n_linear, first, width, row_at
     ``indptr, indices, data``: the lower triangle of the first n_linear columns (CSC, rows >= the
     column). Writes each supernode's packed L (``bordered_lu._pack``'s layout: by rows, the unit
     diagonal block's triangle, then the rows below it) at ``values[value_at[t]:]`` and its
-    pivots into ``diagonal``; adds each front's update on the condensed rows and columns into
-    ``condensed`` (lower triangle by rows: straight there, not up the tree through every
-    ancestor's front, as nothing there reads it); the other updates wait for their parent in
+    pivots into ``diagonal``; adds each root's update (its rows below are all condensed) into
+    ``condensed`` (n_N x n_N, its lower triangle); the other updates wait for their parent in
     ``stack`` (entries from ``stack_at[k]``, of supernode ``stack_node[k]``, k < ``depth``: a
     parent's are on top, in postorder). A front whose supernode is at least ``blas_width`` wide
     with at least ``blas_rows`` rows below it takes its rows below and its update by BLAS, a
@@ -473,11 +472,10 @@ def _eliminate(begin, end, indptr, indices, data, n_linear, first, width, row_at
             cw = width[child]
             c0 = row_at[child] + cw
             u = row_at[child + 1] - c0
-            u_B = linear_below[child]
             for a in range(u):
                 ra = relative[c0 + a] * m
                 at = base + a * u
-                for b in range(min(a + 1, u_B)):
+                for b in range(a + 1):
                     front[_u(ra + relative[_u(c0 + b)])] += stack[_u(at + b)]
         if w >= blas_width and m - w >= blas_rows:
             # a panel of columns at a time: its pivots, then its rows below and their update
@@ -546,20 +544,20 @@ def _eliminate(begin, end, indptr, indices, data, n_linear, first, width, row_at
             for c in range(w):
                 values[_u(v + c)] = front[_u(k * m + c)]
             v += w
-        # the update: its condensed rows' part on the condensed columns into ``condensed``, the
-        # rest (none at a root: its rows below are all condensed) to the parent's stack entry
+        # the update: to the parent's stack entry, or (a root: its rows below are all
+        # condensed) into ``condensed``
         u = m - w
-        u_B = linear_below[t]
-        for a in range(u_B, u):
-            ra = (srows[r0 + w + a] - n_linear) * n_N - n_linear
-            row = (w + a) * m + w
-            for b in range(u_B, a + 1):
-                flat[_u(ra + srows[r0 + w + b])] += front[_u(row + b)]
-        if tparent[t] != -1:
+        if tparent[t] == -1:
+            for a in range(u):
+                ra = relative[r0 + w + a] * n_N
+                row = (w + a) * m + w
+                for b in range(a + 1):
+                    flat[_u(ra + relative[_u(r0 + w + b)])] += front[_u(row + b)]
+        else:
             base = stack_at[depth]
             for a in range(u):
                 at, row = base + a * u, (w + a) * m + w
-                for b in range(min(a + 1, u_B)):
+                for b in range(a + 1):
                     stack[_u(at + b)] = front[_u(row + b)]
             stack_node[depth] = t
             depth += 1
@@ -578,8 +576,9 @@ def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=No
     the Schur complement on return. The two independent parts of ``symbolic.parts`` run in two
     threads when ``threads`` is 2 (default: when the factorisation is larger than
     THREADS_ABOVE), else one after the other; the sums are the same either way (each part's
-    fronts in their buffers, the condensed updates summed per part, in one fixed order), so
-    the factors are the same to the last bit. ``blas_width``, ``blas_rows``: the fronts through
+    fronts in their buffers, its roots' updates summed apart, the parts' sums added in one fixed
+    order), so the factors are the same to the last bit; with one root (the tree's top, the
+    usual case) the Schur complement is M_NN plus its update, as when one pass made it. ``blas_width``, ``blas_rows``: the fronts through
     BLAS (``_eliminate``; default BLAS_MIN_WIDTH and BLAS_MIN_ROWS)."""
     blas_width = BLAS_MIN_WIDTH if blas_width is None else blas_width
     blas_rows = BLAS_MIN_ROWS if blas_rows is None else blas_rows
@@ -590,11 +589,10 @@ def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=No
     n_N = schur.shape[0]
     stack = np.empty(symbolic.stack_size)
     (a0, a1), (b0, b1), (top_begin, top_at, top_node) = symbolic.parts
-    # condensed updates: of the first part and the top (after it), and of the second
+    # the roots' updates: of the first part and the top (after it), and of the second part
     first_part, second_part = np.zeros((n_N, n_N)), np.zeros((n_N, n_N))
     common = (lower.indptr, lower.indices, lower.data, n_linear, first, width, row_at, srows,
-              tparent, children, relative, symbolic.value_at, symbolic.linear_below, values,
-              diagonal)
+              tparent, children, relative, symbolic.value_at, values, diagonal)
 
     def run(begin, end, condensed, base, at=None, node=None):
         stack_at = np.empty(len(width) + 1, dtype=np.int64)
@@ -652,8 +650,8 @@ class LDLSymbolic:
 
     def _plan(self):
         """What the numeric factorisation needs beyond the tree, from the pattern alone: where
-        each supernode's packed values start (``value_at``), how many of its rows below are
-        linear (``linear_below``: they come first), its multiply-adds, and the parts it runs in.
+        each supernode's packed values start (``value_at``), the multiply-adds, and the parts
+        it runs in.
 
         ``parts``: the tree's top (from the root down to the first supernode with two children
         or more: every other supernode lies in the subtrees of that one's children) and the
@@ -667,9 +665,6 @@ class LDLSymbolic:
         m = np.diff(row_at)
         u = m - width
         self.value_at = np.concatenate([[0], np.cumsum(width * (width + 1) // 2 + u * width)])
-        linear = (srows < self.n_linear).astype(np.int64)
-        self.linear_below = (np.add.reduceat(linear, row_at[:-1]) - width if n_sn
-                             else np.zeros(0, dtype=np.int64))
         work = width ** 3 / 6.0 + u * width * width / 2.0 + width * u * (u + 1) / 2.0
         self.multiply_adds = float(work.sum())
         # the top: a unique root and its line of only children (none for a forest)
