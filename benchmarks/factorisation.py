@@ -44,7 +44,9 @@ S and of the bulk rows), by front size; the entries moved by the extend-add; the
 numeric factorisation with the large fronts through BLAS (``ldl.BLAS_MIN_WIDTH`` and
 ``BLAS_MIN_ROWS``) and with every front by loops, the same matrix alternately in one run; and the
 CPU time of numpy's matrix product (BLAS dgemm, one thread) on the very shapes of the products
-the BLAS fronts make, which bounds what those fronts can take.
+the BLAS fronts make, which bounds what those fronts can take; and the parts that a
+refactorisation runs in two threads (``ldl.LDLSymbolic.parts``): each part's CPU time, one after
+the other, the path of two threads that this gives, and the wall time in one and in two threads.
 Every timing is the least CPU time of ``--repeat`` runs in this one process, with one BLAS
 thread (on a shared machine wall time measures the other processes too); compare rows of one
 run. Each method factorises the whole free matrix in one call: the solver splits a
@@ -273,8 +275,8 @@ def fronts(key, repeat):
     (M, E, nB), = free_matrices(_scene(key), STEP_SIZES[-1:])[0]
     S = (sp.diags(E) @ M).tocsc()
     lower, condensed = ldl._lower(S, nB), S[nB:, nB:].toarray()
-    first, width, row_at, srows, tparent, children, relative = \
-        ldl.SymbolicAnalyses().of(lower, nB).tree
+    symbolic = ldl.SymbolicAnalyses().of(lower, nB)
+    first, width, row_at, srows, tparent, children, relative = symbolic.tree
     m = np.diff(row_at)
     w = width
     u = m - w
@@ -299,14 +301,13 @@ def fronts(key, repeat):
             print(f"| {lo}-{hi if hi < 1 << 40 else ''} | {int(at.sum())} "
                   f"| {total[at].sum() / 1e6:.1f} "
                   f"| {100 * by_N[at].sum() / total[at].sum():.0f} % | {np.median(w[at]):.0f} |")
-    args = (lower.indptr, lower.indices, lower.data, nB, first, width, row_at, srows, tparent,
-            children, relative)
     times = {"BLAS fronts": np.inf, "loops only": np.inf}
     for _ in range(repeat):
         for name, limits in (("BLAS fronts", (ldl.BLAS_MIN_WIDTH, ldl.BLAS_MIN_ROWS)),
                              ("loops only", (1 << 40, 1 << 40))):
-            t = _best(lambda: ldl._numeric(*args, condensed.copy(), *limits), 1)[0]
+            t = _best(lambda: ldl._numeric(lower, condensed.copy(), symbolic, 1, *limits), 1)[0]
             times[name] = min(times[name], t)
+    parts = _parts(lower, condensed, symbolic, repeat)
     shapes = []   # (rows, inner, columns) of each product the BLAS fronts make
     for t in np.flatnonzero(blas):
         c0 = 0
@@ -328,6 +329,44 @@ def fronts(key, repeat):
           f"{1e3 * times['loops only']:.1f} ms by loops alone; numpy dot alone on the BLAS "
           f"fronts' {len(shapes)} product shapes ({products / 1e6:.1f} M multiply-adds): "
           f"{1e3 * t_dot:.1f} ms ({products / t_dot / 1e9:.1f} G/s)")
+    first_cpu, second_cpu, top_cpu, walls = parts
+    print(f"the parts of a refactorisation (ldl.LDLSymbolic.parts), CPU one after the other: "
+          f"{1e3 * first_cpu:.1f} and {1e3 * second_cpu:.1f} ms beside each other, then the top "
+          f"{1e3 * top_cpu:.1f} ms: the two threads' path {1e3 * (max(first_cpu, second_cpu) + top_cpu):.1f} ms "
+          f"of {1e3 * (first_cpu + second_cpu + top_cpu):.1f}; wall in one thread "
+          f"{1e3 * walls[1]:.1f} ms, in two {1e3 * walls[2]:.1f} ms (at this load)")
+
+
+def _parts(lower, condensed, symbolic, repeat):
+    """The least thread CPU time of each part of the numeric factorisation run one after the
+    other (the first, the second, the top), and the least wall time of the whole in one and in
+    two threads."""
+    from fault_screen import ldl
+
+    eliminate, spent = ldl._eliminate, []
+
+    def timed(*args):
+        t0 = time.thread_time()
+        eliminate(*args)
+        spent.append(time.thread_time() - t0)
+
+    best = [np.inf] * 3
+    ldl._eliminate = timed
+    try:
+        for _ in range(repeat):
+            spent.clear()
+            ldl._numeric(lower, condensed.copy(), symbolic, 1)
+            best = [min(b, t) for b, t in zip(best, spent)]
+    finally:
+        ldl._eliminate = eliminate
+    walls = {}
+    for threads in (1, 2):
+        walls[threads] = np.inf
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            ldl._numeric(lower, condensed.copy(), symbolic, threads)
+            walls[threads] = min(walls[threads], time.perf_counter() - t0)
+    return (*best, walls)
 
 
 def main(argv=None):

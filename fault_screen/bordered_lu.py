@@ -159,29 +159,6 @@ def _pack(indptr, indices, data, n, for_backward):
     return first, width, row_at, value_at, rows, values
 
 
-@kernel
-def _compact(width, value_at, values):
-    """Factors packed with square diagonal blocks (each supernode a row-major m x w block, zeros
-    above its diagonal: ``ldl.factorise``'s layout) in ``_pack``'s layout: (value_at, values)."""
-    n_sn = len(width)
-    at = np.zeros(n_sn + 1, dtype=np.int64)
-    for t in range(n_sn):
-        w = width[t]
-        m = (value_at[t + 1] - value_at[t]) // w
-        at[t + 1] = at[t] + _triangle(w) + (m - w) * w
-    out = np.empty(at[n_sn])
-    for t in range(n_sn):
-        w, v0, a0 = width[t], value_at[t], at[t]
-        for k in range(w):
-            for c in range(k + 1):
-                out[a0 + _triangle(k) + c] = values[v0 + k * w + c]
-        a = a0 + _triangle(w)
-        for i in range(v0 + w * w, value_at[t + 1]):   # (the rows below: as they are)
-            out[a] = values[i]
-            a += 1
-    return at, out
-
-
 @sweep_kernel
 def _forward_sweep(first, width, row_at, value_at, rows, values, r):
     """Forward substitution with a unit lower triangular matrix packed by ``_pack``: r[:n]
@@ -420,14 +397,13 @@ class BorderedLU:
         self._take(*ldl.factorise_lower(lower, condensed, self.n_linear, analyses))
 
     def _take(self, packed, diagonal, schur, nnz):
-        (first, width, row_at, value_at, rows, values), self._D, self.schur = packed, diagonal, schur
-        value_at, values = _compact(width, value_at, values)   # (the square blocks go here)
+        self._D, self.schur = diagonal, schur
         self.quasi_definite = True
         self.nnz = 2 * nnz   # (as L + U)
         self._row_B = np.arange(self.n_linear)
         self._row_N = np.arange(self.n - self.n_linear)
         self._rows_kept = True
-        self._L = _Packed.of((first, width, row_at, value_at, rows, values))
+        self._L = _Packed.of(packed)   # (ldl packs L in the sweeps' layout)
         self._U = None
 
     @property

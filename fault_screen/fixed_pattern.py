@@ -168,6 +168,13 @@ class FixedBulk:
         self._N_at = np.flatnonzero(on_N)
         # (positions in the column-major block)
         self._N_flat = (cols[on_N] - n_linear) * (n - n_linear) + (rows[on_N].astype(np.int64) - n_linear)
+        # what the L D L^T reads, as a CSC pattern of its own (``parts``): the lower triangle's
+        # columns first, then the condensed block's, so that the first values are the lower
+        # triangle's as they are; the upper triangle of the linear columns is left out
+        read = lower | on_N
+        self._read_indptr = _index(np.bincount(cols[read], minlength=n))
+        self._read_indices = rows[read]
+        self._read_at = [at[read] for at in self._at]
 
     @staticmethod
     def pattern_key(blocks, order, flow, n_linear):
@@ -204,6 +211,17 @@ class FixedBulk:
                        self._row_factor(dt), 1.0 / dt, self._time_weight, out)
         return out
 
+    def parts(self, dt):
+        """(``lower``, ``condensed``) at step size dt, the values of those entries alone
+        computed (each as ``values`` computes it: the same numbers to the last bit)."""
+        read = np.empty(len(self._read_indices))
+        a, c, h = self._data
+        at_a, at_c, at_h = self._read_at
+        _scaled_values(self._read_indptr, self._read_indices, at_a, at_c, at_h, a, c, h,
+                       self._scale, self._row_factor(dt), 1.0 / dt, self._time_weight, read)
+        n_lower = len(self.lower_indices)
+        return self._lower_of(read[:n_lower]), self._condensed_of(read[n_lower:])
+
     def matrix(self, values):
         """The block as CSC from ``values`` (the pattern's arrays shared, not copied)."""
         M = sp.csc_matrix(self.shape)
@@ -212,15 +230,21 @@ class FixedBulk:
 
     def lower(self, values):
         """The lower triangle of the first n_linear columns (CSC, sorted) from ``values``."""
+        return self._lower_of(values[self._lower_at])
+
+    def _lower_of(self, data):
         L = sp.csc_matrix((self.shape[0], self.n_linear))
-        L.indptr, L.indices, L.data = self.lower_indptr, self.lower_indices, values[self._lower_at]
+        L.indptr, L.indices, L.data = self.lower_indptr, self.lower_indices, data
         return L
 
     def condensed(self, values):
         """The dense block on the condensed unknowns from ``values``."""
+        return self._condensed_of(values[self._N_at])
+
+    def _condensed_of(self, data):
         n_N = self.shape[0] - self.n_linear
         out = np.zeros((n_N, n_N), order="F")   # (as a CSC block's toarray(): products with
-        out.T.reshape(-1)[self._N_flat] = values[self._N_at]   # it then sum in the same order)
+        out.T.reshape(-1)[self._N_flat] = data  # it then sum in the same order)
         return out
 
     def components(self):

@@ -18,6 +18,8 @@ U12 = D L21^T (the symmetric form has M_BN = M_NB^T).
 """
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -415,60 +417,43 @@ def _panel_by_blas(front, m, o, n, w, d, xt, lrows, dlrows, strip, product):
 
 
 @kernel
-def _numeric(indptr, indices, data, n_linear, first, width, row_at, srows, tparent, children,
-             relative, schur, blas_width=BLAS_MIN_WIDTH, blas_rows=BLAS_MIN_ROWS):
-    """The multifrontal LDL^T over the supernodes in postorder (see the module docstring).
+def _eliminate(begin, end, indptr, indices, data, n_linear, first, width, row_at, srows,
+               tparent, children, relative, value_at, values, diagonal, condensed,
+               stack, stack_at, stack_node, depth, blas_width, blas_rows):
+    """The multifrontal LDL^T of the supernodes ``begin .. end - 1`` (postorder; whole subtrees,
+    or the top of the tree once they are done: see ``LDLSymbolic``), their fronts in buffers of
+    their own, so that two calls on disjoint subtrees may run at once.
 
     ``indptr, indices, data``: the lower triangle of the first n_linear columns (CSC, rows >= the
-    column). ``schur`` holds M_NN on entry and the Schur complement on return. Returns the
-    packed L (``bordered_lu._pack``'s layout: row-major m x w blocks, unit diagonal), D, and the
-    smallest |d| / largest |d| (0 or NaN: not quasi-definite). A front whose supernode is at
-    least ``blas_width`` wide with at least ``blas_rows`` rows below it takes its rows below
-    and its update by BLAS, a panel of columns at a time (``_panel_by_blas``), the others by
-    the loops here."""
-    n_sn = len(first)
-    value_at = np.zeros(n_sn + 1, dtype=np.int64)
+    column). Writes each supernode's packed L (``bordered_lu._pack``'s layout: by rows, the unit
+    diagonal block's triangle, then the rows below it) at ``values[value_at[t]:]`` and its
+    pivots into ``diagonal``; adds each root's update (its rows below are all condensed) into
+    ``condensed`` (n_N x n_N, its lower triangle); the other updates wait for their parent in
+    ``stack`` (entries from ``stack_at[k]``, of supernode ``stack_node[k]``, k < ``depth``: a
+    parent's are on top, in postorder). A front whose supernode is at least ``blas_width`` wide
+    with at least ``blas_rows`` rows below it takes its rows below and its update by BLAS, a
+    panel of columns at a time (``_panel_by_blas``), the others by the loops here."""
+    n_N = condensed.shape[0]
+    flat = condensed.reshape(-1)
     largest_front = 0
     widest = 1      # a running maximum: np.max would compile numba's reduction for this alone
-    for t in range(n_sn):
+    big_w = big_m = 1   # the BLAS path's buffers, sized for its largest front
+    for t in range(begin, end):
         m = row_at[t + 1] - row_at[t]
-        value_at[t + 1] = value_at[t] + m * width[t]
         largest_front = max(largest_front, m)
         widest = max(widest, width[t])
-    values = np.empty(value_at[n_sn])
-    diagonal = np.empty(n_linear)
+        if width[t] >= blas_width and m - width[t] >= blas_rows:
+            big_w, big_m = PANEL, max(big_m, m)
     front = np.empty(largest_front * largest_front)
-    panel_t = np.empty(largest_front * widest if n_sn else 1)
-    where = np.full(n_linear + schur.shape[0], -1, dtype=np.int64)
+    panel_t = np.empty(largest_front * widest)
+    where = np.full(n_linear + n_N, -1, dtype=np.int64)
     column_d = np.empty(widest)
-    # the BLAS path's buffers, sized for its largest front
-    big_w = big_m = 1
-    for t in range(n_sn):
-        u = row_at[t + 1] - row_at[t] - width[t]
-        if width[t] >= blas_width and u >= blas_rows:
-            big_w, big_m = PANEL, max(big_m, row_at[t + 1] - row_at[t])
     xt = np.empty(big_w * big_m)
     lrows = np.empty(big_w * big_m)
     dlrows = np.empty(big_w * big_m)
     strip = np.empty(min(SOLVE_BLOCK, big_w) * big_w)
     product = np.empty(max(SOLVE_BLOCK, UPDATE_BLOCK) * big_m)
-    # the update matrices waiting for their parent, stacked (postorder: a parent's are on top)
-    stack_size = 0   # (its peak, found by a dry run of the pushes and pops below)
-    held = np.zeros(n_sn + 1, dtype=np.int64)
-    depth = 0
-    for t in range(n_sn):
-        depth -= children[t]
-        if tparent[t] != -1:
-            u = row_at[t + 1] - row_at[t] - width[t]
-            held[depth + 1] = held[depth] + u * u
-            stack_size = max(stack_size, held[depth + 1])
-            depth += 1
-    stack = np.empty(stack_size)
-    stack_at = np.empty(n_sn + 1, dtype=np.int64)
-    stack_node = np.empty(n_sn, dtype=np.int64)
-    depth = 0
-    stack_at[0] = 0
-    for t in range(n_sn):
+    for t in range(begin, end):
         j0, w = first[t], width[t]
         r0 = row_at[t]
         m = row_at[t + 1] - r0
@@ -547,29 +532,27 @@ def _numeric(indptr, indices, data, n_linear, first, width, row_at, srows, tpare
                 i += 4
             for i in range(i, m):
                 _update_row(front, panel_t, m, w, i, w)
-        # the packed factor: rows 0..m-1, columns 0..w-1, unit diagonal, zeros above it
-        v0 = value_at[t]
+        # the packed factor: the w x w block's rows up to the unit diagonal, then the m - w
+        # rows below, w values each (``bordered_lu._pack``'s layout)
+        v = value_at[t]
         for k in range(w):
             for c in range(k):
-                values[_u(v0 + k * w + c)] = front[_u(k * m + c)]
-            values[v0 + k * w + k] = 1.0
-            for c in range(k + 1, w):
-                values[_u(v0 + k * w + c)] = 0.0
+                values[_u(v + c)] = front[_u(k * m + c)]
+            values[v + k] = 1.0
+            v += k + 1
         for k in range(w, m):
             for c in range(w):
-                values[_u(v0 + k * w + c)] = front[_u(k * m + c)]
-        # the update: to the parent's stack entry, or (a root) into the Schur complement
+                values[_u(v + c)] = front[_u(k * m + c)]
+            v += w
+        # the update: to the parent's stack entry, or (a root: its rows below are all
+        # condensed) into ``condensed``
         u = m - w
-        q = tparent[t]
-        if q == -1:
+        if tparent[t] == -1:
             for a in range(u):
-                ra = relative[r0 + w + a]
+                ra = relative[r0 + w + a] * n_N
+                row = (w + a) * m + w
                 for b in range(a + 1):
-                    rb = relative[r0 + w + b]
-                    v = front[(w + a) * m + w + b]
-                    schur[ra, rb] += v
-                    if ra != rb:
-                        schur[rb, ra] += v
+                    flat[_u(ra + relative[_u(r0 + w + b)])] += front[_u(row + b)]
         else:
             base = stack_at[depth]
             for a in range(u):
@@ -579,15 +562,72 @@ def _numeric(indptr, indices, data, n_linear, first, width, row_at, srows, tpare
             stack_node[depth] = t
             depth += 1
             stack_at[depth] = base + u * u
-    smallest, largest = np.inf, 0.0
-    for j in range(n_linear):
-        a = abs(diagonal[j])
-        if not a < np.inf or a != a:
-            return values, value_at, diagonal, np.nan
-        smallest = min(smallest, a)
-        largest = max(largest, a)
-    ratio = smallest / largest if largest > 0.0 else (1.0 if n_linear == 0 else 0.0)
-    return values, value_at, diagonal, ratio
+    return depth
+
+
+#: a factorisation of more multiply-adds than this takes its two largest independent parts in
+#: two threads (``LDLSymbolic.parts``); below it a thread's start costs more than it saves
+THREADS_ABOVE = 20e6
+
+
+def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=None):
+    """The numeric LDL^T of ``lower`` (``_lower``'s form) on ``symbolic``: (packed values, D,
+    smallest |d| / largest |d|: 0 or NaN, not quasi-definite); ``schur`` holds M_NN on entry and
+    the Schur complement on return. The two independent parts of ``symbolic.parts`` run in two
+    threads when ``threads`` is 2 (default: when the factorisation is larger than
+    THREADS_ABOVE), else one after the other; the sums are the same either way (each part's
+    fronts in their buffers, its roots' updates summed apart, the parts' sums added in one fixed
+    order), so the factors are the same to the last bit; with one root (the tree's top, the
+    usual case) the Schur complement is M_NN plus its update, as when one pass made it. ``blas_width``, ``blas_rows``: the fronts through
+    BLAS (``_eliminate``; default BLAS_MIN_WIDTH and BLAS_MIN_ROWS)."""
+    blas_width = BLAS_MIN_WIDTH if blas_width is None else blas_width
+    blas_rows = BLAS_MIN_ROWS if blas_rows is None else blas_rows
+    first, width, row_at, srows, tparent, children, relative = symbolic.tree
+    n_linear = symbolic.n_linear
+    values = np.empty(symbolic.value_at[-1])
+    diagonal = np.empty(n_linear)
+    n_N = schur.shape[0]
+    stack = np.empty(symbolic.stack_size)
+    (a0, a1), (b0, b1), (top_begin, top_at, top_node) = symbolic.parts
+    # the roots' updates: of the first part and the top (after it), and of the second part
+    first_part, second_part = np.zeros((n_N, n_N)), np.zeros((n_N, n_N))
+    common = (lower.indptr, lower.indices, lower.data, n_linear, first, width, row_at, srows,
+              tparent, children, relative, symbolic.value_at, values, diagonal)
+
+    def run(begin, end, condensed, base, at=None, node=None):
+        stack_at = np.empty(len(width) + 1, dtype=np.int64)
+        stack_node = np.empty(len(width), dtype=np.int64)
+        depth = 0
+        stack_at[0] = base
+        if at is not None:
+            depth = len(node)
+            stack_at[:depth + 1], stack_node[:depth] = at, node
+        _eliminate(begin, end, *common, condensed, stack, stack_at, stack_node, depth,
+                   blas_width, blas_rows)
+
+    if threads is None:
+        threads = 2 if symbolic.multiply_adds > THREADS_ABOVE else 1
+    if threads >= 2 and a1 > a0 and b1 > b0:
+        worker = threading.Thread(target=run, args=(b0, b1, second_part, symbolic.second_base),
+                                  name="fault-screen-ldl")
+        worker.start()
+        try:
+            run(a0, a1, first_part, 0)
+        finally:
+            worker.join()
+    else:
+        run(a0, a1, first_part, 0)
+        run(b0, b1, second_part, symbolic.second_base)
+    run(top_begin, len(width), first_part, 0, top_at, top_node)
+    update = first_part + second_part   # (lower triangles)
+    schur += np.tril(update) + np.tril(update, -1).T
+    magnitude = np.abs(diagonal)
+    if not np.all(np.isfinite(magnitude)):
+        return values, diagonal, np.nan
+    if n_linear == 0:
+        return values, diagonal, 1.0
+    largest = magnitude.max()
+    return values, diagonal, (magnitude.min() / largest if largest > 0.0 else 0.0)
 
 
 class LDLSymbolic:
@@ -606,6 +646,61 @@ class LDLSymbolic:
         self.nnz = int(col_ptr[-1])   # L's entries
         self.tree = _supernode_tree(col_ptr, rows, parent, n_linear)
         self.rows = self.tree[3].astype(np.int32)   # (the sweeps' index type, SuperLU's)
+        self._plan()
+
+    def _plan(self):
+        """What the numeric factorisation needs beyond the tree, from the pattern alone: where
+        each supernode's packed values start (``value_at``), the multiply-adds, and the parts
+        it runs in.
+
+        ``parts``: the tree's top (from the root down to the first supernode with two children
+        or more: every other supernode lies in the subtrees of that one's children) and the
+        children's subtrees in two runs of the postorder, split where their multiply-adds are
+        nearest to half and half: ((begin, end) of the first run, of the second, (the top's
+        first supernode, the stack's entries when the top starts, their supernodes)). The
+        stack's entries and its size come from a dry run of its pushes and pops: the first run
+        stacks from 0, the second above the first's peak (``second_base``), the top on both."""
+        first, width, row_at, srows, tparent, children, relative = self.tree
+        n_sn = len(width)
+        m = np.diff(row_at)
+        u = m - width
+        self.value_at = np.concatenate([[0], np.cumsum(width * (width + 1) // 2 + u * width)])
+        work = width ** 3 / 6.0 + u * width * width / 2.0 + width * u * (u + 1) / 2.0
+        self.multiply_adds = float(work.sum())
+        # the top: a unique root and its line of only children (none for a forest)
+        top = n_sn
+        kids = np.flatnonzero(tparent == -1)
+        while len(kids) == 1:
+            top = int(kids[0])
+            kids = np.flatnonzero(tparent == top)
+        # the children's subtrees are consecutive runs of [0, top), in postorder; cut between two
+        cut = 0
+        if len(kids) >= 2:
+            ends = np.sort(kids) + 1
+            done = np.cumsum(work[:top])[ends - 1]
+            cut = int(ends[np.argmin(np.abs(done - done[-1] / 2.0))])
+        at, node = [0], []
+
+        def dry_run(begin, end):
+            peak = at[-1]
+            for t in range(begin, end):
+                if children[t]:
+                    del at[-children[t]:], node[-children[t]:]
+                if tparent[t] != -1:
+                    node.append(t)
+                    at.append(at[-1] + int(u[t]) ** 2)
+                    peak = max(peak, at[-1])
+            return peak
+
+        self.second_base = dry_run(0, cut)
+        first_left = (at[:-1], node[:])
+        at[:], node[:] = [self.second_base], []
+        peak = dry_run(cut, top)
+        top_at, top_node = first_left[0] + at, first_left[1] + node
+        at[:], node[:] = top_at, top_node[:]
+        self.stack_size = max(peak, dry_run(top, n_sn))
+        self.parts = ((0, cut), (cut, top), (top, np.asarray(top_at, dtype=np.int64),
+                                             np.asarray(top_node, dtype=np.int64)))
 
     def matches(self, lower) -> bool:
         """Is ``lower`` (``_lower``) of this pattern?"""
@@ -668,11 +763,9 @@ def factorise_lower(lower, schur, n_linear: int, analyses: SymbolicAnalyses):
     form: CSC, sorted) and M's dense block on the condensed unknowns (``schur``, overwritten
     with the Schur complement)."""
     symbolic = analyses.of(lower, n_linear)
-    first, width, row_at, srows, tparent, children, relative = symbolic.tree
-    values, value_at, diagonal, ratio = _numeric(
-        lower.indptr, lower.indices, lower.data, n_linear, first, width, row_at, srows,
-        tparent, children, relative, schur, BLAS_MIN_WIDTH, BLAS_MIN_ROWS)
+    first, width, row_at = symbolic.tree[:3]
+    values, diagonal, ratio = _numeric(lower, schur, symbolic)
     if not ratio >= PIVOT_RATIO:
         raise NotQuasiDefinite(f"LDL^T pivot ratio {ratio:.1e} below {PIVOT_RATIO:.0e}")
-    packed = (first, width, row_at, value_at, symbolic.rows, values)
+    packed = (first, width, row_at, symbolic.value_at, symbolic.rows, values)
     return packed, diagonal, schur, symbolic.nnz

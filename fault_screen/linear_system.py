@@ -372,13 +372,23 @@ class CondensedSystem:
         if self._analyses is None:
             self._analyses = _with_shared(lambda store, make: store.analyses, SymbolicAnalyses)
         self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
-        values = [bulk.values(dt)]
+        # every entry's value only where it is read: by SuperLU, a split bulk or as the key of
+        # a shared bulk (the L D L^T reads the lower triangle and the condensed block alone)
+        values = []
+
+        def full():
+            if not values:
+                values.append(bulk.values(dt))
+            return values[0]
 
         def parts():
-            return bulk.lower(values[0]), bulk.condensed(values[0])
+            return (bulk.parts(dt) if not values
+                    else (bulk.lower(values[0]), bulk.condensed(values[0])))
 
         def matrix():   # (for SuperLU or a split bulk: the values go with the call)
-            return bulk.matrix(values.pop())
+            M = bulk.matrix(full())
+            values.clear()
+            return M
 
         def make():
             return bordered_lu(matrix, nB, self._split, self._analyses,
@@ -386,7 +396,7 @@ class CondensedSystem:
 
         return _with_shared(
             lambda store, make: store.factors(
-                (bulk.indptr, bulk.indices, values[0], np.asarray(bulk.shape)), nB, self._split, make),
+                (bulk.indptr, bulk.indices, full(), np.asarray(bulk.shape)), nB, self._split, make),
             make)
 
     def _bulk_order(self, Ls):

@@ -72,6 +72,12 @@ def test_poroelastic_values_at_a_new_step_size_equal_the_general_way(poroelastic
     # (and in the same memory order: BLAS's products with the Schur complement made in it sum
     # in an order that depends on it)
     assert condensed.flags.f_contiguous == old_condensed.flags.f_contiguous
+    # the same two parts with only their entries' values computed (what a refactorisation reads)
+    read_lower, read_condensed = bulk.parts(dt)
+    for x, y in ((read_lower.indptr, old_lower.indptr), (read_lower.indices, old_lower.indices),
+                 (read_lower.data, old_lower.data)):
+        assert np.array_equal(x, y)
+    assert np.array_equal(read_condensed, old_condensed) and read_condensed.flags.f_contiguous
 
 
 def test_the_rows_and_blocks_of_each_step_size_equal_the_general_way(poroelastic, elastic):

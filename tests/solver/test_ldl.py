@@ -254,3 +254,63 @@ def test_a_wide_dense_front_by_panels(n, nB):
     assert lu.quasi_definite
     assert np.all(lu._D[:k] > 0) and np.all(lu._D[k:] < 0)
     _check_against_dense(lu, M, nB, 8)
+
+
+@pytest.mark.parametrize("kind", ["poroelastic-5", "poroelastic-600", "elastic", "split"])
+def test_two_threads_give_the_factors_of_one(poroelastic, elastic, monkeypatch, kind):
+    """The two independent parts of the tree (``LDLSymbolic.parts``) factorised in two threads:
+    the factors, pivots and Schur complement equal, bit for bit, those of the same parts one
+    after the other; and against numpy's dense solves to 1e-11, the backward error below 1e-15
+    (``_check_against_dense``)."""
+    if kind in ("elastic", "split"):
+        M, nB = _free_block(elastic, elastic.system.dt, symmetric_form=False)
+    else:
+        M, nB = _free_block(poroelastic, float(kind.split("-")[1]), symmetric_form=True)
+
+    def factorise(threads_above):
+        monkeypatch.setattr(ldl, "THREADS_ABOVE", threads_above)
+        if kind == "split":
+            return SplitBorderedLU(M, nB, elastic.system.split, ldl.SymbolicAnalyses())
+        return BorderedLU(M, nB, ldl.SymbolicAnalyses())
+
+    one, two = factorise(np.inf), factorise(0.0)
+    for a, b in zip(getattr(one, "_parts", [one]), getattr(two, "_parts", [two])):
+        assert a.quasi_definite and b.quasi_definite
+        assert np.array_equal(a.schur, b.schur) and np.array_equal(a._D, b._D)
+        for x, y in zip(a._L.arrays, b._L.arrays):
+            assert np.array_equal(x, y)
+    if kind != "split":   # (two runs of real work beside the top)
+        (a0, a1), (b0, b1), (top, _, _) = ldl.SymbolicAnalyses().of(ldl._lower(M, nB), nB).parts
+        assert a1 - a0 > 10 and b1 - b0 > 10 and b1 <= top
+    _check_against_dense(two, M, nB, 9)
+
+
+def test_the_plan_of_a_forest_and_of_a_chain(monkeypatch):
+    """Parts of trees without one branching top: a block-diagonal bulk (a forest of two
+    independent roots: no top, the two trees the two parts) and a tridiagonal one (a single
+    supernode's chain: one part); both against numpy to 1e-11, with the border."""
+    rng = np.random.default_rng(11)
+    n_half, n_N = 40, 6
+    blocks = []
+    for _ in range(2):
+        G = rng.standard_normal((n_half, n_half))
+        blocks.append(sp.csr_matrix(np.where(np.abs(G) > 1.2, G, 0.0) + 12.0 * np.eye(n_half)))
+    B = sp.block_diag([X + X.T for X in blocks])
+    Q = sp.random(2 * n_half, n_N, density=0.2, random_state=3)
+    M = sp.bmat([[B, Q], [Q.T, -np.eye(n_N)]]).tocsc()
+    nB = 2 * n_half
+    symbolic = ldl.SymbolicAnalyses().of(ldl._lower(M, nB), nB)
+    (a0, a1), (b0, b1), (top, _, _) = symbolic.parts
+    assert a0 == 0 and a1 > 0 and b1 > b0 and b1 == top == len(symbolic.tree[1])
+    for threads_above in (np.inf, 0.0):
+        monkeypatch.setattr(ldl, "THREADS_ABOVE", threads_above)
+        lu = BorderedLU(M, nB, ldl.SymbolicAnalyses())
+        assert lu.quasi_definite
+        _check_against_dense(lu, M, nB, 10)
+    T = sp.diags([np.full(nB - 1, -1.0), np.full(nB, 4.0), np.full(nB - 1, -1.0)], [-1, 0, 1])
+    M = sp.bmat([[T, Q], [Q.T, -np.eye(n_N)]]).tocsc()
+    (a0, a1), (b0, b1), (top, _, _) = ldl.SymbolicAnalyses().of(ldl._lower(M, nB), nB).parts
+    assert a1 == a0 and b1 == b0   # (no two parts: the top is all)
+    lu = BorderedLU(M, nB, ldl.SymbolicAnalyses())
+    assert lu.quasi_definite
+    _check_against_dense(lu, M, nB, 12)

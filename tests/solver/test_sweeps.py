@@ -14,7 +14,7 @@ import pytest
 import scipy.linalg
 import scipy.sparse as sp
 
-from fault_screen.bordered_lu import _NO_DIAGONAL, _backward_sweep, _compact, _forward_sweep, _pack
+from fault_screen.bordered_lu import _NO_DIAGONAL, _backward_sweep, _forward_sweep, _pack
 
 #: relative to the largest entry of the reference: round-off of a well conditioned solve (the
 #: sums are taken in another order than LAPACK's, ~1e-15)
@@ -62,23 +62,6 @@ def test_packed_factor_holds_no_zero_and_no_entry_twice():
     first, width, row_at, value_at, rows, values = _packed(L, n, False)
     assert len(values) == np.count_nonzero(L) and np.count_nonzero(values) == len(values)
     assert np.array_equal(np.sort(values), np.sort(L[L != 0]))
-
-
-@pytest.mark.parametrize("seed", [4, 5])
-def test_square_blocks_repacked_as_packed(seed):
-    """``_compact`` of the layout with square diagonal blocks (ldl.factorise's: row-major m x w,
-    zeros above the diagonal) gives ``_pack``'s arrays of the same factor exactly."""
-    L, n = _made_up_factor(seed, True)
-    first, width, row_at, value_at, rows, values = _packed(L, n, False)
-    m = np.diff(row_at)
-    square_at = np.concatenate([[0], np.cumsum(m * width)])
-    square = np.zeros(square_at[-1])
-    for t in range(len(width)):
-        block = L[rows[row_at[t]:row_at[t + 1]]][:, first[t]:first[t] + width[t]]
-        square[square_at[t]:square_at[t + 1]] = block.ravel()
-    assert np.count_nonzero(square == 0) == (width * (width - 1) // 2).sum()   # (the padding)
-    at, compact = _compact(width, square_at, square)
-    assert np.array_equal(at, value_at) and np.array_equal(compact, values)
 
 
 def test_made_up_factor_has_the_supernodes_meant():
