@@ -6,7 +6,6 @@ from datetime import datetime
 from pathlib import Path
 
 import click
-import numpy as np
 
 from ._options import BadInput, check_log, reading
 
@@ -62,6 +61,8 @@ def read_scene_log(scene):
 
 def events_report(catalog, t0: float, t1: float, start) -> list[str]:
     """Lines for the terminal about a catalogue and the run's window [t0, t1] (s)."""
+    import numpy as np   # here: `fault-screen run --help` imports no numpy
+
     inside = int(np.count_nonzero((catalog.time >= t0) & (catalog.time <= t1)))
     lines = []
     if len(catalog) and inside == 0:
@@ -107,6 +108,8 @@ def load_result(path: Path, *, view: bool = False):
 
 def stored_events(result):
     """The catalogue stored under /events by run/replay --events (None if there is none)."""
+    import numpy as np
+
     from ..io.events import EventCatalog
 
     ev = result.extra.get("events")

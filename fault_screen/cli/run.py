@@ -7,7 +7,6 @@ import click
 
 from ._common import apply_sets, default_scene_path, load_scene, read_scene_log
 from ._options import FILE, run_options, set_option, version_option
-from ._running import run_scene
 from ._verdict import conclude, fail_on_option
 
 
@@ -25,6 +24,8 @@ def run(scene_path, out, plot_dir, events, t0, quiet, sets, fail_on):
     reading that reproduces its pressures and slip; stand-in step-rate schedule). The SI reading
     is bundled as configs/rustrel-2015-calibrated.toml.
     """
+    from ._running import run_scene   # here: numpy and the model only once a run is asked for
+
     path = Path(scene_path) if scene_path is not None else default_scene_path()
     scene = apply_sets(load_scene(path), sets)
     volume, extra, meta, start = None, None, {"command": "run"}, t0

@@ -66,3 +66,15 @@ def test_package_names_resolve_to_their_definitions():
             " fs.SceneError is fault_screen.scene.SceneError, callable(fs.simulate))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.stdout.split() == ["[]", "True", "True", "True", "True"], out.stderr[-2000:]
+
+
+def test_run_help_imports_no_numpy_and_no_run_machinery():
+    """``run --help`` stops before the run's own modules: no numpy, no
+    fault_screen.cli._running (the result file, the budget, the summary), no fault_screen.budget;
+    of fault_screen, the package, the group, its options and the run command only."""
+    modules = imported_after("run", "--help")
+    assert "numpy" not in modules
+    ours = sorted(m for m in modules if m.startswith("fault_screen"))
+    assert ours == ["fault_screen", "fault_screen.cli", "fault_screen.cli._common",
+                    "fault_screen.cli._options", "fault_screen.cli._verdict",
+                    "fault_screen.cli.run"], ours
