@@ -33,6 +33,16 @@ def _u(i):
     return np.uint64(i)
 
 
+@helper
+def _filled(n, value):
+    """n copies of ``value`` (int64) by a loop: numba's np.full and np.ones would each be
+    compiled, and kept, for this module alone."""
+    out = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        out[i] = value
+    return out
+
+
 class NotQuasiDefinite(ArithmeticError):
     """A pivot of the LDL^T was zero or not finite: the block is not quasi-definite in this
     order (the caller falls back to a pivoting LU)."""
@@ -43,8 +53,8 @@ def _etree(indptr, indices, n_linear):
     """Elimination tree of the first ``n_linear`` columns of a symmetric matrix given by its
     upper triangle (CSC: column k lists the rows i <= k): parent of each column, -1 at a root
     (a column whose first off-diagonal entry of L is a condensed row or none)."""
-    parent = np.full(n_linear, -1, dtype=np.int64)
-    ancestor = np.full(n_linear, -1, dtype=np.int64)
+    parent = _filled(n_linear, -1)
+    ancestor = _filled(n_linear, -1)
     for k in range(n_linear):
         for p in range(indptr[k], indptr[k + 1]):
             i = indices[p]
@@ -62,8 +72,8 @@ def _structure(indptr, indices, n, n_linear, parent):
     """The rows of each of the first ``n_linear`` columns of L (CSC, sorted, diagonal first),
     from the upper triangle (column i lists the rows k <= i): row i of L is the union of the
     tree paths from each k with an entry in row i up to i (or to a root, for a condensed row)."""
-    count = np.ones(n_linear, dtype=np.int64)
-    mark = np.full(n_linear, -1, dtype=np.int64)
+    count = _filled(n_linear, 1)
+    mark = _filled(n_linear, -1)
     for i in range(n):
         for p in range(indptr[i], indptr[i + 1]):
             j = indices[p]
@@ -115,14 +125,14 @@ def _supernode_tree(col_ptr, rows, parent, n_linear):
     for s in range(n_sn):
         for j in range(starts[s], starts[s + 1]):
             node_of[j] = s
-    sparent = np.full(n_sn, -1, dtype=np.int64)
+    sparent = _filled(n_sn, -1)
     for s in range(n_sn):
         p = parent[starts[s + 1] - 1]
         if p != -1:
             sparent[s] = node_of[p]
     # postorder: children lists, then a depth-first walk from each root (in column order)
-    head = np.full(n_sn, -1, dtype=np.int64)
-    following = np.full(n_sn, -1, dtype=np.int64)
+    head = _filled(n_sn, -1)
+    following = _filled(n_sn, -1)
     for s in range(n_sn - 1, -1, -1):
         q = sparent[s]
         if q != -1:
@@ -174,7 +184,7 @@ def _supernode_tree(col_ptr, rows, parent, n_linear):
         for k in range(w, row_at[t + 1] - row_at[t]):
             srows[row_at[t] + k] = rows[a + k - w]
     relative = np.empty(row_at[n_sn], dtype=np.int64)
-    where = np.full(n_linear, -1, dtype=np.int64)
+    where = _filled(n_linear, -1)
     for t in range(n_sn):
         q = tparent[t]
         if q != -1:
@@ -446,7 +456,7 @@ def _eliminate(begin, end, indptr, indices, data, n_linear, first, width, row_at
             big_w, big_m = PANEL, max(big_m, m)
     front = np.empty(largest_front * largest_front)
     panel_t = np.empty(largest_front * widest)
-    where = np.full(n_linear + n_N, -1, dtype=np.int64)
+    where = _filled(n_linear + n_N, -1)
     column_d = np.empty(widest)
     xt = np.empty(big_w * big_m)
     lrows = np.empty(big_w * big_m)
