@@ -265,6 +265,17 @@ def _fmt_time(v):
     return "-" if v is None else format_duration(v)
 
 
+#: slip rates below this are shown as such, not as a number: a fault that sticks has a slip
+#: rate of round-off (1e-22 to 1e-20 m/s: slip of a millimetre times 1e-16 over a step), which
+#: printed as a number reads as creep; 1e-15 m/s is 30 nm a year, nine orders of magnitude
+#: below the yellow rule's 1e-6 m/s (forecast.csv keeps the computed value)
+SLIP_RATE_SHOWN_ABOVE = 1e-15
+
+
+def _slip_rate_text(v):
+    return f"< {SLIP_RATE_SHOWN_ABOVE:g} m/s" if abs(v) < SLIP_RATE_SHOWN_ABOVE else f"{v:.3g} m/s"
+
+
 def _table(forecasts, control: str) -> str:
     from ..screening import LEVEL_NAMES
 
@@ -276,7 +287,7 @@ def _table(forecasts, control: str) -> str:
             f"{f.advised_rate * 60e3:.4g} L/min" if control == "rate" else f"{f.advised_rate / 1e6:.4g} MPa")
         rows.append((f"{f.made_at:g} s", f.plan, LEVEL_NAMES[f.level_now], LEVEL_NAMES[f.level_at_horizon],
                      LEVEL_NAMES[f.max_level], _fmt_time(f.time_to_yellow), _fmt_time(f.time_to_red),
-                     f"{f.peak_slip_rate:.3g} m/s", f"{f.max_utilisation:.3f}", advised))
+                     _slip_rate_text(f.peak_slip_rate), f"{f.max_utilisation:.3f}", advised))
     return _aligned(rows)
 
 

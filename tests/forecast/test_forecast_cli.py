@@ -138,3 +138,16 @@ def test_a_step_ladder_finds_yellow_late_by_at_most_its_largest_step(tmp_path):
     assert 90.0 <= float(by_plan["scene"]["time_to_yellow"]) <= 90.0 + 40.0
     assert by_plan["stop"]["max_level"] == "green" and by_plan["stop"]["time_to_yellow"] == ""
     assert float(by_plan["stop"]["horizon"]) == 600.0
+
+
+def test_a_stuck_faults_round_off_slip_rate_is_not_printed_as_a_number():
+    """The table shows slip rates below SLIP_RATE_SHOWN_ABOVE (1e-15 m/s) as a bound, since a
+    sticking fault's computed rate is round-off (the impermeable scene's stop plan: ~1e-21 m/s),
+    and every rate from the bound up as a number with three digits."""
+    from fault_screen.cli.forecast import SLIP_RATE_SHOWN_ABOVE, _slip_rate_text
+
+    assert SLIP_RATE_SHOWN_ABOVE == 1e-15
+    assert _slip_rate_text(7.62e-22) == "< 1e-15 m/s"
+    assert _slip_rate_text(-3e-16) == "< 1e-15 m/s"
+    assert _slip_rate_text(1e-15) == "1e-15 m/s"
+    assert _slip_rate_text(3.891e-08) == "3.89e-08 m/s"
