@@ -295,11 +295,15 @@ class CondensedSystem:
                     self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
                     held[0].data *= self._row_factor[held[0].indices]
                 # an elastic bulk (positive definite, symmetric) takes the L D L^T too: on the
-                # fine 30 deg scene its factorisation took half SuperLU's CPU time
+                # fine 30 deg scene its factorisation took half SuperLU's CPU time; factorised
+                # once a run, it then lets its symbolic analyses go (13 MB on that scene, whose
+                # limit is 500 MB)
                 if self._analyses is None:
                     self._analyses = _with_shared(lambda store, make: store.analyses,
                                                   SymbolicAnalyses)
                 self.lu = self._factorise_held(held, len(B))
+                if self.factors_any_dt:
+                    self._analyses = None
             else:   # the symmetric form in its fixed pattern
                 self.lu = self._factorise_symmetric(dt)
             self.factorizations += 1

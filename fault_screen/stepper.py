@@ -283,7 +283,7 @@ class Simulation:
         guess = weights[-1] * self.x
         for w, (_, x) in zip(weights, self.earlier_states):
             guess += w * x
-        fixed = self.solver._fixed
+        fixed = self.disc.fixed   # (held by the boundary conditions: not extrapolated)
         guess[fixed] = self.x[fixed]
         return guess
 
