@@ -282,7 +282,7 @@ def fronts(key, repeat):
     u = m - w
     m_N = np.add.reduceat((srows >= nB).astype(np.int64), row_at[:-1]) if len(m) else m
     u_B = u - m_N
-    pivot, below, update = w ** 3 / 6.0, u * w * w / 2.0, w * u * (u + 1) / 2.0
+    pivot, below, update = ldl.front_multiply_adds(w, u)
     by_N = m_N * w * w / 2.0 + w * (m_N * u_B + m_N * (m_N + 1) / 2.0)
     total = pivot + below + update
     blas = (w >= ldl.BLAS_MIN_WIDTH) & (u >= ldl.BLAS_MIN_ROWS)

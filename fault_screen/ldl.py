@@ -575,6 +575,13 @@ def _eliminate(begin, end, indptr, indices, data, n_linear, first, width, row_at
     return depth
 
 
+def front_multiply_adds(width, below):
+    """Multiply-adds of each front with ``width`` pivots and ``below`` rows under them: (its
+    pivot block's L D L^T, its rows below solved against it, its update of the rows below)."""
+    return (width ** 3 / 6.0, below * width * width / 2.0,
+            width * below * (below + 1) / 2.0)
+
+
 #: a factorisation of more multiply-adds than this takes its two largest independent parts in
 #: two threads (``LDLSymbolic.parts``); below it a thread's start costs more than it saves
 THREADS_ABOVE = 20e6
@@ -679,7 +686,8 @@ class LDLSymbolic:
         m = np.diff(row_at)
         u = m - width
         self.value_at = np.concatenate([[0], np.cumsum(width * (width + 1) // 2 + u * width)])
-        work = width ** 3 / 6.0 + u * width * width / 2.0 + width * u * (u + 1) / 2.0
+        pivot, below, update = front_multiply_adds(width, u)
+        work = pivot + below + update
         self.multiply_adds = float(work.sum())
         # the top: a unique root and its line of only children (none for a forest)
         top = n_sn
