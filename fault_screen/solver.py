@@ -201,6 +201,9 @@ class NewtonSolver:
         self.time_weight = s.time.theta
         self.tol = s.solver.tolerance
         self.max_it = s.solver.max_iterations
+        # the accepted states' whole products are kept only for an extrapolated first guess,
+        # which sums them (``_combined_products``)
+        self._keeps_state_products = s.solver.first_guess == "extrapolated"
         self.A, self.C, self.Hf, self.source = assemble_constant(disc)
         self.nonlinear_terms = [t for t in disc.physics.terms
                                 if type(t).residual is not Term.residual]
@@ -596,7 +599,8 @@ class NewtonSolver:
                     reactions[self._fixed] = R[self._fixed]
                     new_history = point.pop("history")
                     last = self._products
-                    if last.whole and last.Cx is not None and last.x_n is x_n:
+                    if (self._keeps_state_products and last.whole and last.Cx is not None
+                            and last.x_n is x_n):
                         # (at x: the next step's extrapolation sums them)
                         self._keep_state_products(x, last.AHx, last.Cx)
                     return StepOutcome(x, it, n_fact, point,

@@ -117,3 +117,22 @@ def test_the_guess_products_are_the_sums_of_the_states_whole_products(monkeypatc
     monkeypatch.setattr(solver_module, "_whole_products", lambda *a: calls.append(1) or whole(*a))
     steps = sim.advance(scene.time.end)
     assert steps == 10 and len(calls) == steps
+
+
+def test_state_products_are_kept_only_for_an_extrapolated_guess():
+    """From the previous state nothing sums them: no state's products are held (three vectors
+    of 3 n values each would stay alive for nothing); extrapolating, the last three, the newest
+    at the current state and equal to the whole products there to the bit."""
+    import fault_screen.solver as solver_module
+    from fault_screen import Simulation
+
+    for guess, kept in (("previous", 0), ("extrapolated", 3)):
+        sim = Simulation(_paper_units(guess))
+        sim.advance(25.0)
+        products = sim.solver._state_products
+        assert len(products) == kept, guess
+    state, AHx, Cx = products[-1]
+    assert state is sim.x
+    AHx_whole, Cx_whole, _ = solver_module._whole_products(*sim.solver._csr_arrays, sim.x,
+                                                           np.zeros_like(sim.x))
+    assert np.array_equal(AHx, AHx_whole) and np.array_equal(Cx, Cx_whole)
