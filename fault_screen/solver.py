@@ -43,6 +43,11 @@ BULK_BALANCE = 1e-3
 IN_SITU_ROUNDOFF = 4.0
 
 
+#: whole products of this many accepted states are kept for an extrapolated first guess (the
+#: stepper's extrapolation reads three)
+KEPT_STATE_PRODUCTS = 3
+
+
 #: a deferred bulk update (see NewtonSolver._step) is made when the fault residual has not halved
 #: for this many Newton iterations
 STALLED_ITERATIONS = 3
@@ -188,6 +193,7 @@ class NewtonSolver:
     _products = None
     _Cx_n = None       # (x_n, C x_n) of the current step
     _in_situ_floor = None        # (see _in_situ_reference)
+    _state_products = ()         # (x, [A; Hf] x, C x) of the last accepted states, whole
 
     def __init__(self, disc: Discretisation):
         self.disc = disc
@@ -195,6 +201,9 @@ class NewtonSolver:
         self.time_weight = s.time.theta
         self.tol = s.solver.tolerance
         self.max_it = s.solver.max_iterations
+        # the accepted states' whole products are kept only for an extrapolated first guess,
+        # which sums them (``_combined_products``)
+        self._keeps_state_products = s.solver.first_guess == "extrapolated"
         self.A, self.C, self.Hf, self.source = assemble_constant(disc)
         self.nonlinear_terms = [t for t in disc.physics.terms
                                 if type(t).residual is not Term.residual]
@@ -334,16 +343,59 @@ class NewtonSolver:
         th = self.time_weight
         return last.AHx[:n] + stored_n + (last.AHx[n:] if th == 1.0 else th * last.AHx[n:])
 
-    def _linear_times_guess(self, x0, x_n, dt):
-        """L x0 for a step that starts from a first guess x0 other than x_n, from the whole
-        products A x0, Hf x0 and C x0 (kept for the convergence test, which then needs no
-        product at the first iteration) instead of a product with L (not held: see
-        ``CondensedSystem.L``)."""
-        AHx, Cx, Cd = _whole_products(*self._csr_arrays, x0, self._C_times_start(x_n))
-        self._products = _Products(x_n, x0.copy(), AHx, Cd, True, Cx)
+    def _linear_times_guess(self, x0, x_n, dt, combination=None):
+        """L x0 for a step that starts from a first guess x0 other than x_n, from the products
+        A x0, Hf x0 and C x0 (kept for the convergence test, which then needs no product at the
+        first iteration) instead of a product with L (not held: see ``CondensedSystem.L``).
+        ``combination``: (weights, states) with x0 = sum of weights times states on the free
+        unknowns (an extrapolated guess): the products are then those sums of the states' whole
+        products (``_state_products``), which saves a whole product per step; else made whole."""
+        Cx_n = self._C_times_start(x_n)
+        combined = None if combination is None else self._combined_products(x0, *combination)
+        if combined is None:
+            AHx, Cx, Cd = _whole_products(*self._csr_arrays, x0, Cx_n)
+            self._products = _Products(x_n, x0.copy(), AHx, Cd, True, Cx)
+        else:
+            AHx, Cx = combined
+            Cd = Cx - Cx_n
+            # (not whole: a later step does not take them for whole products at x0)
+            self._products = _Products(x_n, x0.copy(), AHx, Cd, False)
         n = self.disc.n_dofs
         th = self.time_weight
         return AHx[:n] + Cx / dt + (AHx[n:] if th == 1.0 else th * AHx[n:])
+
+    def _whole_state_products(self, x):
+        """(x, [A; Hf] x, C x) of an accepted state, made whole: those kept at the step that
+        was accepted there (``_keep_state_products``), else made now. Whole products of equal
+        states are equal to the bit, so sums of them do not depend on which were kept (a
+        restored or forked run makes the same ones)."""
+        for kept in self._state_products:
+            if kept[0] is x or np.array_equal(kept[0], x):
+                return kept
+        AHx, Cx, _ = _whole_products(*self._csr_arrays, x, np.zeros_like(x))
+        return x, AHx, Cx
+
+    def _keep_state_products(self, x, AHx, Cx):
+        # (a new tuple, never changed in place: a fork shares it)
+        self._state_products = (self._state_products + ((x, AHx, Cx),))[-KEPT_STATE_PRODUCTS:]
+
+    def _combined_products(self, x0, weights, states):
+        """([A; Hf] x0, C x0) as the weighted sums of the states' whole products, x0 the sum of
+        the weighted states on the free unknowns and the last state's values on the fixed ones;
+        None when those differ between the states (a prescribed value that moves: the sum
+        would not hold there). The states' products are kept in their order, oldest first: the
+        next step's extrapolation reads the newer ones again."""
+        fixed = self._fixed
+        last = states[-1]
+        if any(not np.array_equal(x[fixed], last[fixed]) for x in states[:-1]):
+            return None
+        used = tuple(self._whole_state_products(x) for x in states)
+        self._state_products = used[-KEPT_STATE_PRODUCTS:]
+        AHx, Cx = weights[0] * used[0][1], weights[0] * used[0][2]
+        for w, (_, AHx_i, Cx_i) in zip(weights[1:], used[1:]):
+            AHx += w * AHx_i
+            Cx += w * Cx_i
+        return AHx, Cx
 
     def _residual(self, x, rhs, history, dt, pending, Lx=None):
         """Residual at x and the nonlinear terms' tangent and fault state. ``pending``
@@ -359,7 +411,7 @@ class NewtonSolver:
         rows, cols, vals, point = self.nonlinear(x, history, dt, R)
         return R, rows, cols, vals, point
 
-    def step(self, x_n, history, dt, injection_value, damped=False, x0=None):
+    def step(self, x_n, history, dt, injection_value, damped=False, x0=None, combination=None):
         """Advance from x_n over dt. ``injection_value``: the step's injected volume (m^3, whole
         interval; rate control) or the prescribed overpressure at the step's end (Pa; pressure
         control); ignored without an injection term. ``damped``: globalise the Newton iteration
@@ -367,11 +419,13 @@ class NewtonSolver:
         so before it halves the step, because a sudden load (a pressure jump, a slip front
         crossing many points at once) makes the full Newton step of the Coulomb return map
         overshoot and cycle, and under pressure control a shorter step does not reduce the jump.
-        ``x0``: the first guess (default x_n).
+        ``x0``: the first guess (default x_n); ``combination``: (weights, states) when x0 is
+        the weighted sum of earlier accepted states (x_n the last) on the free unknowns and x_n
+        on the fixed ones (an extrapolation).
 
         BLAS threads: see ``blas_threads``."""
         with self.blas_threads():
-            return self._step(x_n, history, dt, injection_value, damped, x0)
+            return self._step(x_n, history, dt, injection_value, damped, x0, combination)
 
     def _reference(self, x, x_n, dt, ref0, flow_known, at_start=False):
         """Reference magnitudes of the convergence test at x: internal forces (mechanics);
@@ -464,7 +518,7 @@ class NewtonSolver:
         return (np.linalg.norm(sR[self._B_mech]) <= lim * ref[0]
                 and np.linalg.norm(sR[self._B_flow]) <= lim * ref[1])
 
-    def _step(self, x_n, history, dt, injection_value, damped, x0):
+    def _step(self, x_n, history, dt, injection_value, damped, x0, combination=None):
         disc = self.disc
         th = self.time_weight
         self._prepare(dt, x_n, history)
@@ -489,7 +543,7 @@ class NewtonSolver:
         flow_known = np.abs(rhs - stored_n)  # sources and the known parts of the flow terms
         x = x_n.copy() if x0 is None else x0.copy()  # x0: a better first guess (continuation)
         Lx = (self._linear_times_start(x_n, stored_n) if x0 is None
-              else self._linear_times_guess(x, x_n, dt))
+              else self._linear_times_guess(x, x_n, dt, combination))
         tol = self.tol
         # the bulk's answer to every Newton update would cost a backward sweep: it is summed
         # instead (pending) and swept for once, when the fault looks converged; possible when the
@@ -544,6 +598,11 @@ class NewtonSolver:
                     reactions = np.zeros(disc.n_dofs)
                     reactions[self._fixed] = R[self._fixed]
                     new_history = point.pop("history")
+                    last = self._products
+                    if (self._keeps_state_products and last.whole and last.Cx is not None
+                            and last.x_n is x_n):
+                        # (at x: the next step's extrapolation sums them)
+                        self._keep_state_products(x, last.AHx, last.Cx)
                     return StepOutcome(x, it, n_fact, point,
                                        history if new_history is None else new_history, reactions)
             last_norms = norms

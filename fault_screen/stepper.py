@@ -255,10 +255,11 @@ class Simulation:
         if self.damped_ahead > 0:  # a recent step needed damping: its neighbours likely will
             self.damped_ahead -= 1
         else:
-            guess = self._extrapolated_guess(dt)
+            guess, combination = self._extrapolated_guess(dt)
             if guess is not None:
                 try:
-                    return self.solver.step(self.x, self.history, dt, step_value, x0=guess)
+                    return self.solver.step(self.x, self.history, dt, step_value, x0=guess,
+                                            combination=combination)
                 except StepFailed:
                     pass   # (from the previous state, as without a guess)
             try:
@@ -275,9 +276,11 @@ class Simulation:
         """The first Newton iterate of a step of size dt under ``solver.first_guess =
         'extrapolated'``: the polynomial through the earlier accepted states and the current one
         (``earlier_states``; quadratic with two earlier ones) at the step's end, the fixed
-        unknowns as they are now. None otherwise, or before a first step was accepted."""
+        unknowns as they are now; with it the weights and the states, oldest first (the solver
+        sums their linear products alike). (None, None) otherwise, or before a first step was
+        accepted."""
         if not self.earlier_states:
-            return None
+            return None, None
         times = [t for t, _ in self.earlier_states] + [self.time]
         weights = extrapolation_weights(times, self.time + dt)
         guess = weights[-1] * self.x
@@ -285,7 +288,7 @@ class Simulation:
             guess += w * x
         fixed = self.disc.fixed   # (held by the boundary conditions: not extrapolated)
         guess[fixed] = self.x[fixed]
-        return guess
+        return guess, (weights, [x for _, x in self.earlier_states] + [self.x])
 
     def _continuation(self, dt, step_value):
         """The same step solved through intermediate loads: the step's injection value raised

@@ -87,3 +87,52 @@ def test_a_fork_continues_with_the_runs_extrapolation():
     assert twin.steps == sim.steps
     assert np.array_equal(twin.x, sim.x)
     assert np.array_equal(twin.history, sim.history)
+
+
+def test_the_guess_products_are_the_sums_of_the_states_whole_products(monkeypatch):
+    """An extrapolated guess's [A; Hf] x0 and C x0 are summed from the whole products kept at
+    the states it extrapolates: equal to the whole products at x0 to 1e-12 of their largest
+    magnitude, and one whole product a step is made (at the convergence test), not two."""
+    import fault_screen.solver as solver_module
+    from fault_screen import Simulation
+
+    scene = _paper_units("extrapolated")
+    scene = scene.replace(time=dataclasses.replace(scene.time, end=100.0))
+    sim = Simulation(scene)
+    sim.advance(50.0)
+    solver = sim.solver
+    guess, (weights, states) = sim._extrapolated_guess(sim.dt)
+    AHx, Cx = solver._combined_products(guess, weights, states)
+    AHx_whole, Cx_whole, _ = solver_module._whole_products(*solver._csr_arrays, guess,
+                                                           np.zeros_like(guess))
+    assert np.max(np.abs(AHx - AHx_whole)) <= 1e-12 * np.max(np.abs(AHx_whole))
+    assert np.max(np.abs(Cx - Cx_whole)) <= 1e-12 * np.max(np.abs(Cx_whole))
+    # a prescribed value that moves between the states: no sum (made whole instead)
+    moved = [x.copy() for x in states]
+    moved[0][solver._fixed[0]] += 1.0
+    assert solver._combined_products(guess, weights, moved) is None
+
+    calls = []
+    whole = solver_module._whole_products
+    monkeypatch.setattr(solver_module, "_whole_products", lambda *a: calls.append(1) or whole(*a))
+    steps = sim.advance(scene.time.end)
+    assert steps == 10 and len(calls) == steps
+
+
+def test_state_products_are_kept_only_for_an_extrapolated_guess():
+    """From the previous state nothing sums them: no state's products are held (three vectors
+    of 3 n values each would stay alive for nothing); extrapolating, the last three, the newest
+    at the current state and equal to the whole products there to the bit."""
+    import fault_screen.solver as solver_module
+    from fault_screen import Simulation
+
+    for guess, kept in (("previous", 0), ("extrapolated", 3)):
+        sim = Simulation(_paper_units(guess))
+        sim.advance(25.0)
+        products = sim.solver._state_products
+        assert len(products) == kept, guess
+    state, AHx, Cx = products[-1]
+    assert state is sim.x
+    AHx_whole, Cx_whole, _ = solver_module._whole_products(*sim.solver._csr_arrays, sim.x,
+                                                           np.zeros_like(sim.x))
+    assert np.array_equal(AHx, AHx_whole) and np.array_equal(Cx, Cx_whole)
