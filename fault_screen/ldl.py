@@ -292,9 +292,9 @@ def _update_row(front, panel_t, m, w, i, k0):
 
 @helper
 def _update_rows4(front, panel_t, m, w, i):
-    """Rows i..i+3 of the trailing block (``_update_row``): columns w..i of the four together,
+    """Rows i..i+3 of the trailing block (``_update_row``), columns w..i of the four together,
     four columns c at a time (a block of 4 x 4 multipliers: each load of the panel serves four
-    rows), then the rest of each row's triangle."""
+    rows); the rest of each row's triangle is ``_update_row``'s (``_eliminate``)."""
     r0, r1, r2, r3 = i * m, (i + 1) * m, (i + 2) * m, (i + 3) * m
     c = 0
     while c + 4 <= w:
@@ -324,8 +324,6 @@ def _update_rows4(front, panel_t, m, w, i):
             front[_u(r1 + k)] -= b * q
             front[_u(r2 + k)] -= e * q
             front[_u(r3 + k)] -= g * q
-    for t in range(1, 4):   # the triangle's rest: row i + t, columns i + 1 .. i + t
-        _update_row(front, panel_t, m, w, i + t, i + 1)
 
 
 #: a front goes through BLAS-3 (``_panel_by_blas``) when its supernode is at least this wide
@@ -536,12 +534,15 @@ def _eliminate(begin, end, indptr, indices, data, n_linear, first, width, row_at
                 d = diagonal[j0 + c]
                 for k in range(w, m):
                     panel_t[c * m + k] = d * front[k * m + c]
-            i = w
-            while i + 4 <= m:   # four rows at a time (each column of panel_t read once for four)
-                _update_rows4(front, panel_t, m, w, i)
-                i += 4
-            for i in range(i, m):
-                _update_row(front, panel_t, m, w, i, w)
+            blocks_end = w + (m - w) // 4 * 4
+            for i in range(w, blocks_end, 4):   # four rows at a time (each column of panel_t
+                _update_rows4(front, panel_t, m, w, i)   # read once for four)
+            # the rest of each row, by one inlined copy of _update_row (LLVM's work grows with
+            # each copy): in a block of four, row i + t's columns i + 1 .. i + t; below the
+            # blocks, whole rows. Each entry is updated once, its sum in the same order.
+            for i in range(w, m):
+                _update_row(front, panel_t, m, w, i,
+                            i - (i - w) % 4 + 1 if i < blocks_end else w)
         # the packed factor: the w x w block's rows up to the unit diagonal, then the m - w
         # rows below, w values each (``bordered_lu._pack``'s layout)
         v = value_at[t]
