@@ -38,7 +38,6 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import scipy.linalg
-import scipy.sparse.linalg as spla
 from scipy.linalg.blas import dgemm as _gemm
 from scipy.linalg.lapack import dgetrs as _getrs
 
@@ -343,6 +342,8 @@ class BorderedLU:
         # symmetric linear block is factorised with a lower threshold first, so that it keeps its
         # diagonal pivots (U = D L^T there: see above; at SuperLU's default of 1 it swapped 2 of
         # 42408 rows on a half of the fine 30 deg scene, 4 of 16000 on the T0.7 horizontal one)
+        import scipy.sparse.linalg as spla   # (SuperLU: a fallback; its import costs a start)
+
         for threshold in ((SYMMETRIC_PIVOT_THRESHOLD, None, 0.0) if symmetric else (None, 0.0)):
             lu = spla.splu(M, permc_spec="NATURAL", diag_pivot_thresh=threshold,
                            options=dict(SymmetricMode=True))

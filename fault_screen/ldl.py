@@ -268,6 +268,11 @@ def _amalgamate(fundamental, col_ptr, parent):
     return starts[:count + 1]
 
 
+#: ``_u`` as a plain cast, for the kernels below: numba types a cast at each use, whereas it
+#: inlines a helper's IR at each call (splitting the block there), and _eliminate has dozens
+_unsigned = np.uint64
+
+
 @helper
 def _update_row(front, panel_t, m, w, i, k0):
     """Row i of the front's trailing block, columns k0..i: F[i, k] -= sum_c L[i, c] (D L^T)[c, k],
@@ -275,57 +280,57 @@ def _update_row(front, panel_t, m, w, i, k0):
     row = i * m
     c = 0
     while c + 4 <= w:
-        l0, l1 = front[_u(row + c)], front[_u(row + c + 1)]
-        l2, l3 = front[_u(row + c + 2)], front[_u(row + c + 3)]
+        l0, l1 = front[_unsigned(row + c)], front[_unsigned(row + c + 1)]
+        l2, l3 = front[_unsigned(row + c + 2)], front[_unsigned(row + c + 3)]
         p0 = c * m
         for k in range(k0, i + 1):
-            front[_u(row + k)] -= ((l0 * panel_t[_u(p0 + k)] + l1 * panel_t[_u(p0 + m + k)])
-                                   + (l2 * panel_t[_u(p0 + 2 * m + k)]
-                                      + l3 * panel_t[_u(p0 + 3 * m + k)]))
+            front[_unsigned(row + k)] -= ((l0 * panel_t[_unsigned(p0 + k)]
+                                           + l1 * panel_t[_unsigned(p0 + m + k)])
+                                          + (l2 * panel_t[_unsigned(p0 + 2 * m + k)]
+                                             + l3 * panel_t[_unsigned(p0 + 3 * m + k)]))
         c += 4
     for c in range(c, w):
-        lic = front[_u(row + c)]
+        lic = front[_unsigned(row + c)]
         pc = c * m
         for k in range(k0, i + 1):
-            front[_u(row + k)] -= lic * panel_t[_u(pc + k)]
+            front[_unsigned(row + k)] -= lic * panel_t[_unsigned(pc + k)]
 
 
 @helper
 def _update_rows4(front, panel_t, m, w, i):
-    """Rows i..i+3 of the trailing block (``_update_row``): columns w..i of the four together,
+    """Rows i..i+3 of the trailing block (``_update_row``), columns w..i of the four together,
     four columns c at a time (a block of 4 x 4 multipliers: each load of the panel serves four
-    rows), then the rest of each row's triangle."""
+    rows); the rest of each row's triangle is ``_update_row``'s (``_eliminate``)."""
     r0, r1, r2, r3 = i * m, (i + 1) * m, (i + 2) * m, (i + 3) * m
     c = 0
     while c + 4 <= w:
-        a0, a1 = front[_u(r0 + c)], front[_u(r0 + c + 1)]
-        a2, a3 = front[_u(r0 + c + 2)], front[_u(r0 + c + 3)]
-        b0, b1 = front[_u(r1 + c)], front[_u(r1 + c + 1)]
-        b2, b3 = front[_u(r1 + c + 2)], front[_u(r1 + c + 3)]
-        e0, e1 = front[_u(r2 + c)], front[_u(r2 + c + 1)]
-        e2, e3 = front[_u(r2 + c + 2)], front[_u(r2 + c + 3)]
-        g0, g1 = front[_u(r3 + c)], front[_u(r3 + c + 1)]
-        g2, g3 = front[_u(r3 + c + 2)], front[_u(r3 + c + 3)]
+        a0, a1 = front[_unsigned(r0 + c)], front[_unsigned(r0 + c + 1)]
+        a2, a3 = front[_unsigned(r0 + c + 2)], front[_unsigned(r0 + c + 3)]
+        b0, b1 = front[_unsigned(r1 + c)], front[_unsigned(r1 + c + 1)]
+        b2, b3 = front[_unsigned(r1 + c + 2)], front[_unsigned(r1 + c + 3)]
+        e0, e1 = front[_unsigned(r2 + c)], front[_unsigned(r2 + c + 1)]
+        e2, e3 = front[_unsigned(r2 + c + 2)], front[_unsigned(r2 + c + 3)]
+        g0, g1 = front[_unsigned(r3 + c)], front[_unsigned(r3 + c + 1)]
+        g2, g3 = front[_unsigned(r3 + c + 2)], front[_unsigned(r3 + c + 3)]
         p0 = c * m
         for k in range(w, i + 1):
-            q0, q1 = panel_t[_u(p0 + k)], panel_t[_u(p0 + m + k)]
-            q2, q3 = panel_t[_u(p0 + 2 * m + k)], panel_t[_u(p0 + 3 * m + k)]
-            front[_u(r0 + k)] -= (a0 * q0 + a1 * q1) + (a2 * q2 + a3 * q3)
-            front[_u(r1 + k)] -= (b0 * q0 + b1 * q1) + (b2 * q2 + b3 * q3)
-            front[_u(r2 + k)] -= (e0 * q0 + e1 * q1) + (e2 * q2 + e3 * q3)
-            front[_u(r3 + k)] -= (g0 * q0 + g1 * q1) + (g2 * q2 + g3 * q3)
+            q0, q1 = panel_t[_unsigned(p0 + k)], panel_t[_unsigned(p0 + m + k)]
+            q2, q3 = panel_t[_unsigned(p0 + 2 * m + k)], panel_t[_unsigned(p0 + 3 * m + k)]
+            front[_unsigned(r0 + k)] -= (a0 * q0 + a1 * q1) + (a2 * q2 + a3 * q3)
+            front[_unsigned(r1 + k)] -= (b0 * q0 + b1 * q1) + (b2 * q2 + b3 * q3)
+            front[_unsigned(r2 + k)] -= (e0 * q0 + e1 * q1) + (e2 * q2 + e3 * q3)
+            front[_unsigned(r3 + k)] -= (g0 * q0 + g1 * q1) + (g2 * q2 + g3 * q3)
         c += 4
     for c in range(c, w):
-        a, b, e, g = front[_u(r0 + c)], front[_u(r1 + c)], front[_u(r2 + c)], front[_u(r3 + c)]
+        a, b = front[_unsigned(r0 + c)], front[_unsigned(r1 + c)]
+        e, g = front[_unsigned(r2 + c)], front[_unsigned(r3 + c)]
         pc = c * m
         for k in range(w, i + 1):
-            q = panel_t[_u(pc + k)]
-            front[_u(r0 + k)] -= a * q
-            front[_u(r1 + k)] -= b * q
-            front[_u(r2 + k)] -= e * q
-            front[_u(r3 + k)] -= g * q
-    for t in range(1, 4):   # the triangle's rest: row i + t, columns i + 1 .. i + t
-        _update_row(front, panel_t, m, w, i + t, i + 1)
+            q = panel_t[_unsigned(pc + k)]
+            front[_unsigned(r0 + k)] -= a * q
+            front[_unsigned(r1 + k)] -= b * q
+            front[_unsigned(r2 + k)] -= e * q
+            front[_unsigned(r3 + k)] -= g * q
 
 
 #: a front goes through BLAS-3 (``_panel_by_blas``) when its supernode is at least this wide
@@ -355,10 +360,10 @@ def _pivot_block(front, m, o, w, diagonal, j0, column_d):
             column_d[k] = front[o + k * m + c]
             front[o + k * m + c] = column_d[k] / d
         for i in range(c + 1, w):
-            li = front[_u(o + i * m + c)]
+            li = front[_unsigned(o + i * m + c)]
             row = o + i * m
             for k in range(c + 1, i + 1):
-                front[_u(row + k)] -= li * column_d[_u(k)]
+                front[_unsigned(row + k)] -= li * column_d[_unsigned(k)]
 
 
 @helper
@@ -378,7 +383,7 @@ def _panel_by_blas(front, m, o, n, w, d, xt, lrows, dlrows, strip, product):
     for k in range(u):   # xt = F21^T
         row = o + (w + k) * m
         for c in range(w):
-            xt[_u(c * u + k)] = front[_u(row + c)]
+            xt[_unsigned(c * u + k)] = front[_unsigned(row + c)]
     c0 = 0
     while c0 < w:
         c1 = min(c0 + SOLVE_BLOCK, w)
@@ -388,31 +393,31 @@ def _panel_by_blas(front, m, o, n, w, d, xt, lrows, dlrows, strip, product):
             for a in range(h):
                 row = o + (c0 + a) * m
                 for k in range(c0):
-                    s[a, k] = d[k] * front[_u(row + k)]
+                    s[a, k] = d[k] * front[_unsigned(row + k)]
             out = product[:h * u].reshape(h, u)
             np.dot(s, xt[:c0 * u].reshape(c0, u), out)
             for a in range(h):
                 at = (c0 + a) * u
                 for k in range(u):
-                    xt[_u(at + k)] -= out[a, k]
+                    xt[_unsigned(at + k)] -= out[a, k]
         for c in range(c0, c1):
             at = c * u
             for k in range(c0, c):
-                f = d[k] * front[_u(o + c * m + k)]
+                f = d[k] * front[_unsigned(o + c * m + k)]
                 kt = k * u
                 for r in range(u):
-                    xt[_u(at + r)] -= f * xt[_u(kt + r)]
+                    xt[_unsigned(at + r)] -= f * xt[_unsigned(kt + r)]
             pivot = d[c]
             for r in range(u):
-                xt[_u(at + r)] /= pivot
+                xt[_unsigned(at + r)] /= pivot
         c0 = c1
     for k in range(u):   # L21 (into the front and lrows) and L21 D, row-major
         row = o + (w + k) * m
         for c in range(w):
-            x = xt[_u(c * u + k)]
-            front[_u(row + c)] = x
-            lrows[_u(k * w + c)] = x
-            dlrows[_u(k * w + c)] = d[c] * x
+            x = xt[_unsigned(c * u + k)]
+            front[_unsigned(row + c)] = x
+            lrows[_unsigned(k * w + c)] = x
+            dlrows[_unsigned(k * w + c)] = d[c] * x
     i0 = 0
     while i0 < u:
         i1 = min(i0 + UPDATE_BLOCK, u)
@@ -422,7 +427,7 @@ def _panel_by_blas(front, m, o, n, w, d, xt, lrows, dlrows, strip, product):
         for a in range(h):
             row = o + (w + i0 + a) * m + w
             for k in range(i0 + a + 1):
-                front[_u(row + k)] -= out[a, k]
+                front[_unsigned(row + k)] -= out[a, k]
         i0 = i1
 
 
@@ -469,7 +474,7 @@ def _eliminate(begin, end, indptr, indices, data, n_linear, first, width, row_at
         m = row_at[t + 1] - r0
         for a in range(m):   # (only the lower triangle is read)
             for b in range(a + 1):
-                front[_u(a * m + b)] = 0.0
+                front[_unsigned(a * m + b)] = 0.0
         for k in range(m):
             where[srows[r0 + k]] = k
         for c in range(w):   # the matrix's own entries of the supernode's columns
@@ -486,7 +491,7 @@ def _eliminate(begin, end, indptr, indices, data, n_linear, first, width, row_at
                 ra = relative[c0 + a] * m
                 at = base + a * u
                 for b in range(a + 1):
-                    front[_u(ra + relative[_u(c0 + b)])] += stack[_u(at + b)]
+                    front[_unsigned(ra + relative[_unsigned(c0 + b)])] += stack[_unsigned(at + b)]
         if w >= blas_width and m - w >= blas_rows:
             # a panel of columns at a time: its pivots, then its rows below and their update
             # of all the later rows (also the supernode's later columns) by BLAS
@@ -512,17 +517,17 @@ def _eliminate(begin, end, indptr, indices, data, n_linear, first, width, row_at
                 row0, row1, row2, row3 = i * m, (i + 1) * m, (i + 2) * m, (i + 3) * m
                 for c in range(w):
                     pc = c * m
-                    pivot = panel_t[_u(pc + c)]
-                    x0, x1 = front[_u(row0 + c)] / pivot, front[_u(row1 + c)] / pivot
-                    x2, x3 = front[_u(row2 + c)] / pivot, front[_u(row3 + c)] / pivot
-                    front[_u(row0 + c)], front[_u(row1 + c)] = x0, x1
-                    front[_u(row2 + c)], front[_u(row3 + c)] = x2, x3
+                    pivot = panel_t[_unsigned(pc + c)]
+                    x0, x1 = front[_unsigned(row0 + c)] / pivot, front[_unsigned(row1 + c)] / pivot
+                    x2, x3 = front[_unsigned(row2 + c)] / pivot, front[_unsigned(row3 + c)] / pivot
+                    front[_unsigned(row0 + c)], front[_unsigned(row1 + c)] = x0, x1
+                    front[_unsigned(row2 + c)], front[_unsigned(row3 + c)] = x2, x3
                     for k in range(c + 1, w):
-                        entry = panel_t[_u(pc + k)]
-                        front[_u(row0 + k)] -= x0 * entry
-                        front[_u(row1 + k)] -= x1 * entry
-                        front[_u(row2 + k)] -= x2 * entry
-                        front[_u(row3 + k)] -= x3 * entry
+                        entry = panel_t[_unsigned(pc + k)]
+                        front[_unsigned(row0 + k)] -= x0 * entry
+                        front[_unsigned(row1 + k)] -= x1 * entry
+                        front[_unsigned(row2 + k)] -= x2 * entry
+                        front[_unsigned(row3 + k)] -= x3 * entry
                 i += 4
             for i in range(i, m):
                 row = i * m
@@ -536,23 +541,26 @@ def _eliminate(begin, end, indptr, indices, data, n_linear, first, width, row_at
                 d = diagonal[j0 + c]
                 for k in range(w, m):
                     panel_t[c * m + k] = d * front[k * m + c]
-            i = w
-            while i + 4 <= m:   # four rows at a time (each column of panel_t read once for four)
-                _update_rows4(front, panel_t, m, w, i)
-                i += 4
-            for i in range(i, m):
-                _update_row(front, panel_t, m, w, i, w)
+            blocks_end = w + (m - w) // 4 * 4
+            for i in range(w, blocks_end, 4):   # four rows at a time (each column of panel_t
+                _update_rows4(front, panel_t, m, w, i)   # read once for four)
+            # the rest of each row, by one inlined copy of _update_row (LLVM's work grows with
+            # each copy): in a block of four, row i + t's columns i + 1 .. i + t; below the
+            # blocks, whole rows. Each entry is updated once, its sum in the same order.
+            for i in range(w, m):
+                _update_row(front, panel_t, m, w, i,
+                            i - (i - w) % 4 + 1 if i < blocks_end else w)
         # the packed factor: the w x w block's rows up to the unit diagonal, then the m - w
         # rows below, w values each (``bordered_lu._pack``'s layout)
         v = value_at[t]
         for k in range(w):
             for c in range(k):
-                values[_u(v + c)] = front[_u(k * m + c)]
+                values[_unsigned(v + c)] = front[_unsigned(k * m + c)]
             values[v + k] = 1.0
             v += k + 1
         for k in range(w, m):
             for c in range(w):
-                values[_u(v + c)] = front[_u(k * m + c)]
+                values[_unsigned(v + c)] = front[_unsigned(k * m + c)]
             v += w
         # the update: to the parent's stack entry, or (a root: its rows below are all
         # condensed) into ``condensed``
@@ -562,13 +570,14 @@ def _eliminate(begin, end, indptr, indices, data, n_linear, first, width, row_at
                 ra = relative[r0 + w + a] * n_N
                 row = (w + a) * m + w
                 for b in range(a + 1):
-                    flat[_u(ra + relative[_u(r0 + w + b)])] += front[_u(row + b)]
+                    flat[_unsigned(ra + relative[_unsigned(r0 + w + b)])] += \
+                        front[_unsigned(row + b)]
         else:
             base = stack_at[depth]
             for a in range(u):
                 at, row = base + a * u, (w + a) * m + w
                 for b in range(a + 1):
-                    stack[_u(at + b)] = front[_u(row + b)]
+                    stack[_unsigned(at + b)] = front[_unsigned(row + b)]
             stack_node[depth] = t
             depth += 1
             stack_at[depth] = base + u * u
