@@ -314,7 +314,7 @@ class Discretisation:
             e = self.cut_elements[f.gp_element]
             dN = np.ascontiguousarray(np.transpose(
                 basis.shape_gradient(xi, eta, sizes[e, 0], sizes[e, 1]), (2, 0, 1)))   # (ng, 4, 2)
-            Nl, dNl = xfem.level_set_functions(N, dN, f.node_phi[nodes])
+            Nl, dNl = basis.level_set_basis(N, dN, f.node_phi[nodes])
             Np = np.concatenate([N, Nl], axis=1)
             dNp = np.concatenate([dN @ f.tangent, dNl @ f.tangent], axis=1)
             if self.has("p"):
@@ -424,7 +424,7 @@ class Discretisation:
         jump_dofs = self._a_map(nodes[None, :])[0] if self.has("a") else -np.ones(8, dtype=np.int64)
         if self.fault_pressure_is_trace:
             hx, hy = self.mesh.element_sizes[e]
-            Nl, _ = xfem.level_set_functions(Ng, basis.shape_gradient(xi, eta, hx, hy), f.node_phi[nodes])
+            Nl, _ = basis.level_set_basis(Ng, basis.shape_gradient(xi, eta, hx, hy), f.node_phi[nodes])
             Np = np.concatenate([Ng, Nl])
             pm = -np.ones(8, dtype=np.int64)
             if self.has("p"):

@@ -1,9 +1,10 @@
 """Fill-reducing ordering of the bulk's sparse LU: geometric nested dissection.
 
 The bulk lives on a structured 2-D mesh, so its unknowns can be split by their coordinates: the
-set is cut at the median along its longer extent, the unknowns of one half that couple to the
-other form the separator, and each half is ordered the same way before the separator, which comes
-last. On a 2-D grid this bounds the fill near n log n, where the minimum-degree orderings that
+set is cut at the median across its side with more node lines (on a graded mesh not always its
+longer side in metres), the unknowns of one half that couple to the other form the separator,
+and each half is ordered the same way before the separator, which comes last. On a 2-D grid
+this bounds the fill near n log n, where the minimum-degree orderings that
 SuperLU offers fill more: on the Rustrel bulk at 100 x 101 (31k unknowns) it has 16-20 % fewer
 non-zeros in L + U, factorises in 40-50 % less time and solves a block of right-hand sides (the
 condensation) 25-35 % faster (issue 15).
@@ -31,18 +32,19 @@ def nested_dissection(pattern: sp.spmatrix, xy: np.ndarray, leaf: int = LEAF_SIZ
     n_separator) per half of the first, in the permutation's order (None unless both halves
     were cut): the four parts do not couple either.
 
-    Each set is cut at the median of its coordinate along its longer extent (np.median's value:
-    the middle one, or the mean of the two middle ones), the unknowns of the lower side that
-    couple to the upper side being the separator, and is placed as [its lower side without the
-    separator, its upper side, the separator], each part keeping the order it had; the parts
-    larger than ``leaf`` are cut in turn. All the sets of one level of cuts are cut together,
-    in place in the permutation (a few array operations per level instead of per set; the same
-    permutation)."""
+    Each set is cut at the median of its coordinate across its larger number of node lines
+    (``_cut_axis``; np.median's value: the middle one, or the mean of the two middle ones), the
+    unknowns of the lower side that couple to the upper side being the separator, and is placed
+    as [its lower side without the separator, its upper side, the separator], each part keeping
+    the order it had; the parts larger than ``leaf`` are cut in turn. All the sets of one level
+    of cuts are cut together, in place in the permutation (a few array operations per level
+    instead of per set; the same permutation)."""
     n = pattern.shape[0]
     sym = (abs(pattern) + abs(pattern.T)).tocsr()
     sym.sum_duplicates()
     indptr, indices = sym.indptr, sym.indices
     degree = np.diff(indptr)
+    line, n_lines = _node_lines(xy)
     perm = np.arange(n)
     # the sets still to cut: ranges [start, end) of the permutation
     starts = np.zeros(1 if n > leaf else 0, dtype=np.int64)
@@ -58,8 +60,8 @@ def nested_dissection(pattern: sp.spmatrix, xy: np.ndarray, leaf: int = LEAF_SIZ
         at = np.arange(sizes.sum()) - np.repeat(offsets, sizes) + np.repeat(starts, sizes)
         ids = perm[at]
         p = xy[ids]
-        extent = np.maximum.reduceat(p, offsets, axis=0) - np.minimum.reduceat(p, offsets, axis=0)
-        key = p[np.arange(len(ids)), np.argmax(extent, axis=1)[in_set]]
+        axis = _cut_axis(p, line[ids], n_lines, in_set, offsets, n_sets)
+        key = p[np.arange(len(ids)), axis[in_set]]
         ranked = key[np.lexsort((key, in_set))]
         mid = offsets + sizes // 2
         median = np.where(sizes % 2 == 1, ranked[mid],
@@ -98,3 +100,29 @@ def nested_dissection(pattern: sp.spmatrix, xy: np.ndarray, leaf: int = LEAF_SIZ
         level += 1
     out = (perm,) + ((split,) if return_split else ()) + ((quarters,) if return_quarters else ())
     return out if len(out) > 1 else perm
+
+
+def _node_lines(xy):
+    """Each unknown's node line along x and along y (the rank of its coordinate among the
+    distinct ones), and the number of lines of each."""
+    lines = [np.unique(xy[:, a], return_inverse=True) for a in (0, 1)]
+    return (np.column_stack([inverse.ravel() for _, inverse in lines]),
+            [len(values) for values, _ in lines])
+
+
+def _cut_axis(p, line, n_lines, in_set, offsets, n_sets):
+    """The coordinate each set is cut along (0: x, 1: y), given its unknowns' points ``p`` and
+    node lines ``line`` (``_node_lines``; the sets consecutive, ``in_set`` their set,
+    ``offsets`` their first): the one with more node lines, so that the separator, a line of
+    nodes across the other, holds fewer of them; on a tie the one with the larger extent. On a
+    mesh graded towards a fault the longer side in metres can be the one with fewer node lines:
+    the fine 30 deg scene's L then had 9.05M entries, 8.03M with this choice (2229M -> 2072M
+    multiply-adds in its factorisation); on a uniform mesh the two choices agree."""
+    distinct = np.empty((n_sets, 2), dtype=np.int64)
+    for a in (0, 1):
+        on = np.zeros(n_sets * n_lines[a], dtype=bool)
+        on[in_set * n_lines[a] + line[:, a]] = True
+        distinct[:, a] = on.reshape(n_sets, n_lines[a]).sum(axis=1)
+    extent = np.maximum.reduceat(p, offsets, axis=0) - np.minimum.reduceat(p, offsets, axis=0)
+    return np.where(distinct[:, 0] == distinct[:, 1], np.argmax(extent, axis=1),
+                    np.argmax(distinct, axis=1))

@@ -377,34 +377,12 @@ def tabulate_cut(cut_elements, elements, node_phi, sizes, cut_qp, cut_side):
     phi = node_phi[elements[cut_elements]][:, None, :]                # (nc, 1, 4)
     node_side = (phi > 0).astype(np.float64)
     shift = cut_side[:, :, None] - node_side                          # (nc, nqc, 4)
-    Nl, gl = level_set_functions(N, dN, phi)
+    Nl, gl = basis.level_set_basis(N, dN, phi)
     Nu = np.concatenate([N, N * shift], axis=2)
     gu = np.concatenate([dN, dN * shift[..., None]], axis=2)
     Np = np.concatenate([N, Nl], axis=2)
     gp = np.concatenate([dN, gl], axis=2)
     return Nu, gu, Np, gp
-
-
-def level_set_functions(N, dN, phi):
-    """The modified-level-set enriched functions and their gradients (paper Eq. 6-7) at arrays
-    of points: N (..., 4), dN (..., 4, 2) and the element's nodal level set phi (..., 4,
-    broadcasting with N) give (N psi, dN psi + N grad psi), shaped as N and dN. The sums in the
-    order of ``kernels.basis.level_set_basis`` (one point), so the values are the same to the
-    bit: the cut elements' quadrature points, the fault's points and the injection point all
-    take them from here."""
-    lin = np.zeros(np.broadcast_shapes(N.shape[:-1], phi.shape[:-1]))
-    absn = np.zeros(lin.shape)
-    glin = np.zeros(lin.shape + (2,))
-    gabs = np.zeros(lin.shape + (2,))
-    for i in range(4):
-        lin += N[..., i] * phi[..., i]
-        absn += N[..., i] * abs(phi[..., i])
-        glin += dN[..., i, :] * phi[..., i, None]
-        gabs += dN[..., i, :] * abs(phi[..., i, None])
-    sgn = np.sign(lin)
-    psi = (absn - abs(lin))[..., None]
-    gpsi = gabs - sgn[..., None] * glin
-    return N * psi, dN * psi[..., None] + N[..., None] * gpsi[..., None, :]
 
 
 def _ref_to_phys(xe: np.ndarray, r: np.ndarray) -> np.ndarray:

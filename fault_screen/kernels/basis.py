@@ -1,4 +1,5 @@
-"""Bilinear shape functions and the two X-FEM enrichments at one point of a rectangle element.
+"""Bilinear shape functions and the two X-FEM enrichments on a rectangle element, at one point or
+at arrays of points.
 
 Displacement enrichment (paper Eq. 3-4): shifted Heaviside ``N_j (H(x) - H(x_j))``.
 Pressure enrichment (Eq. 6-7): modified level set ``N_j (psi(x) - psi(x_j))`` with
@@ -35,18 +36,23 @@ def heaviside_basis(N, dN, side, node_side):
     return N * shift, dN * shift[:, None]
 
 
-def level_set_basis(N, dN, phi_e):
-    """Modified-level-set enriched functions and gradients (paper Eq. 6-7)."""
-    n, g, phi = N.tolist(), dN.tolist(), phi_e.tolist()
-    lin = absn = 0.0
-    glin, gabs = [0.0, 0.0], [0.0, 0.0]
-    for i in range(4):   # (sums in this order: the value is part of the regression baseline)
-        lin += n[i] * phi[i]
-        absn += n[i] * abs(phi[i])
-        for d in range(2):
-            glin[d] += g[i][d] * phi[i]
-            gabs[d] += g[i][d] * abs(phi[i])
-    sgn = 1.0 if lin > 0 else (-1.0 if lin < 0 else 0.0)
-    psi = absn - abs(lin)
-    gpsi = np.array([gabs[0] - sgn * glin[0], gabs[1] - sgn * glin[1]])
-    return N * psi, dN * psi + N[:, None] * gpsi[None, :]
+def level_set_basis(N, dN, phi):
+    """The modified-level-set enriched functions and their gradients (paper Eq. 6-7) at arrays
+    of points: N (..., 4), dN (..., 4, 2) and the element's nodal level set phi (..., 4,
+    broadcasting with N) give (N psi, dN psi + N grad psi), shaped as N and dN (one point: N
+    (4,), dN (4, 2), phi (4,)). The cut elements' quadrature points, the fault's points and the
+    injection point all take them from here; the sums run over the nodes in order (the values
+    are part of the regression baseline)."""
+    lin = np.zeros(np.broadcast_shapes(N.shape[:-1], phi.shape[:-1]))
+    absn = np.zeros(lin.shape)
+    glin = np.zeros(lin.shape + (2,))
+    gabs = np.zeros(lin.shape + (2,))
+    for i in range(4):
+        lin += N[..., i] * phi[..., i]
+        absn += N[..., i] * abs(phi[..., i])
+        glin += dN[..., i, :] * phi[..., i, None]
+        gabs += dN[..., i, :] * abs(phi[..., i, None])
+    sgn = np.sign(lin)
+    psi = (absn - abs(lin))[..., None]
+    gpsi = gabs - sgn[..., None] * glin
+    return N * psi, dN * psi[..., None] + N[..., None] * gpsi[..., None, :]

@@ -1,6 +1,6 @@
 """The fault's Gauss points and the injection point, tabulated for all points at once
-(``Discretisation._tabulate_fault``, ``xfem.level_set_functions``), against the same functions
-made a point at a time from ``kernels.basis`` (0 difference: the same arithmetic in the same
+(``Discretisation._tabulate_fault``, ``kernels.basis.level_set_basis``), against the same functions
+made a point at a time (``kernels.basis`` and the per-point level set of tests/basis_reference.py; 0 difference: the same arithmetic in the same
 order), on faults that cut their elements in different shapes."""
 import warnings
 from dataclasses import replace
@@ -12,6 +12,7 @@ from fault_screen import Scene, xfem
 from fault_screen.discretisation import discretise
 from fault_screen.kernels import basis
 
+from basis_reference import level_set_basis_at_point
 from conftest import CONFIGS, VERIFICATION
 
 
@@ -39,7 +40,7 @@ def per_point(disc):
             jump[g] = disc._a_map(nodes[None, :])[0]
         if trace:
             dN = basis.shape_gradient(xi, eta, sizes[e, 0], sizes[e, 1])
-            Nl, dNl = basis.level_set_basis(Ng, dN, f.node_phi[nodes])
+            Nl, dNl = level_set_basis_at_point(Ng, dN, f.node_phi[nodes])
             Np[g, :4], Np[g, 4:] = Ng, Nl
             dNp[g, :4], dNp[g, 4:] = dN @ f.tangent, dNl @ f.tangent
             if disc.has("p"):
@@ -101,9 +102,9 @@ def test_fault_points_all_at_once_are_the_per_point_functions(shape):
         k, lam = xfem.locate_point_on_fault(f, disc.injection.s)
         xi, eta = f.segment_ref[k, 0] + lam * (f.segment_ref[k, 1] - f.segment_ref[k, 0])
         e = disc.cut_elements[f.segment_element[k]]
-        Nl, _ = basis.level_set_basis(basis.shape(xi, eta),
-                                      basis.shape_gradient(xi, eta, *disc.mesh.element_sizes[e]),
-                                      f.node_phi[disc.elements[e]])
+        Nl, _ = level_set_basis_at_point(basis.shape(xi, eta),
+                                         basis.shape_gradient(xi, eta, *disc.mesh.element_sizes[e]),
+                                         f.node_phi[disc.elements[e]])
         assert np.array_equal(disc.injection.Np[4:], Nl)
     # standard functions: a partition of unity at every point (round-off); on the fault the
     # level set's sum vanishes, so psi = sum N_i |phi_i| there and the enriched functions are

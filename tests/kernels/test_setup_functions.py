@@ -15,6 +15,8 @@ import pytest
 
 from fault_screen.kernels import basis, fault_flow, rock
 
+from basis_reference import level_set_basis_at_point
+
 ROOT = Path(__file__).resolve().parents[2]
 CORNERS = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
 POINTS = [(-0.7, 0.3), (0.0, 0.0), (0.25, -0.9), (0.577, 0.577)]
@@ -72,6 +74,25 @@ def test_level_set_enrichment_of_a_fault_through_the_middle():
         fd_y = (at(xi, eta + h) - at(xi, eta - h)) / (2 * h) * 2 / 4.0
         assert np.max(np.abs(dNe[:, 0] - fd_x)) <= 1e-9
         assert np.max(np.abs(dNe[:, 1] - fd_y)) <= 1e-9
+
+
+def test_level_set_enrichment_at_arrays_of_points():
+    """The array form on a 7 x 9 grid of points inside two elements at once (one cut through the
+    middle, phi = eta: psi = 1 - |eta| in closed form, to 1e-15; one cut across a corner, phi =
+    (-1, 0.5, 2, 0.5)), against the per-point reference (tests/basis_reference.py) to the bit,
+    the points of the line phi = 0 (sign 0) included."""
+    xi, eta = np.meshgrid(np.linspace(-1, 1, 7), np.linspace(-1, 1, 9), indexing="ij")
+    N = np.moveaxis(basis.shape(xi, eta), 0, -1)                              # (7, 9, 4)
+    dN = np.transpose(basis.shape_gradient(xi, eta, 2.0, 4.0), (2, 3, 0, 1))  # (7, 9, 4, 2)
+    phi = np.array([[-1.0, -1.0, 1.0, 1.0], [-1.0, 0.5, 2.0, 0.5]])[:, None, None, :]
+    Ne, dNe = basis.level_set_basis(N[None], dN[None], phi)
+    assert Ne.shape == (2, 7, 9, 4) and dNe.shape == (2, 7, 9, 4, 2)
+    assert np.max(np.abs(Ne[0] - N * (1.0 - np.abs(eta))[..., None])) <= 1e-15
+    for k in range(2):
+        for i in range(7):
+            for j in range(9):
+                ref_N, ref_dN = level_set_basis_at_point(N[i, j], dN[i, j], phi[k, 0, 0])
+                assert np.array_equal(Ne[k, i, j], ref_N) and np.array_equal(dNe[k, i, j], ref_dN)
 
 
 def test_plane_strain_elasticity_of_a_known_rock():
