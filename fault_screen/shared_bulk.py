@@ -121,6 +121,17 @@ class SharedBulk:
         return twin
 
 
+    def drop_factors(self) -> int:
+        """Forget every factorisation kept (the order, the symbolic analyses and the fixed
+        patterns stay): for stores whose users have all made their factorisations of the
+        current step sizes, as a live ensemble's members have after each round of steps. A
+        system holding factors keeps its own; returns how many sets were dropped."""
+        with self._lock:
+            dropped = len(self._factors)
+            self._factors.clear()
+        return dropped
+
+
 def active() -> SharedBulk | None:
     """The store of the innermost ``sharing()`` block of this thread, or None."""
     return getattr(_LOCAL, "store", None)

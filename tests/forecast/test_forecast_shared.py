@@ -110,6 +110,37 @@ def test_live_ensemble_members_share_one_store_and_equal_each_member_run_alone(s
     store = live.store
     assert (store.made, store.shared) == (9, 6)
     assert len(store._orders) == 1 and (store.patterns_made, store.patterns_shared) == (1, 4)
+    assert len(store._factors) == 0   # shared within the round, dropped after it
+
+
+def test_live_members_of_distinct_bulks_leave_no_factors_in_the_store(scene_dict, alone):
+    """Three live members whose bulks all differ (the scene, another friction, another
+    aperture): each makes its own 5-s factors in the history and its 10 and 20-s ones in the
+    look-ahead (9 made, none shared), and after each round (advance, run) the store holds no
+    factor set (it held min(9, MAX_FACTORS) = 8 before it dropped them), only the one order and
+    fixed pattern; the forecasts equal each member's run alone, and stepping on after the drop
+    makes no factorisation (each member kept its own 5-s factors)."""
+    live = LiveEnsemble(Scene.from_dict(scene_dict), EQUAL_BULKS[2:] + OTHERS, base=False,
+                        steps={"ladder": 40.0})
+    store = live.store
+    live.advance(AT, align=True)
+    assert (store.made, store.shared, len(store._factors)) == (3, 0, 0)
+    made, _ = live.run(PLANS, HORIZON)
+    assert (store.made, store.shared, len(store._factors)) == (9, 0, 0)
+    assert len(store._orders) == 1 and (store.patterns_made, store.patterns_shared) == (1, 2)
+    for j, a in enumerate(alone[2:]):
+        _assert_same(a, MemberRun(index=j, params={}, ok=True, forecasts=[m.forecasts[j] for m in made]))
+    live.advance(AT + 10.0, align=True)
+    assert live.time == AT + 10.0 and (store.made, len(store._factors)) == (9, 0)
+
+
+def test_dropping_the_factors_keeps_the_order_and_patterns(scene_dict):
+    store = SharedBulk()
+    with sharing(store):
+        run = run_member(*_calls(scene_dict, [{}])[0])
+    assert run.ok and store.made == 3 and len(store._factors) == 3
+    assert store.drop_factors() == 3 and store.drop_factors() == 0
+    assert len(store._factors) == 0 and len(store._orders) == 1 and len(store._patterns) == 1
 
 
 def test_two_threads_on_one_store_make_equal_factors_once(scene_dict, alone):
