@@ -15,6 +15,8 @@ import threading
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from conftest import CONFIGS
 from fault_screen import Scene
@@ -196,3 +198,34 @@ def test_a_history_on_longer_steps_ends_on_the_forecast_time(scene_dict):
     assert longer.state.time == AT and (longer.state.dt, own.state.dt) == (20.0, 5.0)
     bad = run_member(0, scene_dict, {}, [AT], PLANS, HORIZON, steps={"history_dt_max": 0.0})
     assert not bad.ok and "history steps: dt_max 0.0 must be > 0" in bad.error
+
+
+def test_a_kept_entry_is_found_by_bit_equal_arrays_only():
+    """The store finds what it kept by a sum of the arrays' bits and then compares them: arrays
+    of equal sums (a permutation), values equal but not in their bits (-0.0 against 0.0) and
+    another dtype or shape of the same values all miss; equal bits (a NaN included) hit."""
+    from fault_screen.shared_bulk import _Kept
+
+    kept = _Kept()
+    values = np.array([0.0, 1.5, -2.0, np.nan])
+    kept.add(_Kept.key([values, np.arange(4, dtype=np.int32)]), "made")
+    assert kept.find(_Kept.key([values.copy(), np.arange(4, dtype=np.int32)])) == "made"
+    for other in ([values[[1, 0, 2, 3]], np.arange(4, dtype=np.int32)],
+                  [np.array([-0.0, 1.5, -2.0, np.nan]), np.arange(4, dtype=np.int32)],
+                  [values, np.arange(4, dtype=np.int64)],
+                  [values.reshape(2, 2), np.arange(4, dtype=np.int32)],
+                  [values, np.array([0, 1, 3, 2], dtype=np.int32)]):
+        assert kept.find(_Kept.key(other)) is None
+    assert len(kept) == 1
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.floats(allow_nan=True, width=64), min_size=1, max_size=6),
+       st.lists(st.floats(allow_nan=True, width=64), min_size=1, max_size=6))
+def test_the_store_shares_exactly_when_the_bytes_are_equal(a, b):
+    from fault_screen.shared_bulk import _Kept
+
+    a, b = np.array(a), np.array(b)
+    kept = _Kept()
+    kept.add(_Kept.key([a]), "a")
+    assert (kept.find(_Kept.key([b])) == "a") == (a.shape == b.shape and a.tobytes() == b.tobytes())
