@@ -44,6 +44,15 @@ WORKER_CONFIG = {"distributed": {"worker": {"profile": {"enabled": False},
                                            "system-monitor": {"interval": "2s"}}}}
 
 
+def _dotted(config: dict, prefix: str = "") -> dict:
+    """A nested Dask configuration as dotted keys (``dask.config.set`` replaces whole
+    sections given nested, these keys only)."""
+    out = {}
+    for key, value in config.items():
+        out.update(_dotted(value, f"{prefix}{key}.") if isinstance(value, dict) else {prefix + key: value})
+    return out
+
+
 # ---- scene variants -------------------------------------------------------------------------
 def scene_with(scene: Scene, overrides: dict) -> Scene:
     """``scene`` with values replaced by dotted keys (SI), validated.
@@ -267,7 +276,10 @@ class Variant:
 
 def local_cluster(workers: int):
     """A ``distributed.LocalCluster`` of ``workers`` processes with one thread and one BLAS
-    thread each, and :data:`WORKER_CONFIG`. The numba cache is the package's own
+    thread each, and :data:`WORKER_CONFIG`, for the workers and for the servers the cluster runs
+    in this process (the scheduler and the workers' nannies read this process's settings when
+    they start: with Dask's defaults their ticks and memory monitors took a few times the CPU of
+    the workers' own machinery, on the cores the members need). The numba cache is the package's own
     (``__pycache__``) unless NUMBA_CACHE_DIR is set, which the workers inherit: either way every
     worker shares one compiled cache."""
     import dask
@@ -276,10 +288,11 @@ def local_cluster(workers: int):
     env = dict(WORKER_ENV)
     if "NUMBA_CACHE_DIR" in os.environ:
         env["NUMBA_CACHE_DIR"] = os.environ["NUMBA_CACHE_DIR"]
-    return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, env=env,
-                        config=dask.config.merge(dask.config.config, WORKER_CONFIG),  # (the nanny's
-                        # own merge keeps whole sections: the user's settings merged in here)
-                        dashboard_address="127.0.0.1:0", silence_logs=40)  # any free local port
+    with dask.config.set(_dotted(WORKER_CONFIG)):   # (this process's own settings as they were after)
+        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, env=env,
+                            config=dask.config.merge(dask.config.config, WORKER_CONFIG),  # (the nanny's
+                            # own merge keeps whole sections: the user's settings merged in here)
+                            dashboard_address="127.0.0.1:0", silence_logs=40)  # any free local port
 
 
 class Runner:

@@ -6,8 +6,9 @@ and the number of fractures enter the fault's nonlinear terms and the source onl
 ``with sharing():`` every :class:`~fault_screen.linear_system.CondensedSystem` of the process
 takes its fill-reducing order, its symbolic analyses, the positions of its poroelastic bulk's
 fixed pattern and its factors from here when a simulation before it made them for exactly the
-same input (decided by a hash of the bytes: pattern and coordinates for the order, the blocks'
-patterns and the order for the positions, pattern and values for the factors), and makes them
+same input (compared exactly, array by array: pattern and coordinates for the order, the
+blocks' patterns and the order for the positions, pattern and values for the factors; a cheap
+fingerprint of each, its shape and sum, picks the candidates to compare), and makes them
 otherwise. Equal input gives equal factors, so a shared run is bit-identical to one made
 alone. The factors are read-only for their users (a step replaces them, never writes into
 them, as forks already rely on); the Schur complement, which its owner takes and overwrites,
@@ -22,7 +23,6 @@ from __future__ import annotations
 
 import contextlib
 import copy
-import hashlib
 import threading
 
 import numpy as np
@@ -38,13 +38,48 @@ _LOCAL = threading.local()
 MAX_FACTORS = 8
 
 
-def _digest(*arrays) -> bytes:
-    h = hashlib.blake2b(digest_size=20)
-    for a in arrays:
-        a = np.ascontiguousarray(a)
-        h.update(str((a.dtype.str, a.shape)).encode())
-        h.update(a.data)
-    return h.digest()
+def _bits(a):
+    """The bytes of a contiguous array as unsigned integers of its item size (compared, a
+    -0.0 differs from a 0.0 and a NaN equals the same NaN: equal bits, equal factors)."""
+    return a.view(f"u{a.itemsize}") if a.itemsize in (1, 2, 4, 8) else a.view(np.uint8)
+
+
+class _Kept:
+    """Values kept by the arrays that define them, bit for bit. A look-up compares the arrays
+    with the kept ones instead of hashing their bytes (a cryptographic hash took a few per cent
+    of an ensemble member's CPU time; a sum is far cheaper): the fingerprint, each array's
+    dtype, shape and the sum of its bits, finds the candidates (equal arrays have equal sums),
+    a comparison of the bits decides. The arrays are kept as copies, the oldest entry first."""
+
+    def __init__(self):
+        self._entries = []     # (fingerprint, arrays, value), in the order kept
+
+    @staticmethod
+    def key(arrays) -> tuple:
+        """(fingerprint, contiguous arrays) of ``arrays``."""
+        arrays = [np.ascontiguousarray(a) for a in arrays]
+        return tuple((a.dtype.str, a.shape, int(_bits(a).sum())) for a in arrays), arrays
+
+    def find(self, key):
+        fingerprint, arrays = key
+        for kept_print, kept, value in self._entries:
+            if kept_print == fingerprint and all(np.array_equal(_bits(a), _bits(b))
+                                                 for a, b in zip(arrays, kept)):
+                return value
+        return None
+
+    def add(self, key, value) -> None:
+        fingerprint, arrays = key
+        self._entries.append((fingerprint, [a.copy() for a in arrays], value))
+
+    def drop_oldest(self) -> None:
+        del self._entries[0]
+
+    def clear(self) -> None:
+        self._entries.clear()
+
+    def __len__(self) -> int:
+        return len(self._entries)
 
 
 class _LockedAnalyses(SymbolicAnalyses):
@@ -70,10 +105,10 @@ class SharedBulk:
         # (re-entrant: making factors looks up the symbolic analyses under the same lock)
         self._lock = threading.RLock()
         self.analyses = _LockedAnalyses(self._lock)   # (keyed by pattern itself)
-        self._orders = {}
-        self._patterns = {}                  # fixed patterns of the bulk, by their key
+        self._orders = _Kept()
+        self._patterns = _Kept()             # fixed patterns of the bulk, by their key
         self.patterns_made = self.patterns_shared = 0
-        self._factors = {}                   # in the order made: the oldest goes first
+        self._factors = _Kept()              # in the order made: the oldest goes first
         self.max_factors = int(max_factors)
         self.made = 0
         self.shared = 0
@@ -82,43 +117,58 @@ class SharedBulk:
         """``make()`` (the bulk's order and split), or what it gave for the same ``pattern``
         (sparse) and ``coordinates``."""
         pattern = pattern.tocsr()
-        key = _digest(pattern.indptr, pattern.indices, np.asarray(pattern.shape), coordinates)
+        key = _Kept.key((pattern.indptr, pattern.indices, np.asarray(pattern.shape), coordinates))
         with self._lock:
-            if key not in self._orders:
-                self._orders[key] = make()
-            return self._orders[key]
+            made = self._orders.find(key)
+            if made is None:
+                made = make()
+                self._orders.add(key, made)
+            return made
 
     def pattern(self, key_arrays, make):
         """``make()`` (a bulk's fixed pattern), or what it gave for equal ``key_arrays``."""
-        key = _digest(*key_arrays)
+        key = _Kept.key(key_arrays)
         with self._lock:
-            if key not in self._patterns:
-                self._patterns[key] = make()
+            made = self._patterns.find(key)
+            if made is None:
+                made = make()
+                self._patterns.add(key, made)
                 self.patterns_made += 1
             else:
                 self.patterns_shared += 1
-            return self._patterns[key]
+            return made
 
     def factors(self, matrix_arrays, n_linear: int, split, factorise):
         """``factorise()``, or the factors it gave for the same matrix (``matrix_arrays``: the
         arrays that define it exactly, pattern and values) with the same ``n_linear`` and
-        ``split``: the same object, its Schur complement a copy of its own."""
-        key = _digest(*matrix_arrays, np.asarray([n_linear]),
-                      np.asarray(split if split is not None else [], dtype=np.int64))
+        ``split``: a copy of the kept object sharing its factors, its Schur complement a copy of
+        its own (the kept one is never handed out, so its Schur complement stays as made)."""
+        key = _Kept.key((*matrix_arrays, np.asarray([n_linear]),
+                         np.asarray(split if split is not None else [], dtype=np.int64)))
         with self._lock:
-            kept = self._factors.get(key)
-            if kept is None:
+            lu = self._factors.find(key)
+            if lu is None:
                 lu = factorise()
-                while self._factors and len(self._factors) >= self.max_factors:
-                    del self._factors[next(iter(self._factors))]
-                self._factors[key] = kept = (lu, lu.schur.copy(order="K"))
+                while len(self._factors) and len(self._factors) >= self.max_factors:
+                    self._factors.drop_oldest()
+                self._factors.add(key, lu)
                 self.made += 1
             else:
                 self.shared += 1
-        lu, schur = kept
         twin = copy.copy(lu)
-        twin.schur = schur.copy(order="K")   # (its memory layout kept: the products that read it round alike)
+        twin.schur = lu.schur.copy(order="K")   # (its memory layout kept: the products that read it round alike)
         return twin
+
+
+    def drop_factors(self) -> int:
+        """Forget every factorisation kept (the order, the symbolic analyses and the fixed
+        patterns stay): for stores whose users have all made their factorisations of the
+        current step sizes, as a live ensemble's members have after each round of steps. A
+        system holding factors keeps its own; returns how many sets were dropped."""
+        with self._lock:
+            dropped = len(self._factors)
+            self._factors.clear()
+        return dropped
 
 
 def active() -> SharedBulk | None:

@@ -398,7 +398,11 @@ class LiveEnsemble:
     steps: keep it off the thread that sends the alerts). The members share one
     :class:`~fault_screen.shared_bulk.SharedBulk` (the bulk's order, symbolic analyses, the
     positions of its fixed pattern and the factors of equal bulks, as :func:`run_members`
-    shares them: bit-identical to each member alone), in whichever thread steps them."""
+    shares them: bit-identical to each member alone), in whichever thread steps them. The
+    factors are shared within one round (one :meth:`advance` or :meth:`run` over the members)
+    and dropped from the store after it: by then every member with an equal bulk has taken
+    them and holds its own, and a drawn aperture gives every member a bulk of its own, so
+    factors kept longer would only hold memory (a member's superseded ones, the forks')."""
 
     def __init__(self, scene, draws: Sequence[dict], *, base: bool = True, drive=None,
                  start: Optional[datetime] = None, advice: Optional[dict] = None,
@@ -458,7 +462,10 @@ class LiveEnsemble:
         from ..shared_bulk import sharing
 
         with self._lock, sharing(self.store):
-            return self._advance(t_next, volume, pressure, align)
+            try:
+                return self._advance(t_next, volume, pressure, align)
+            finally:
+                self.store.drop_factors()
 
     def _advance(self, t_next, volume, pressure, align=False) -> int:
         taken, alive = None, []
@@ -487,7 +494,10 @@ class LiveEnsemble:
         from ..shared_bulk import sharing
 
         with sharing(self.store):
-            return self._run(plans, horizon, sim, screening, drive, start)
+            try:
+                return self._run(plans, horizon, sim, screening, drive, start)
+            finally:
+                self.store.drop_factors()
 
     def _run(self, plans, horizon, sim, screening, drive, start):
         runs, base, aheads = [], None, []

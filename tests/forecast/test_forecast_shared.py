@@ -15,6 +15,8 @@ import threading
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from conftest import CONFIGS
 from fault_screen import Scene
@@ -110,6 +112,37 @@ def test_live_ensemble_members_share_one_store_and_equal_each_member_run_alone(s
     store = live.store
     assert (store.made, store.shared) == (9, 6)
     assert len(store._orders) == 1 and (store.patterns_made, store.patterns_shared) == (1, 4)
+    assert len(store._factors) == 0   # shared within the round, dropped after it
+
+
+def test_live_members_of_distinct_bulks_leave_no_factors_in_the_store(scene_dict, alone):
+    """Three live members whose bulks all differ (the scene, another friction, another
+    aperture): each makes its own 5-s factors in the history and its 10 and 20-s ones in the
+    look-ahead (9 made, none shared), and after each round (advance, run) the store holds no
+    factor set (it held min(9, MAX_FACTORS) = 8 before it dropped them), only the one order and
+    fixed pattern; the forecasts equal each member's run alone, and stepping on after the drop
+    makes no factorisation (each member kept its own 5-s factors)."""
+    live = LiveEnsemble(Scene.from_dict(scene_dict), EQUAL_BULKS[2:] + OTHERS, base=False,
+                        steps={"ladder": 40.0})
+    store = live.store
+    live.advance(AT, align=True)
+    assert (store.made, store.shared, len(store._factors)) == (3, 0, 0)
+    made, _ = live.run(PLANS, HORIZON)
+    assert (store.made, store.shared, len(store._factors)) == (9, 0, 0)
+    assert len(store._orders) == 1 and (store.patterns_made, store.patterns_shared) == (1, 2)
+    for j, a in enumerate(alone[2:]):
+        _assert_same(a, MemberRun(index=j, params={}, ok=True, forecasts=[m.forecasts[j] for m in made]))
+    live.advance(AT + 10.0, align=True)
+    assert live.time == AT + 10.0 and (store.made, len(store._factors)) == (9, 0)
+
+
+def test_dropping_the_factors_keeps_the_order_and_patterns(scene_dict):
+    store = SharedBulk()
+    with sharing(store):
+        run = run_member(*_calls(scene_dict, [{}])[0])
+    assert run.ok and store.made == 3 and len(store._factors) == 3
+    assert store.drop_factors() == 3 and store.drop_factors() == 0
+    assert len(store._factors) == 0 and len(store._orders) == 1 and len(store._patterns) == 1
 
 
 def test_two_threads_on_one_store_make_equal_factors_once(scene_dict, alone):
@@ -165,3 +198,34 @@ def test_a_history_on_longer_steps_ends_on_the_forecast_time(scene_dict):
     assert longer.state.time == AT and (longer.state.dt, own.state.dt) == (20.0, 5.0)
     bad = run_member(0, scene_dict, {}, [AT], PLANS, HORIZON, steps={"history_dt_max": 0.0})
     assert not bad.ok and "history steps: dt_max 0.0 must be > 0" in bad.error
+
+
+def test_a_kept_entry_is_found_by_bit_equal_arrays_only():
+    """The store finds what it kept by a sum of the arrays' bits and then compares them: arrays
+    of equal sums (a permutation), values equal but not in their bits (-0.0 against 0.0) and
+    another dtype or shape of the same values all miss; equal bits (a NaN included) hit."""
+    from fault_screen.shared_bulk import _Kept
+
+    kept = _Kept()
+    values = np.array([0.0, 1.5, -2.0, np.nan])
+    kept.add(_Kept.key([values, np.arange(4, dtype=np.int32)]), "made")
+    assert kept.find(_Kept.key([values.copy(), np.arange(4, dtype=np.int32)])) == "made"
+    for other in ([values[[1, 0, 2, 3]], np.arange(4, dtype=np.int32)],
+                  [np.array([-0.0, 1.5, -2.0, np.nan]), np.arange(4, dtype=np.int32)],
+                  [values, np.arange(4, dtype=np.int64)],
+                  [values.reshape(2, 2), np.arange(4, dtype=np.int32)],
+                  [values, np.array([0, 1, 3, 2], dtype=np.int32)]):
+        assert kept.find(_Kept.key(other)) is None
+    assert len(kept) == 1
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.floats(allow_nan=True, width=64), min_size=1, max_size=6),
+       st.lists(st.floats(allow_nan=True, width=64), min_size=1, max_size=6))
+def test_the_store_shares_exactly_when_the_bytes_are_equal(a, b):
+    from fault_screen.shared_bulk import _Kept
+
+    a, b = np.array(a), np.array(b)
+    kept = _Kept()
+    kept.add(_Kept.key([a]), "a")
+    assert (kept.find(_Kept.key([b])) == "a") == (a.shape == b.shape and a.tobytes() == b.tobytes())

@@ -82,14 +82,24 @@ def test_local_workers_run_without_the_profiler_and_keep_the_users_settings():
     1-s memory monitor) go on top of the user's: a setting of the user's elsewhere in the same
     sections reaches them."""
     import dask
+    import distributed  # noqa: F401  (its defaults in this process's settings before they are changed)
 
     keys = ("distributed.worker.profile.enabled", "distributed.admin.tick.interval",
             "distributed.worker.memory.monitor-interval", "distributed.worker.memory.target")
     with dask.config.set({"distributed.worker.memory.target": 0.55}):
         with Runner(1) as runner:
             seen = [list(runner.client.run(dask.config.get, key).values()) for key in keys]
+            # the scheduler and the nanny, in this process, tick and monitor at the same pace
+            # (ms; Dask's defaults: a 20-ms tick, a 100-ms memory monitor, a 500-ms system monitor)
+            scheduler, (nanny,) = runner.cluster.scheduler, runner.cluster.workers.values()
+            paces = [scheduler.periodic_callbacks["tick"].callback_time,
+                     scheduler.periodic_callbacks["monitor"].callback_time,
+                     nanny.periodic_callbacks["tick"].callback_time,
+                     nanny.periodic_callbacks["memory_monitor"].callback_time]
     assert seen == [[False], ["500ms"], ["1s"], [0.55]]
+    assert paces == [500, 2000, 500, 1000]
     assert dask.config.get(keys[0]) is True   # this process's settings untouched
+    assert dask.config.get(keys[1]) == "20ms" and dask.config.get(keys[3]) == 0.6
 
 
 def test_existing_scheduler_gives_the_in_process_numbers(tiny):
