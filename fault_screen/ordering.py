@@ -115,9 +115,9 @@ def _cut_axis(p, line, n_lines, in_set, offsets, n_sets):
     node lines ``line`` (``_node_lines``; the sets consecutive, ``in_set`` their set,
     ``offsets`` their first): the one with more node lines, so that the separator, a line of
     nodes across the other, holds fewer of them; on a tie the one with the larger extent. On a
-    mesh graded towards a fault the longer side in metres can be the one with fewer node lines:
-    the fine 30 deg scene's L then had 9.05M entries, 8.03M with this choice (2229M -> 2072M
-    multiply-adds in its factorisation); on a uniform mesh the two choices agree."""
+    mesh graded towards a fault the longer side in metres can be the one with fewer node lines,
+    and cutting across it fills more (``python benchmarks/sweeps.py --fill`` prints both rules'
+    fill); on a uniform mesh the two choices agree."""
     distinct = np.empty((n_sets, 2), dtype=np.int64)
     for a in (0, 1):
         on = np.zeros(n_sets * n_lines[a], dtype=bool)

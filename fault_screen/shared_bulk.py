@@ -159,7 +159,6 @@ class SharedBulk:
         twin.schur = lu.schur.copy(order="K")   # (its memory layout kept: the products that read it round alike)
         return twin
 
-
     def drop_factors(self) -> int:
         """Forget every factorisation kept (the order, the symbolic analyses and the fixed
         patterns stay): for stores whose users have all made their factorisations of the
