@@ -122,25 +122,15 @@ def rate_state_point(slip, opening, slip_old, tau_old, dilatant_slip_old, theta_
 
 
 @helper
-def contact_local(N, tangent, normal, tau, sigma_n, tau0, sigma_n0, dtau_ds, dtau_do, dsig_ds,
-                  dsig_do, weight):
-    """Residual (8,) and tangent (8, 8) on the Heaviside DOFs of one cut element.
+def contact_local_into(N, tangent, normal, tau, sigma_n, tau0, sigma_n0, dtau_ds, dtau_do,
+                       dsig_ds, dsig_do, weight, r, k):
+    """Residual r (8,) and tangent k (8, 8) on the Heaviside DOFs of one cut element, every
+    entry written into the arrays given (a loop over the points reuses them: four small arrays
+    allocated per point were a third of ``assemble_contact``).
 
     The residual carries the change of contact traction from the in-situ state (the in-situ
     state is in equilibrium on its own): f_j = int N_j [(tau - tau0) t - (sigma_n - sigma_n0) n].
     """
-    r = np.empty(8)
-    k = np.empty((8, 8))
-    contact_local_into(N, tangent, normal, tau, sigma_n, tau0, sigma_n0, dtau_ds, dtau_do,
-                       dsig_ds, dsig_do, weight, r, k)
-    return r, k
-
-
-@helper
-def contact_local_into(N, tangent, normal, tau, sigma_n, tau0, sigma_n0, dtau_ds, dtau_do,
-                       dsig_ds, dsig_do, weight, r, k):
-    """``contact_local`` written into r (8,) and k (8, 8), every entry: a loop over the points
-    reuses them (four small arrays allocated per point were a third of ``assemble_contact``)."""
     T0 = (tau - tau0) * tangent[0] - (sigma_n - sigma_n0) * normal[0]
     T1 = (tau - tau0) * tangent[1] - (sigma_n - sigma_n0) * normal[1]
     # d(traction vector)/d(jump vector) = R^T C R with R = [t; n], C = d(tau, -sigma_n)/d(s, o)
