@@ -432,28 +432,33 @@ def _panel_by_blas(front, m, o, n, w, d, xt, lrows, dlrows, strip, product):
 
 
 @kernel
-def _eliminate(begin, end, indptr, indices, data, n_linear, first, width, row_at, srows,
-               tparent, children, relative, value_at, values, diagonal, condensed,
-               stack, stack_at, stack_node, depth, blas_width, blas_rows):
-    """The multifrontal LDL^T of the supernodes ``begin .. end - 1`` (postorder; whole subtrees,
-    or the top of the tree once they are done: see ``LDLSymbolic``), their fronts in buffers of
-    their own, so that two calls on disjoint subtrees may run at once.
+def _eliminate(sequence, indptr, indices, data, n_linear, first, width, row_at, srows,
+               tparent, child_ptr, child_list, stacked, relative, value_at, values, diagonal,
+               condensed, stack, stack_base, update_at, blas_width, blas_rows):
+    """The multifrontal LDL^T of the supernodes ``sequence`` (ascending postorder positions:
+    whole subtrees, or the top of the tree once they are done: see ``LDLSymbolic.parts``), their
+    fronts in buffers of their own, so that two calls on disjoint subtrees may run at once.
 
     ``indptr, indices, data``: the lower triangle of the first n_linear columns (CSC, rows >= the
     column). Writes each supernode's packed L (``bordered_lu._pack``'s layout: by rows, the unit
     diagonal block's triangle, then the rows below it) at ``values[value_at[t]:]`` and its
     pivots into ``diagonal``; adds each root's update (its rows below are all condensed) into
     ``condensed`` (n_N x n_N, its lower triangle); the other updates wait for their parent in
-    ``stack`` (entries from ``stack_at[k]``, of supernode ``stack_node[k]``, k < ``depth``: a
-    parent's are on top, in postorder). A front whose supernode is at least ``blas_width`` wide
-    with at least ``blas_rows`` rows below it takes its rows below and its update by BLAS, a
+    ``stack``, supernode t's from ``update_at[t]``, a stack of this call's own from
+    ``stack_base``: a supernode takes the updates of its children (``child_list[child_ptr[t]:
+    child_ptr[t + 1]]``, in reverse postorder), of which the last ``stacked[t]`` pushed on this
+    call's stack are popped (a call on whole subtrees: all; the top: those of the top, the
+    others read where another call left them). A front whose supernode is at least
+    ``blas_width`` wide with at least ``blas_rows`` rows below it takes its rows below and its
+    update by BLAS, a
     panel of columns at a time (``_panel_by_blas``), the others by the loops here."""
     n_N = condensed.shape[0]
     flat = condensed.reshape(-1)
     largest_front = 0
     widest = 1      # a running maximum: np.max would compile numba's reduction for this alone
     big_w = big_m = 1   # the BLAS path's buffers, sized for its largest front
-    for t in range(begin, end):
+    for at_s in range(len(sequence)):
+        t = sequence[at_s]
         m = row_at[t + 1] - row_at[t]
         largest_front = max(largest_front, m)
         widest = max(widest, width[t])
@@ -468,7 +473,11 @@ def _eliminate(begin, end, indptr, indices, data, n_linear, first, width, row_at
     dlrows = np.empty(big_w * big_m)
     strip = np.empty(min(SOLVE_BLOCK, big_w) * big_w)
     product = np.empty(max(SOLVE_BLOCK, UPDATE_BLOCK) * big_m)
-    for t in range(begin, end):
+    stack_at = np.empty(len(sequence) + 1, dtype=np.int64)
+    stack_at[0] = stack_base
+    depth = 0
+    for at_s in range(len(sequence)):
+        t = sequence[at_s]
         j0, w = first[t], width[t]
         r0 = row_at[t]
         m = row_at[t + 1] - r0
@@ -480,10 +489,9 @@ def _eliminate(begin, end, indptr, indices, data, n_linear, first, width, row_at
         for c in range(w):   # the matrix's own entries of the supernode's columns
             for p in range(indptr[j0 + c], indptr[j0 + c + 1]):
                 front[where[indices[p]] * m + c] += data[p]
-        for _ in range(children[t]):   # extend-add of each child's update (lower triangles)
-            depth -= 1
-            child = stack_node[depth]
-            base = stack_at[depth]
+        for q in range(child_ptr[t], child_ptr[t + 1]):   # extend-add of each child's update
+            child = child_list[q]                           # (lower triangles)
+            base = update_at[child]
             cw = width[child]
             c0 = row_at[child] + cw
             u = row_at[child + 1] - c0
@@ -492,6 +500,7 @@ def _eliminate(begin, end, indptr, indices, data, n_linear, first, width, row_at
                 at = base + a * u
                 for b in range(a + 1):
                     front[_unsigned(ra + relative[_unsigned(c0 + b)])] += stack[_unsigned(at + b)]
+        depth -= stacked[t]   # (this call's stack: its children's entries are its top ones)
         if w >= blas_width and m - w >= blas_rows:
             # a panel of columns at a time: its pivots, then its rows below and their update
             # of all the later rows (also the supernode's later columns) by BLAS
@@ -573,15 +582,14 @@ def _eliminate(begin, end, indptr, indices, data, n_linear, first, width, row_at
                     flat[_unsigned(ra + relative[_unsigned(r0 + w + b)])] += \
                         front[_unsigned(row + b)]
         else:
-            base = stack_at[depth]
+            base = stack_at[depth]   # (its children's entries popped: theirs are read)
             for a in range(u):
                 at, row = base + a * u, (w + a) * m + w
                 for b in range(a + 1):
                     stack[_unsigned(at + b)] = front[_unsigned(row + b)]
-            stack_node[depth] = t
+            update_at[t] = base
             depth += 1
             stack_at[depth] = base + u * u
-    return depth
 
 
 def front_multiply_adds(width, below):
@@ -591,9 +599,14 @@ def front_multiply_adds(width, below):
             width * below * (below + 1) / 2.0)
 
 
-#: a factorisation of more multiply-adds than this takes its two largest independent parts in
-#: two threads (``LDLSymbolic.parts``); below it a thread's start costs more than it saves
+#: a factorisation of more multiply-adds than this takes its two parts in two threads
+#: (``LDLSymbolic.parts``); below it a thread's start costs more than it saves
 THREADS_ABOVE = 20e6
+#: the two threads' parts are balanced until their multiply-adds differ by at most this
+#: fraction of their sum (``LDLSymbolic._plan``), ...
+BALANCE = 0.03
+#: ... splitting at most this many subtrees (each split moves a front into the serial top)
+MOST_SPLITS = 16
 
 
 def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=None):
@@ -601,10 +614,11 @@ def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=No
     smallest |d| / largest |d|: 0 or NaN, not quasi-definite); ``schur`` holds M_NN on entry and
     the Schur complement on return. The two independent parts of ``symbolic.parts`` run in two
     threads when ``threads`` is 2 (default: when the factorisation is larger than
-    THREADS_ABOVE), else one after the other; the sums are the same either way (each part's
-    fronts in their buffers, its roots' updates summed apart, the parts' sums added in one fixed
-    order), so the factors are the same to the last bit; with one root (the tree's top, the
-    usual case) the Schur complement is M_NN plus its update, as when one pass made it. ``blas_width``, ``blas_rows``: the fronts through
+    THREADS_ABOVE), else one after the other, then the top; the sums are the same either way
+    (each part's fronts in their buffers and its stack in its own region, its roots' updates
+    summed apart, the parts' sums added in one fixed order), so the factors are the same to the
+    last bit; with one root (the tree's top, the usual case) the Schur complement is M_NN plus
+    its update, as when one pass made it. ``blas_width``, ``blas_rows``: the fronts through
     BLAS (``_eliminate``; default BLAS_MIN_WIDTH and BLAS_MIN_ROWS)."""
     blas_width = BLAS_MIN_WIDTH if blas_width is None else blas_width
     blas_rows = BLAS_MIN_ROWS if blas_rows is None else blas_rows
@@ -614,37 +628,31 @@ def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=No
     diagonal = np.empty(n_linear)
     n_N = schur.shape[0]
     stack = np.empty(symbolic.stack_size)
-    (a0, a1), (b0, b1), (top_begin, top_at, top_node) = symbolic.parts
+    update_at = np.empty(len(width), dtype=np.int64)
+    sequences, bases = symbolic.parts, symbolic.part_bases
     # the roots' updates: of the first part and the top (after it), and of the second part
     first_part, second_part = np.zeros((n_N, n_N)), np.zeros((n_N, n_N))
     common = (lower.indptr, lower.indices, lower.data, n_linear, first, width, row_at, srows,
-              tparent, children, relative, symbolic.value_at, values, diagonal)
+              tparent, symbolic.child_ptr, symbolic.child_list, symbolic.stacked, relative,
+              symbolic.value_at, values, diagonal)
 
-    def run(begin, end, condensed, base, at=None, node=None):
-        stack_at = np.empty(len(width) + 1, dtype=np.int64)
-        stack_node = np.empty(len(width), dtype=np.int64)
-        depth = 0
-        stack_at[0] = base
-        if at is not None:
-            depth = len(node)
-            stack_at[:depth + 1], stack_node[:depth] = at, node
-        _eliminate(begin, end, *common, condensed, stack, stack_at, stack_node, depth,
+    def run(part, condensed):
+        _eliminate(sequences[part], *common, condensed, stack, bases[part], update_at,
                    blas_width, blas_rows)
 
     if threads is None:
         threads = 2 if symbolic.multiply_adds > THREADS_ABOVE else 1
-    if threads >= 2 and a1 > a0 and b1 > b0:
-        worker = threading.Thread(target=run, args=(b0, b1, second_part, symbolic.second_base),
-                                  name="fault-screen-ldl")
+    if threads >= 2 and len(sequences[0]) and len(sequences[1]):
+        worker = threading.Thread(target=run, args=(1, second_part), name="fault-screen-ldl")
         worker.start()
         try:
-            run(a0, a1, first_part, 0)
+            run(0, first_part)
         finally:
             worker.join()
     else:
-        run(a0, a1, first_part, 0)
-        run(b0, b1, second_part, symbolic.second_base)
-    run(top_begin, len(width), first_part, 0, top_at, top_node)
+        run(0, first_part)
+        run(1, second_part)
+    run(2, first_part)
     # the roots' updates are lower triangles (zero above the diagonal): summed in place and
     # mirrored with one temporary (n_N x n_N arrays: 46 MB each on a fault of 2,400 unknowns)
     update = np.add(first_part, second_part, out=first_part)
@@ -658,6 +666,17 @@ def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=No
         return values, diagonal, 1.0
     largest = magnitude.max()
     return values, diagonal, (magnitude.min() / largest if largest > 0.0 else 0.0)
+
+
+def _two_bins(subtrees, load):
+    """The subtrees (ids) dealt to two bins, each in turn to the lighter one, the largest first
+    (ties by id): (bins, their loads)."""
+    bins, loads = ([], []), [0.0, 0.0]
+    for t in sorted(subtrees, key=lambda t: (-load[t], t)):
+        k = 0 if loads[0] <= loads[1] else 1
+        bins[k].append(t)
+        loads[k] += load[t]
+    return bins, loads
 
 
 class LDLSymbolic:
@@ -680,16 +699,22 @@ class LDLSymbolic:
 
     def _plan(self):
         """What the numeric factorisation needs beyond the tree, from the pattern alone: where
-        each supernode's packed values start (``value_at``), the multiply-adds, and the parts
-        it runs in.
+        each supernode's packed values start (``value_at``), the multiply-adds, each
+        supernode's children (``child_ptr``, ``child_list``: in reverse postorder, the order a
+        stack pops them), and the parts it runs in.
 
-        ``parts``: the tree's top (from the root down to the first supernode with two children
-        or more: every other supernode lies in the subtrees of that one's children) and the
-        children's subtrees in two runs of the postorder, split where their multiply-adds are
-        nearest to half and half: ((begin, end) of the first run, of the second, (the top's
-        first supernode, the stack's entries when the top starts, their supernodes)). The
-        stack's entries and its size come from a dry run of its pushes and pops: the first run
-        stacks from 0, the second above the first's peak (``second_base``), the top on both."""
+        ``parts``: three ascending arrays of supernodes, the first two whole subtrees (run
+        beside each other), the third the top (run after them: every supernode whose subtree
+        was not dealt out). The subtrees are dealt by their multiply-adds (subtree-to-thread
+        mapping): from the children of the root's line of only children (or the roots of a
+        forest), each in turn to the lighter part, the largest first; while the parts differ by
+        more than BALANCE of their sum, the largest subtree is split (its front joins the top,
+        its children are dealt), and the plan of least multiply-adds on the longer path
+        (larger part, then top) is kept. ``part_bases``: where each part's stack starts
+        (the first at 0, the second above the first's peak, the top above what the second
+        leaves), from a dry run of the pushes and pops that also sizes the stack
+        (``stack_size``); ``stacked``: how many of a supernode's children its own part's stack
+        holds (all, but in the top: its children in the top)."""
         first, width, row_at, srows, tparent, children, relative = self.tree
         n_sn = len(width)
         m = np.diff(row_at)
@@ -698,40 +723,66 @@ class LDLSymbolic:
         pivot, below, update = front_multiply_adds(width, u)
         work = pivot + below + update
         self.multiply_adds = float(work.sum())
+        kids_of = [[] for _ in range(n_sn)]
+        for t in range(n_sn - 1, -1, -1):   # (reverse postorder)
+            if tparent[t] != -1:
+                kids_of[tparent[t]].append(t)
+        self.child_ptr = np.concatenate([[0], np.cumsum([len(k) for k in kids_of])]).astype(np.int64)
+        self.child_list = np.asarray([c for k in kids_of for c in k], dtype=np.int64)
+        # each subtree's multiply-adds and size (in postorder, subtree t is t - size + 1 .. t)
+        load, size = work.copy(), np.ones(n_sn, dtype=np.int64)
+        for t in range(n_sn):
+            if tparent[t] != -1:
+                load[tparent[t]] += load[t]
+                size[tparent[t]] += size[t]
         # the top: a unique root and its line of only children (none for a forest)
-        top = n_sn
-        kids = np.flatnonzero(tparent == -1)
+        top = []
+        kids = [int(t) for t in np.flatnonzero(tparent == -1)]
         while len(kids) == 1:
-            top = int(kids[0])
-            kids = np.flatnonzero(tparent == top)
-        # the children's subtrees are consecutive runs of [0, top), in postorder; cut between two
-        cut = 0
-        if len(kids) >= 2:
-            ends = np.sort(kids) + 1
-            done = np.cumsum(work[:top])[ends - 1]
-            cut = int(ends[np.argmin(np.abs(done - done[-1] / 2.0))])
-        at, node = [0], []
+            top.append(kids[0])
+            kids = kids_of[kids[0]]
+        subtrees, best = list(kids), None
+        for _ in range(MOST_SPLITS + 1):
+            bins, loads = _two_bins(subtrees, load)
+            path = max(loads) + float(work[top].sum())
+            if best is None or path < best[0]:
+                best = (path, bins, list(top))
+            largest = max(subtrees, key=lambda t: (load[t], t), default=None)
+            if (largest is None or not kids_of[largest]
+                    or abs(loads[0] - loads[1]) <= BALANCE * (loads[0] + loads[1])):
+                break
+            subtrees.remove(largest)
+            subtrees += kids_of[largest]
+            top.append(largest)
+        _, bins, top = best
+        parts = [np.sort(np.concatenate([np.arange(t - size[t] + 1, t + 1) for t in b]
+                                        or [np.zeros(0, dtype=np.int64)])).astype(np.int64)
+                 for b in bins]
+        parts.append(np.sort(np.asarray(top, dtype=np.int64)))
+        in_top = np.zeros(n_sn, dtype=bool)
+        in_top[parts[2]] = True
+        self.stacked = children.astype(np.int64).copy()
+        for t in parts[2]:
+            self.stacked[t] = sum(1 for c in kids_of[t] if in_top[c])
 
-        def dry_run(begin, end):
-            peak = at[-1]
-            for t in range(begin, end):
-                if children[t]:
-                    del at[-children[t]:], node[-children[t]:]
+        def dry_run(sequence, base):
+            """(peak, top at the end) of a part's stack from ``base``."""
+            at = [base]
+            peak = base
+            for t in sequence:
+                if self.stacked[t]:
+                    del at[-self.stacked[t]:]
                 if tparent[t] != -1:
-                    node.append(t)
                     at.append(at[-1] + int(u[t]) ** 2)
                     peak = max(peak, at[-1])
-            return peak
+            return peak, at[-1]
 
-        self.second_base = dry_run(0, cut)
-        first_left = (at[:-1], node[:])
-        at[:], node[:] = [self.second_base], []
-        peak = dry_run(cut, top)
-        top_at, top_node = first_left[0] + at, first_left[1] + node
-        at[:], node[:] = top_at, top_node[:]
-        self.stack_size = max(peak, dry_run(top, n_sn))
-        self.parts = ((0, cut), (cut, top), (top, np.asarray(top_at, dtype=np.int64),
-                                             np.asarray(top_node, dtype=np.int64)))
+        first_peak, _ = dry_run(parts[0], 0)
+        second_peak, second_left = dry_run(parts[1], first_peak)
+        top_peak, _ = dry_run(parts[2], second_left)
+        self.stack_size = max(first_peak, second_peak, top_peak)
+        self.part_bases = (0, first_peak, second_left)
+        self.parts = tuple(parts)
 
     def matches(self, lower) -> bool:
         """Is ``lower`` (``_lower``) of this pattern?"""

@@ -280,9 +280,9 @@ def test_two_threads_give_the_factors_of_one(poroelastic, elastic, monkeypatch, 
         assert np.array_equal(a.schur, b.schur) and np.array_equal(a._D, b._D)
         for x, y in zip(a._L.arrays, b._L.arrays):
             assert np.array_equal(x, y)
-    if kind != "split":   # (two runs of real work beside the top)
-        (a0, a1), (b0, b1), (top, _, _) = ldl.SymbolicAnalyses().of(ldl._lower(M, nB), nB).parts
-        assert a1 - a0 > 10 and b1 - b0 > 10 and b1 <= top
+    if kind != "split":   # (two parts of real work beside the top)
+        first_part, second_part, top = ldl.SymbolicAnalyses().of(ldl._lower(M, nB), nB).parts
+        assert len(first_part) > 10 and len(second_part) > 10 and len(top) >= 1
     _check_against_dense(two, M, nB, 9)
 
 
@@ -301,8 +301,9 @@ def test_the_plan_of_a_forest_and_of_a_chain(monkeypatch):
     M = sp.bmat([[B, Q], [Q.T, -np.eye(n_N)]]).tocsc()
     nB = 2 * n_half
     symbolic = ldl.SymbolicAnalyses().of(ldl._lower(M, nB), nB)
-    (a0, a1), (b0, b1), (top, _, _) = symbolic.parts
-    assert a0 == 0 and a1 > 0 and b1 > b0 and b1 == top == len(symbolic.tree[1])
+    first_part, second_part, top = symbolic.parts
+    assert len(first_part) > 0 and len(second_part) > 0 and len(top) == 0
+    _check_plan(symbolic)
     for threads_above in (np.inf, 0.0):
         monkeypatch.setattr(ldl, "THREADS_ABOVE", threads_above)
         lu = BorderedLU(M, nB, ldl.SymbolicAnalyses())
@@ -310,8 +311,107 @@ def test_the_plan_of_a_forest_and_of_a_chain(monkeypatch):
         _check_against_dense(lu, M, nB, 10)
     T = sp.diags([np.full(nB - 1, -1.0), np.full(nB, 4.0), np.full(nB - 1, -1.0)], [-1, 0, 1])
     M = sp.bmat([[T, Q], [Q.T, -np.eye(n_N)]]).tocsc()
-    (a0, a1), (b0, b1), (top, _, _) = ldl.SymbolicAnalyses().of(ldl._lower(M, nB), nB).parts
-    assert a1 == a0 and b1 == b0   # (no two parts: the top is all)
+    symbolic = ldl.SymbolicAnalyses().of(ldl._lower(M, nB), nB)
+    first_part, second_part, top = symbolic.parts
+    assert len(first_part) == len(second_part) == 0   # (no two parts: the top is all)
+    _check_plan(symbolic)
     lu = BorderedLU(M, nB, ldl.SymbolicAnalyses())
     assert lu.quasi_definite
     _check_against_dense(lu, M, nB, 12)
+
+
+def _check_plan(symbolic):
+    """The parts of ``LDLSymbolic.parts`` partition the supernodes; the first two are whole
+    subtrees (every descendant of one of their supernodes in the same part), the top holds the
+    parent of each of its supernodes, and the stack counts (``stacked``) are the children in a
+    supernode's own part."""
+    first, width, row_at, srows, tparent, children, relative = symbolic.tree
+    n_sn = len(width)
+    part_of = np.full(n_sn, -1)
+    for k, part in enumerate(symbolic.parts):
+        assert np.all(np.diff(part) > 0) and np.all(part_of[part] == -1)
+        part_of[part] = k
+    assert np.all(part_of >= 0)
+    for t in range(n_sn):
+        p = tparent[t]
+        if p != -1:
+            assert part_of[p] == part_of[t] or part_of[p] == 2
+        assert part_of[t] != 2 or p == -1 or part_of[p] == 2
+        kids = symbolic.child_list[symbolic.child_ptr[t]:symbolic.child_ptr[t + 1]]
+        assert np.all(tparent[kids] == t) and len(kids) == children[t]
+        assert np.all(np.diff(kids) < 0)   # (reverse postorder: the order a stack pops them)
+        assert symbolic.stacked[t] == np.count_nonzero(part_of[kids] == part_of[t])
+
+
+def _contiguous_cut_path(symbolic):
+    """The longer path (a part beside the other, then the top) of the plan that preceded the
+    balanced one: the top the root's line of only children, the subtrees of its children cut
+    into two runs of the postorder where their multiply-adds were nearest half and half."""
+    first, width, row_at, srows, tparent, children, relative = symbolic.tree
+    work = sum(ldl.front_multiply_adds(width, np.diff(row_at) - width))
+    top, kids = len(width), np.flatnonzero(tparent == -1)
+    while len(kids) == 1:
+        top = int(kids[0])
+        kids = np.flatnonzero(tparent == top)
+    ends = np.sort(kids) + 1
+    done = np.cumsum(work[:top])[ends - 1]
+    cut = int(ends[np.argmin(np.abs(done - done[-1] / 2.0))])
+    return max(work[:cut].sum(), work[cut:top].sum()) + work[top:].sum()
+
+
+def _three_branching_blocks(half, n_N=40):
+    """A bulk of three independent blocks, each two dense halves of ``half`` unknowns joined by
+    a separator unknown, with a border of ``n_N`` fault unknowns coupled to each separator
+    (rows unlike the halves': the separator stays a supernode of its own): (M, nB)."""
+    rng = np.random.default_rng(14)
+    blocks, n = [], 2 * half + 1
+    for _ in range(3):
+        K = np.zeros((n, n))
+        for start in (0, half):
+            G = rng.standard_normal((half, half))
+            K[start:start + half, start:start + half] = G @ G.T + half * np.eye(half)
+        K[n - 1, n - 1] = 4.0
+        K[half - 1, n - 1] = K[n - 1, half - 1] = K[n - 2, n - 1] = K[n - 1, n - 2] = -1.0
+        blocks.append(sp.csr_matrix(K))
+    B = sp.block_diag(blocks).tocsr()
+    nB = B.shape[0]
+    Q = sp.lil_matrix((nB, n_N))
+    for k in range(3):
+        Q[(k + 1) * n - 1, :] = 0.1 * rng.standard_normal(n_N)
+    return sp.bmat([[B, Q], [Q.T, -np.eye(n_N)]]).tocsc(), nB
+
+
+@pytest.mark.parametrize("dt", [5.0, 600.0])
+def test_the_parts_are_balanced_by_their_multiply_adds(poroelastic, elastic, dt):
+    """Subtree-to-thread mapping (``LDLSymbolic._plan``): the parts partition the tree as the
+    numeric factorisation needs (``_check_plan``), and the longer path of multiply-adds (the
+    larger of the two parts, then the top) is no longer than that of cutting the top's
+    children into two runs of the postorder (the plan it replaced) on real blocks; on three
+    equal independent blocks (a forest: the old plan ran two of them beside one) one block is
+    split (its separator into the top, its two halves dealt), which makes the path at most
+    0.8 of the old one (3/4 plus the separator's front) and the parts within BALANCE."""
+    paths = []
+    for solver, symmetric in ((poroelastic, True), (elastic, False)):
+        M, nB = _free_block(solver, dt if symmetric else solver.system.dt, symmetric)
+        paths.append(_paths(ldl.SymbolicAnalyses().of(ldl._lower(M, nB), nB)))
+    assert all(path <= before for path, before, _ in paths)
+    M, nB = _three_branching_blocks(40)
+    symbolic = ldl.SymbolicAnalyses().of(ldl._lower(M, nB), nB)
+    path, before, loads = _paths(symbolic)
+    assert path <= 0.8 * before
+    assert abs(loads[0] - loads[1]) <= ldl.BALANCE * (loads[0] + loads[1])
+    assert len(symbolic.parts[2]) == 1
+    lu = BorderedLU(M, nB, ldl.SymbolicAnalyses())
+    assert lu.quasi_definite
+    _check_against_dense(lu, M, nB, 13)
+
+
+def _paths(symbolic):
+    """(the longer path of ``symbolic``'s plan, of the contiguous cut, the parts' loads), the
+    plan checked (``_check_plan``) and its loads summing to the multiply-adds."""
+    _check_plan(symbolic)
+    first, width, row_at = symbolic.tree[:3]
+    work = sum(ldl.front_multiply_adds(width, np.diff(row_at) - width))
+    loads = [work[part].sum() for part in symbolic.parts]
+    assert np.isclose(sum(loads), symbolic.multiply_adds, rtol=1e-12)
+    return max(loads[:2]) + loads[2], _contiguous_cut_path(symbolic), loads
