@@ -45,8 +45,10 @@ numeric factorisation with the large fronts through BLAS (``ldl.BLAS_MIN_WIDTH``
 ``BLAS_MIN_ROWS``) and with every front by loops, the same matrix alternately in one run; and the
 CPU time of numpy's matrix product (BLAS dgemm, one thread) on the very shapes of the products
 the BLAS fronts make, which bounds what those fronts can take; and the parts that a
-refactorisation runs in two threads (``ldl.LDLSymbolic.parts``): each part's CPU time, one after
-the other, the path of two threads that this gives, and the wall time in one and in two threads.
+refactorisation runs in two threads (``ldl.LDLSymbolic.parts``, the top's last front shared by
+the threads: ``ldl._split_front``, by BLAS panels also in the loops-only timing): each part's
+thread CPU time in one thread, the path of two threads that this gives (a shared front's longer
+half of each step), and the wall time in one and in two threads.
 Every timing is the least CPU time of ``--repeat`` runs in this one process, with one BLAS
 thread (on a shared machine wall time measures the other processes too); compare rows of one
 run. Each method factorises the whole free matrix in one call: the solver splits a
@@ -329,36 +331,49 @@ def fronts(key, repeat):
           f"{1e3 * times['loops only']:.1f} ms by loops alone; numpy dot alone on the BLAS "
           f"fronts' {len(shapes)} product shapes ({products / 1e6:.1f} M multiply-adds): "
           f"{1e3 * t_dot:.1f} ms ({products / t_dot / 1e9:.1f} G/s)")
-    first_cpu, second_cpu, top_cpu, walls = parts
-    print(f"the parts of a refactorisation (ldl.LDLSymbolic.parts), CPU one after the other: "
+    first_cpu, second_cpu, top_cpu, front_path, walls = parts
+    print(f"the parts of a refactorisation (ldl.LDLSymbolic.parts), thread CPU in one thread: "
           f"{1e3 * first_cpu:.1f} and {1e3 * second_cpu:.1f} ms beside each other, then the top "
-          f"{1e3 * top_cpu:.1f} ms: the two threads' path {1e3 * (max(first_cpu, second_cpu) + top_cpu):.1f} ms "
-          f"of {1e3 * (first_cpu + second_cpu + top_cpu):.1f}; wall in one thread "
-          f"{1e3 * walls[1]:.1f} ms, in two {1e3 * walls[2]:.1f} ms (at this load)")
-
+          f"{1e3 * top_cpu:.1f} ms and its last front shared by the two threads "
+          f"{1e3 * front_path:.1f} ms on their path: the two threads' path "
+          f"{1e3 * (max(first_cpu, second_cpu) + top_cpu + front_path):.1f} ms; wall in one "
+          f"thread {1e3 * walls[1]:.1f} ms, in two {1e3 * walls[2]:.1f} ms (at this load)")
 
 def _parts(lower, condensed, symbolic, repeat):
-    """The least thread CPU time of each part of the numeric factorisation run one after the
-    other (the first, the second, the top), and the least wall time of the whole in one and in
+    """The least thread CPU time of each part of the numeric factorisation run in one thread
+    (the first part, the second, the top less a shared front, that front's steps by the two
+    threads' path: its assembly, each panel's pivots, the longer of each panel's two halves of
+    rows below and of update, its packing), and the least wall time of the whole in one and in
     two threads."""
     from fault_screen import ldl
 
-    eliminate, spent = ldl._eliminate, []
+    saved, log = {name: getattr(ldl, name) for name in ("_eliminate", "_front_step")}, []
 
-    def timed(*args):
-        t0 = time.thread_time()
-        eliminate(*args)
-        spent.append(time.thread_time() - t0)
+    def timed(name):
+        def call(*args):
+            t0 = time.thread_time()
+            saved[name](*args)
+            log.append((name, time.thread_time() - t0))
+        return call
 
-    best = [np.inf] * 3
-    ldl._eliminate = timed
+    best = [np.inf] * 4
+    for name in saved:
+        setattr(ldl, name, timed(name))
     try:
         for _ in range(repeat):
-            spent.clear()
+            log.clear()
             ldl._numeric(lower, condensed.copy(), symbolic, 1)
-            best = [min(b, t) for b, t in zip(best, spent)]
+            parts = [t for name, t in log if name == "_eliminate"]
+            steps = [t for name, t in log if name == "_front_step"]
+            front = 0.0
+            if steps:   # assembly, per panel (pivots, rows x 2, update x 2), packing
+                front = steps[0] + steps[-1] + sum(
+                    steps[i] + max(steps[i + 1], steps[i + 2]) + max(steps[i + 3], steps[i + 4])
+                    for i in range(1, len(steps) - 1, 5))
+            best = [min(b, t) for b, t in zip(best, parts[:2] + [sum(parts[2:]), front])]
     finally:
-        ldl._eliminate = eliminate
+        for name, fn in saved.items():
+            setattr(ldl, name, fn)
     walls = {}
     for threads in (1, 2):
         walls[threads] = np.inf

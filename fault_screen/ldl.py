@@ -373,15 +373,22 @@ def _panel_by_blas(front, m, o, n, w, d, xt, lrows, dlrows, strip, product):
 
     The panel's block is n x n at ``front[o]`` (row stride m), its pivot block (the first w
     rows and columns) factorised (``_pivot_block``), ``d`` its pivots. On return the block's
-    first w columns below the pivot block hold L21 = F21 (D L11^T)^-1 and its trailing block
-    (lower triangle) F22 - L21 D L21^T. L21^T is solved in ``xt`` (w x u, u = n - w): row c of
-    it is (F21^T[c] - sum_{k<c} d_k L11[c, k] L21^T[k]) / d_c, each block of rows' sum over
-    the earlier rows one product, the rows within the block by axpys along contiguous rows.
-    The update goes by blocks of rows, each over the columns up to its diagonal only (about half
-    the full product's work), from ``lrows`` = L21 and ``dlrows`` = L21 D (u x w, row-major)."""
-    u = n - w
+    first w columns below the pivot block hold L21 = F21 (D L11^T)^-1 (``_panel_rows``) and its
+    trailing block (lower triangle) F22 - L21 D L21^T (``_panel_update``)."""
+    _panel_rows(front, m, o, w, d, 0, n - w, xt, lrows, dlrows, strip, product)
+    _panel_update(front, m, o, w, lrows, dlrows, product, 0, n - w)
+
+
+@helper
+def _panel_rows(front, m, o, w, d, k_begin, k_end, xt, lrows, dlrows, strip, product):
+    """Rows ``k_begin .. k_end - 1`` of L21 below a panel's factorised pivot block
+    (``_panel_by_blas``), into the front and into ``lrows`` = L21 and ``dlrows`` = L21 D (row-major,
+    w values a row, at their row). L21^T is solved in ``xt`` (w x u, u the rows): row c of it is
+    (F21^T[c] - sum_{k<c} d_k L11[c, k] L21^T[k]) / d_c, each block of rows' sum over the earlier
+    rows one product, the rows within the block by axpys along contiguous rows."""
+    u = k_end - k_begin
     for k in range(u):   # xt = F21^T
-        row = o + (w + k) * m
+        row = o + (w + k_begin + k) * m
         for c in range(w):
             xt[_unsigned(c * u + k)] = front[_unsigned(row + c)]
     c0 = 0
@@ -412,15 +419,24 @@ def _panel_by_blas(front, m, o, n, w, d, xt, lrows, dlrows, strip, product):
                 xt[_unsigned(at + r)] /= pivot
         c0 = c1
     for k in range(u):   # L21 (into the front and lrows) and L21 D, row-major
-        row = o + (w + k) * m
+        row = o + (w + k_begin + k) * m
+        at = (k_begin + k) * w
         for c in range(w):
             x = xt[_unsigned(c * u + k)]
             front[_unsigned(row + c)] = x
-            lrows[_unsigned(k * w + c)] = x
-            dlrows[_unsigned(k * w + c)] = d[c] * x
-    i0 = 0
-    while i0 < u:
-        i1 = min(i0 + UPDATE_BLOCK, u)
+            lrows[_unsigned(at + c)] = x
+            dlrows[_unsigned(at + c)] = d[c] * x
+
+
+@helper
+def _panel_update(front, m, o, w, lrows, dlrows, product, i_begin, i_end):
+    """Rows ``i_begin .. i_end - 1`` of a panel's trailing block (lower triangle) less
+    L21 D L21^T, by blocks of UPDATE_BLOCK rows from ``i_begin``, each over the columns up to
+    its diagonal only (about half the full product's work), from ``lrows`` and ``dlrows``
+    (``_panel_rows``: every row up to ``i_end`` made)."""
+    i0 = i_begin
+    while i0 < i_end:
+        i1 = min(i0 + UPDATE_BLOCK, i_end)
         h = i1 - i0
         out = product[:h * i1].reshape(h, i1)
         np.dot(lrows[i0 * w:i1 * w].reshape(h, w), dlrows[:i1 * w].reshape(i1, w).T, out)
@@ -429,6 +445,62 @@ def _panel_by_blas(front, m, o, n, w, d, xt, lrows, dlrows, strip, product):
             for k in range(i0 + a + 1):
                 front[_unsigned(row + k)] -= out[a, k]
         i0 = i1
+
+
+@helper
+def _assemble(front, t, where, indptr, indices, data, first, width, row_at, srows, child_ptr,
+              child_list, relative, stack, update_at):
+    """Supernode t's front (m x m, its lower triangle): the matrix's own entries of its columns,
+    then the extend-add of each child's update (lower triangles, at ``update_at[child]`` in
+    ``stack``), the children in ``child_list``'s order (``_eliminate``)."""
+    j0, w = first[t], width[t]
+    r0 = row_at[t]
+    m = row_at[t + 1] - r0
+    for a in range(m):   # (only the lower triangle is read)
+        for b in range(a + 1):
+            front[_unsigned(a * m + b)] = 0.0
+    for k in range(m):
+        where[srows[r0 + k]] = k
+    for c in range(w):   # the matrix's own entries of the supernode's columns
+        for p in range(indptr[j0 + c], indptr[j0 + c + 1]):
+            front[where[indices[p]] * m + c] += data[p]
+    for q in range(child_ptr[t], child_ptr[t + 1]):
+        child = child_list[q]
+        base = update_at[child]
+        cw = width[child]
+        c0 = row_at[child] + cw
+        u = row_at[child + 1] - c0
+        for a in range(u):
+            ra = relative[c0 + a] * m
+            at = base + a * u
+            for b in range(a + 1):
+                front[_unsigned(ra + relative[_unsigned(c0 + b)])] += stack[_unsigned(at + b)]
+
+
+@helper
+def _pack_front(front, m, w, values, v):
+    """A factorised front's packed L from ``values[v]``: the w x w block's rows up to the unit
+    diagonal, then the m - w rows below, w values each (``bordered_lu._pack``'s layout)."""
+    for k in range(w):
+        for c in range(k):
+            values[_unsigned(v + c)] = front[_unsigned(k * m + c)]
+        values[v + k] = 1.0
+        v += k + 1
+    for k in range(w, m):
+        for c in range(w):
+            values[_unsigned(v + c)] = front[_unsigned(k * m + c)]
+        v += w
+
+
+@helper
+def _to_condensed(front, m, w, r0, relative, flat, n_N):
+    """A root's update (its rows below, all condensed) added into the condensed block's lower
+    triangle (``flat``: n_N x n_N by rows)."""
+    for a in range(m - w):
+        ra = relative[r0 + w + a] * n_N
+        row = (w + a) * m + w
+        for b in range(a + 1):
+            flat[_unsigned(ra + relative[_unsigned(r0 + w + b)])] += front[_unsigned(row + b)]
 
 
 @kernel
@@ -481,25 +553,8 @@ def _eliminate(sequence, indptr, indices, data, n_linear, first, width, row_at, 
         j0, w = first[t], width[t]
         r0 = row_at[t]
         m = row_at[t + 1] - r0
-        for a in range(m):   # (only the lower triangle is read)
-            for b in range(a + 1):
-                front[_unsigned(a * m + b)] = 0.0
-        for k in range(m):
-            where[srows[r0 + k]] = k
-        for c in range(w):   # the matrix's own entries of the supernode's columns
-            for p in range(indptr[j0 + c], indptr[j0 + c + 1]):
-                front[where[indices[p]] * m + c] += data[p]
-        for q in range(child_ptr[t], child_ptr[t + 1]):   # extend-add of each child's update
-            child = child_list[q]                           # (lower triangles)
-            base = update_at[child]
-            cw = width[child]
-            c0 = row_at[child] + cw
-            u = row_at[child + 1] - c0
-            for a in range(u):
-                ra = relative[c0 + a] * m
-                at = base + a * u
-                for b in range(a + 1):
-                    front[_unsigned(ra + relative[_unsigned(c0 + b)])] += stack[_unsigned(at + b)]
+        _assemble(front, t, where, indptr, indices, data, first, width, row_at, srows,
+                  child_ptr, child_list, relative, stack, update_at)
         depth -= stacked[t]   # (this call's stack: its children's entries are its top ones)
         if w >= blas_width and m - w >= blas_rows:
             # a panel of columns at a time: its pivots, then its rows below and their update
@@ -559,28 +614,12 @@ def _eliminate(sequence, indptr, indices, data, n_linear, first, width, row_at, 
             for i in range(w, m):
                 _update_row(front, panel_t, m, w, i,
                             i - (i - w) % 4 + 1 if i < blocks_end else w)
-        # the packed factor: the w x w block's rows up to the unit diagonal, then the m - w
-        # rows below, w values each (``bordered_lu._pack``'s layout)
-        v = value_at[t]
-        for k in range(w):
-            for c in range(k):
-                values[_unsigned(v + c)] = front[_unsigned(k * m + c)]
-            values[v + k] = 1.0
-            v += k + 1
-        for k in range(w, m):
-            for c in range(w):
-                values[_unsigned(v + c)] = front[_unsigned(k * m + c)]
-            v += w
+        _pack_front(front, m, w, values, value_at[t])
         # the update: to the parent's stack entry, or (a root: its rows below are all
         # condensed) into ``condensed``
         u = m - w
         if tparent[t] == -1:
-            for a in range(u):
-                ra = relative[r0 + w + a] * n_N
-                row = (w + a) * m + w
-                for b in range(a + 1):
-                    flat[_unsigned(ra + relative[_unsigned(r0 + w + b)])] += \
-                        front[_unsigned(row + b)]
+            _to_condensed(front, m, w, r0, relative, flat, n_N)
         else:
             base = stack_at[depth]   # (its children's entries popped: theirs are read)
             for a in range(u):
@@ -590,6 +629,112 @@ def _eliminate(sequence, indptr, indices, data, n_linear, first, width, row_at, 
             update_at[t] = base
             depth += 1
             stack_at[depth] = base + u * u
+
+
+@kernel
+def _front_step(what, t, c0, b, begin, end, front, where, indptr, indices, data, first, width,
+                row_at, srows, child_ptr, child_list, relative, stack, update_at, diagonal,
+                column_d, xt, lrows, dlrows, strip, product, value_at, values, condensed):
+    """One step of a front factorised outside ``_eliminate`` by panels whose rows below and
+    update are shared between two threads (``_split_front``), supernode t (a root): ``what``
+    0 assembles the front (``_assemble``); 1 factorises the pivot block of the panel of ``b``
+    columns from column ``c0``; 2 solves its rows below ``begin .. end - 1`` (``_panel_rows``);
+    3 updates the rows ``begin .. end - 1`` of its trailing block (``_panel_update``); 4 packs
+    the factor and adds the update into ``condensed`` (``_pack_front``, ``_to_condensed``).
+    One kernel for the five: one cache load."""
+    j0, w = first[t], width[t]
+    r0 = row_at[t]
+    m = row_at[t + 1] - r0
+    o = c0 * m + c0
+    if what == 0:
+        _assemble(front, t, where, indptr, indices, data, first, width, row_at, srows,
+                  child_ptr, child_list, relative, stack, update_at)
+    elif what == 1:
+        _pivot_block(front, m, o, b, diagonal, j0 + c0, column_d)
+    elif what == 2:
+        _panel_rows(front, m, o, b, diagonal[j0 + c0:j0 + c0 + b], begin, end, xt, lrows,
+                    dlrows, strip, product)
+    elif what == 3:
+        _panel_update(front, m, o, b, lrows, dlrows, product, begin, end)
+    else:
+        _pack_front(front, m, w, values, value_at[t])
+        _to_condensed(front, m, w, r0, relative, condensed.reshape(-1), condensed.shape[0])
+
+
+def _split_front(t, lower, symbolic, diagonal, values, stack, update_at, condensed, threads):
+    """Supernode t (the last of the top: a root) factorised by panels of PANEL columns, each
+    panel's pivot block in the calling thread, then its rows below and their update in two
+    halves, in two threads when ``threads`` is 2, else one after the other: the same calls on
+    the same rows either way, so the same factors bit for bit."""
+    first, width, row_at, srows, tparent, children, relative = symbolic.tree
+    w, m = int(width[t]), int(row_at[t + 1] - row_at[t])
+    n_N = condensed.shape[0]
+    front = np.empty(m * m)
+    where = np.empty(symbolic.n_linear + n_N, dtype=np.int64)
+    column_d = np.empty(max(w, 1))
+    lrows, dlrows = np.empty(PANEL * m), np.empty(PANEL * m)
+    buffers = [(np.empty(PANEL * m), np.empty(SOLVE_BLOCK * PANEL),
+                np.empty(max(SOLVE_BLOCK, UPDATE_BLOCK) * m)) for _ in range(2)]
+    shared = (lower.indptr, lower.indices, lower.data, first, width, row_at, srows,
+              symbolic.child_ptr, symbolic.child_list, relative, stack, update_at, diagonal,
+              column_d)
+
+    def step(what, c0=0, b=0, begin=0, end=0, half=0):
+        xt, strip, product = buffers[half]
+        _front_step(what, t, c0, b, begin, end, front, where, *shared, xt, lrows, dlrows, strip,
+                    product, symbolic.value_at, values, condensed)
+
+    panels = []
+    c0 = 0
+    while c0 < w:
+        b = min(PANEL, w - c0)
+        u = m - c0 - b
+        # the rows below in half, the update where the two triangles' products are equal (row
+        # i's update: i + 1 products), each cut at a multiple of SPLIT_ALIGN rows
+        rows_cut = min(u, SPLIT_ALIGN * int(round(u / 2.0 / SPLIT_ALIGN)))
+        update_cut = min(u, SPLIT_ALIGN * int(round(u / np.sqrt(2.0) / SPLIT_ALIGN)))
+        panels.append((c0, b, ((0, rows_cut), (rows_cut, u)), ((0, update_cut), (update_cut, u))))
+        c0 += b
+
+    step(0)
+    if threads >= 2:
+        barrier = threading.Barrier(2)
+
+        def second_half():
+            try:
+                for c0, b, rows, update in panels:
+                    barrier.wait()   # (its pivots made)
+                    step(2, c0, b, *rows[1], 1)
+                    barrier.wait()   # (every row below made)
+                    step(3, c0, b, *update[1], 1)
+                    barrier.wait()   # (the trailing block updated)
+            except BaseException:
+                barrier.abort()
+                raise
+
+        worker = threading.Thread(target=second_half, name="fault-screen-ldl")
+        worker.start()
+        try:
+            for c0, b, rows, update in panels:
+                step(1, c0, b)
+                barrier.wait()
+                step(2, c0, b, *rows[0], 0)
+                barrier.wait()
+                step(3, c0, b, *update[0], 0)
+                barrier.wait()
+        except BaseException:
+            barrier.abort()
+            raise
+        finally:
+            worker.join()
+    else:
+        for c0, b, rows, update in panels:
+            step(1, c0, b)
+            for half in (0, 1):
+                step(2, c0, b, *rows[half], half)
+            for half in (0, 1):
+                step(3, c0, b, *update[half], half)
+    step(4)
 
 
 def front_multiply_adds(width, below):
@@ -607,6 +752,13 @@ THREADS_ABOVE = 20e6
 BALANCE = 0.03
 #: ... splitting at most this many subtrees (each split moves a front into the serial top)
 MOST_SPLITS = 16
+#: the top's last front is shared between the two threads (``_split_front``) when its rows
+#: below and its update take at least this many multiply-adds
+SPLIT_FRONT_ABOVE = 4e6
+#: its rows are cut at multiples of this many: the products' shapes then part where the BLAS's
+#: own blocking does (with the OpenBLAS measured, the factors equal the unshared front's bit for
+#: bit; cuts at any row gave differences of 1e-20 of the largest entry)
+SPLIT_ALIGN = 16
 
 
 def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=None):
@@ -652,7 +804,13 @@ def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=No
     else:
         run(0, first_part)
         run(1, second_part)
-    run(2, first_part)
+    if symbolic.split_front >= 0:   # (the top's last supernode: by _split_front)
+        _eliminate(sequences[2][:-1], *common, first_part, stack, bases[2], update_at,
+                   blas_width, blas_rows)
+        _split_front(symbolic.split_front, lower, symbolic, diagonal, values, stack, update_at,
+                     first_part, threads)
+    else:
+        run(2, first_part)
     # the roots' updates are lower triangles (zero above the diagonal): summed in place and
     # mirrored with one temporary (n_N x n_N arrays: 46 MB each on a fault of 2,400 unknowns)
     update = np.add(first_part, second_part, out=first_part)
@@ -783,6 +941,13 @@ class LDLSymbolic:
         self.stack_size = max(first_peak, second_peak, top_peak)
         self.part_bases = (0, first_peak, second_left)
         self.parts = tuple(parts)
+        # the top's last supernode (a root) shared between the threads when it is large
+        self.split_front = -1
+        if len(parts[2]):
+            last = int(parts[2][-1])
+            if (width[last] >= BLAS_MIN_WIDTH and u[last] >= BLAS_MIN_ROWS
+                    and below[last] + update[last] >= SPLIT_FRONT_ABOVE):
+                self.split_front = last
 
     def matches(self, lower) -> bool:
         """Is ``lower`` (``_lower``) of this pattern?"""

@@ -233,13 +233,17 @@ def test_the_blas_panels_against_dense(poroelastic, elastic, every_front_by_blas
     assert _rel(lu._L.arrays[-1], loops._L.arrays[-1]) < 1e-12
 
 
+@pytest.mark.parametrize("shared", [False, True])
 @pytest.mark.parametrize("n, nB", [(260, 200), (140, 100), (133, 97)])
-def test_a_wide_dense_front_by_panels(n, nB):
+def test_a_wide_dense_front_by_panels(n, nB, shared, monkeypatch):
     """A dense quasi-definite block [[K, Q], [Q^T, -H]] (K, H positive definite), its last
     n - nB unknowns the border: one supernode as wide as the bulk, eliminated a panel of
     ldl.PANEL columns at a time, each panel's rows solved in blocks of ldl.SOLVE_BLOCK and
     updated in blocks of ldl.UPDATE_BLOCK (several of each, and partial last ones), against
-    numpy to 1e-11 and the backward error below 1e-15."""
+    numpy to 1e-11 and the backward error below 1e-15. ``shared``: the front is the top's
+    last, shared between two threads (``ldl._split_front``: each panel's rows below and
+    update in two halves), its factors in one and in two threads equal bit for bit."""
+    monkeypatch.setattr(ldl, "SPLIT_FRONT_ABOVE", 0.0 if shared else np.inf)
     rng = np.random.default_rng(n)
     k = nB // 2
     G = rng.standard_normal((n, n))
@@ -251,18 +255,27 @@ def test_a_wide_dense_front_by_panels(n, nB):
     first, width, row_at = ldl.SymbolicAnalyses().of(ldl._lower(M, nB), nB).tree[:3]
     assert len(first) == 1 and width[0] == nB
     assert _fronts_by_blas(M, nB) == 1
+    assert ldl.SymbolicAnalyses().of(ldl._lower(M, nB), nB).split_front == (0 if shared else -1)
     lu = BorderedLU(M, nB, ldl.SymbolicAnalyses())
     assert lu.quasi_definite
     assert np.all(lu._D[:k] > 0) and np.all(lu._D[k:] < 0)
     _check_against_dense(lu, M, nB, 8)
+    if shared:
+        monkeypatch.setattr(ldl, "THREADS_ABOVE", np.inf)   # (lu above: two threads)
+        one = BorderedLU(M, nB, ldl.SymbolicAnalyses())
+        assert np.array_equal(one.schur, lu.schur) and np.array_equal(one._D, lu._D)
+        assert all(np.array_equal(x, y) for x, y in zip(one._L.arrays, lu._L.arrays))
 
 
+@pytest.mark.parametrize("shared", [False, True])
 @pytest.mark.parametrize("kind", ["poroelastic-5", "poroelastic-600", "elastic", "split"])
-def test_two_threads_give_the_factors_of_one(poroelastic, elastic, monkeypatch, kind):
+def test_two_threads_give_the_factors_of_one(poroelastic, elastic, monkeypatch, kind, shared):
     """The two independent parts of the tree (``LDLSymbolic.parts``) factorised in two threads:
     the factors, pivots and Schur complement equal, bit for bit, those of the same parts one
     after the other; and against numpy's dense solves to 1e-11, the backward error below 1e-15
-    (``_check_against_dense``)."""
+    (``_check_against_dense``). ``shared``: also the top's last front shared between the two
+    threads (``ldl._split_front``)."""
+    monkeypatch.setattr(ldl, "SPLIT_FRONT_ABOVE", 0.0 if shared else np.inf)
     if kind in ("elastic", "split"):
         M, nB = _free_block(elastic, elastic.system.dt, symmetric_form=False)
     else:
@@ -281,8 +294,10 @@ def test_two_threads_give_the_factors_of_one(poroelastic, elastic, monkeypatch, 
         for x, y in zip(a._L.arrays, b._L.arrays):
             assert np.array_equal(x, y)
     if kind != "split":   # (two parts of real work beside the top)
-        first_part, second_part, top = ldl.SymbolicAnalyses().of(ldl._lower(M, nB), nB).parts
+        symbolic = ldl.SymbolicAnalyses().of(ldl._lower(M, nB), nB)
+        first_part, second_part, top = symbolic.parts
         assert len(first_part) > 10 and len(second_part) > 10 and len(top) >= 1
+        assert (symbolic.split_front == top[-1]) if shared else symbolic.split_front == -1
     _check_against_dense(two, M, nB, 9)
 
 
