@@ -307,7 +307,8 @@ def fronts(key, repeat):
     for _ in range(repeat):
         for name, limits in (("BLAS fronts", (ldl.BLAS_MIN_WIDTH, ldl.BLAS_MIN_ROWS)),
                              ("loops only", (1 << 40, 1 << 40))):
-            t = _best(lambda: ldl._numeric(lower, condensed.copy(), symbolic, 1, *limits), 1)[0]
+            t = _best(lambda: ldl._numeric(lower, condensed.copy(), symbolic, 1, *limits,
+                                                   share_front=True), 1)[0]
             times[name] = min(times[name], t)
     parts = _parts(lower, condensed, symbolic, repeat)
     shapes = []   # (rows, inner, columns) of each product the BLAS fronts make
@@ -362,7 +363,7 @@ def _parts(lower, condensed, symbolic, repeat):
     try:
         for _ in range(repeat):
             log.clear()
-            ldl._numeric(lower, condensed.copy(), symbolic, 1)
+            ldl._numeric(lower, condensed.copy(), symbolic, 1, share_front=True)
             parts = [t for name, t in log if name == "_eliminate"]
             steps = [t for name, t in log if name == "_front_step"]
             front = 0.0
@@ -379,7 +380,7 @@ def _parts(lower, condensed, symbolic, repeat):
         walls[threads] = np.inf
         for _ in range(repeat):
             t0 = time.perf_counter()
-            ldl._numeric(lower, condensed.copy(), symbolic, threads)
+            ldl._numeric(lower, condensed.copy(), symbolic, threads, share_front=True)
             walls[threads] = min(walls[threads], time.perf_counter() - t0)
     return (*best, walls)
 

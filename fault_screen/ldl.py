@@ -632,14 +632,16 @@ def _eliminate(sequence, indptr, indices, data, n_linear, first, width, row_at, 
 
 
 @kernel
-def _front_step(what, t, c0, b, begin, end, front, where, indptr, indices, data, first, width,
-                row_at, srows, child_ptr, child_list, relative, stack, update_at, diagonal,
-                column_d, xt, lrows, dlrows, strip, product, value_at, values, condensed):
+def _front_step(what, t, c0, b, begin, end, blocks, front, where, indptr, indices, data, first,
+                width, row_at, srows, child_ptr, child_list, relative, stack, update_at,
+                diagonal, column_d, xt, lrows, dlrows, strip, product, value_at, values,
+                condensed):
     """One step of a front factorised outside ``_eliminate`` by panels whose rows below and
     update are shared between two threads (``_split_front``), supernode t (a root): ``what``
     0 assembles the front (``_assemble``); 1 factorises the pivot block of the panel of ``b``
     columns from column ``c0``; 2 solves its rows below ``begin .. end - 1`` (``_panel_rows``);
-    3 updates the rows ``begin .. end - 1`` of its trailing block (``_panel_update``); 4 packs
+    3 updates its trailing block's rows in the blocks of UPDATE_BLOCK rows from each of
+    ``blocks`` (the rows' blocks of ``_panel_update`` over all ``end`` rows); 4 packs
     the factor and adds the update into ``condensed`` (``_pack_front``, ``_to_condensed``).
     One kernel for the five: one cache load."""
     j0, w = first[t], width[t]
@@ -655,7 +657,9 @@ def _front_step(what, t, c0, b, begin, end, front, where, indptr, indices, data,
         _panel_rows(front, m, o, b, diagonal[j0 + c0:j0 + c0 + b], begin, end, xt, lrows,
                     dlrows, strip, product)
     elif what == 3:
-        _panel_update(front, m, o, b, lrows, dlrows, product, begin, end)
+        for k in range(len(blocks)):
+            _panel_update(front, m, o, b, lrows, dlrows, product, blocks[k],
+                          min(blocks[k] + UPDATE_BLOCK, end))
     else:
         _pack_front(front, m, w, values, value_at[t])
         _to_condensed(front, m, w, r0, relative, condensed.reshape(-1), condensed.shape[0])
@@ -679,21 +683,31 @@ def _split_front(t, lower, symbolic, diagonal, values, stack, update_at, condens
               symbolic.child_ptr, symbolic.child_list, relative, stack, update_at, diagonal,
               column_d)
 
-    def step(what, c0=0, b=0, begin=0, end=0, half=0):
+    no_blocks = np.zeros(0, dtype=np.int64)
+
+    def step(what, c0=0, b=0, begin=0, end=0, half=0, blocks=no_blocks):
         xt, strip, product = buffers[half]
-        _front_step(what, t, c0, b, begin, end, front, where, *shared, xt, lrows, dlrows, strip,
-                    product, symbolic.value_at, values, condensed)
+        _front_step(what, t, c0, b, begin, end, blocks, front, where, *shared, xt, lrows, dlrows,
+                    strip, product, symbolic.value_at, values, condensed)
 
     panels = []
     c0 = 0
     while c0 < w:
         b = min(PANEL, w - c0)
         u = m - c0 - b
-        # the rows below in half, the update where the two triangles' products are equal (row
-        # i's update: i + 1 products), each cut at a multiple of SPLIT_ALIGN rows
+        # the rows below in half, cut at a multiple of SPLIT_ALIGN rows; the update's blocks
+        # (``_panel_update``'s own, rows i0 .. i1 - 1 taking (i1 - i0) i1 products) dealt to the
+        # lighter half, the largest first
         rows_cut = min(u, SPLIT_ALIGN * int(round(u / 2.0 / SPLIT_ALIGN)))
-        update_cut = min(u, SPLIT_ALIGN * int(round(u / np.sqrt(2.0) / SPLIT_ALIGN)))
-        panels.append((c0, b, ((0, rows_cut), (rows_cut, u)), ((0, update_cut), (update_cut, u))))
+        starts = np.arange(0, u, UPDATE_BLOCK, dtype=np.int64)
+        ends = np.minimum(starts + UPDATE_BLOCK, u)
+        dealt, loads = ([], []), [0, 0]
+        for k in sorted(range(len(starts)), key=lambda k: (-(ends[k] - starts[k]) * ends[k], k)):
+            half = 0 if loads[0] <= loads[1] else 1
+            dealt[half].append(starts[k])
+            loads[half] += (ends[k] - starts[k]) * ends[k]
+        update = tuple(np.sort(np.asarray(d, dtype=np.int64)) for d in dealt)
+        panels.append((c0, b, u, ((0, rows_cut), (rows_cut, u)), update))
         c0 += b
 
     step(0)
@@ -702,11 +716,11 @@ def _split_front(t, lower, symbolic, diagonal, values, stack, update_at, condens
 
         def second_half():
             try:
-                for c0, b, rows, update in panels:
+                for c0, b, u, rows, update in panels:
                     barrier.wait()   # (its pivots made)
                     step(2, c0, b, *rows[1], 1)
                     barrier.wait()   # (every row below made)
-                    step(3, c0, b, *update[1], 1)
+                    step(3, c0, b, 0, u, 1, update[1])
                     barrier.wait()   # (the trailing block updated)
             except BaseException:
                 barrier.abort()
@@ -715,12 +729,12 @@ def _split_front(t, lower, symbolic, diagonal, values, stack, update_at, condens
         worker = threading.Thread(target=second_half, name="fault-screen-ldl")
         worker.start()
         try:
-            for c0, b, rows, update in panels:
+            for c0, b, u, rows, update in panels:
                 step(1, c0, b)
                 barrier.wait()
                 step(2, c0, b, *rows[0], 0)
                 barrier.wait()
-                step(3, c0, b, *update[0], 0)
+                step(3, c0, b, 0, u, 0, update[0])
                 barrier.wait()
         except BaseException:
             barrier.abort()
@@ -728,12 +742,12 @@ def _split_front(t, lower, symbolic, diagonal, values, stack, update_at, condens
         finally:
             worker.join()
     else:
-        for c0, b, rows, update in panels:
+        for c0, b, u, rows, update in panels:
             step(1, c0, b)
             for half in (0, 1):
                 step(2, c0, b, *rows[half], half)
             for half in (0, 1):
-                step(3, c0, b, *update[half], half)
+                step(3, c0, b, 0, u, half, update[half])
     step(4)
 
 
@@ -753,15 +767,21 @@ BALANCE = 0.03
 #: ... splitting at most this many subtrees (each split moves a front into the serial top)
 MOST_SPLITS = 16
 #: the top's last front is shared between the two threads (``_split_front``) when its rows
-#: below and its update take at least this many multiply-adds
+#: below and its update take at least this many multiply-adds, at a refactorisation only (a
+#: pattern's numeric factorisations after its first: a run on one step size never compiles or
+#: loads the shared front's kernel, which costs seconds of compilation and a cache load for
+#: a millisecond or two)
 SPLIT_FRONT_ABOVE = 4e6
-#: its rows are cut at multiples of this many: the products' shapes then part where the BLAS's
-#: own blocking does (with the OpenBLAS measured, the factors equal the unshared front's bit for
-#: bit; cuts at any row gave differences of 1e-20 of the largest entry)
+#: its rows below are cut at a multiple of this many (its update by the unshared front's blocks
+#: of rows): the products' shapes then part where the BLAS's own blocking does, and with the
+#: OpenBLAS measured the factors equal the unshared front's bit for bit, as a restored run's
+#: first factorisation must equal the refactorisation it repeats (cuts at any row gave
+#: differences of 1e-20 of the largest entry)
 SPLIT_ALIGN = 16
 
 
-def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=None):
+def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=None,
+             share_front=None):
     """The numeric LDL^T of ``lower`` (``_lower``'s form) on ``symbolic``: (packed values, D,
     smallest |d| / largest |d|: 0 or NaN, not quasi-definite); ``schur`` holds M_NN on entry and
     the Schur complement on return. The two independent parts of ``symbolic.parts`` run in two
@@ -771,7 +791,12 @@ def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=No
     summed apart, the parts' sums added in one fixed order), so the factors are the same to the
     last bit; with one root (the tree's top, the usual case) the Schur complement is M_NN plus
     its update, as when one pass made it. ``blas_width``, ``blas_rows``: the fronts through
-    BLAS (``_eliminate``; default BLAS_MIN_WIDTH and BLAS_MIN_ROWS)."""
+    BLAS (``_eliminate``; default BLAS_MIN_WIDTH and BLAS_MIN_ROWS). ``share_front``: the
+    top's last front shared by the threads where the plan has one (``split_front``; default:
+    at a refactorisation, see SPLIT_FRONT_ABOVE)."""
+    if share_front is None:
+        share_front = symbolic.factorisations > 0
+    symbolic.factorisations += 1
     blas_width = BLAS_MIN_WIDTH if blas_width is None else blas_width
     blas_rows = BLAS_MIN_ROWS if blas_rows is None else blas_rows
     first, width, row_at, srows, tparent, children, relative = symbolic.tree
@@ -804,7 +829,7 @@ def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=No
     else:
         run(0, first_part)
         run(1, second_part)
-    if symbolic.split_front >= 0:   # (the top's last supernode: by _split_front)
+    if share_front and symbolic.split_front >= 0:   # (the top's last supernode)
         _eliminate(sequences[2][:-1], *common, first_part, stack, bases[2], update_at,
                    blas_width, blas_rows)
         _split_front(symbolic.split_front, lower, symbolic, diagonal, values, stack, update_at,
@@ -942,6 +967,7 @@ class LDLSymbolic:
         self.part_bases = (0, first_peak, second_left)
         self.parts = tuple(parts)
         # the top's last supernode (a root) shared between the threads when it is large
+        self.factorisations = 0   # (numeric ones on this analysis: ``_numeric``)
         self.split_front = -1
         if len(parts[2]):
             last = int(parts[2][-1])

@@ -244,6 +244,7 @@ def test_a_wide_dense_front_by_panels(n, nB, shared, monkeypatch):
     last, shared between two threads (``ldl._split_front``: each panel's rows below and
     update in two halves), its factors in one and in two threads equal bit for bit."""
     monkeypatch.setattr(ldl, "SPLIT_FRONT_ABOVE", 0.0 if shared else np.inf)
+    monkeypatch.setattr(ldl, "THREADS_ABOVE", 0.0)   # (two threads)
     rng = np.random.default_rng(n)
     k = nB // 2
     G = rng.standard_normal((n, n))
@@ -256,15 +257,18 @@ def test_a_wide_dense_front_by_panels(n, nB, shared, monkeypatch):
     assert len(first) == 1 and width[0] == nB
     assert _fronts_by_blas(M, nB) == 1
     assert ldl.SymbolicAnalyses().of(ldl._lower(M, nB), nB).split_front == (0 if shared else -1)
-    lu = BorderedLU(M, nB, ldl.SymbolicAnalyses())
+    analyses = ldl.SymbolicAnalyses()
+    whole = BorderedLU(M, nB, analyses)
+    lu = BorderedLU(M, nB, analyses)   # (a refactorisation: the front shared when ``shared``)
     assert lu.quasi_definite
     assert np.all(lu._D[:k] > 0) and np.all(lu._D[k:] < 0)
     _check_against_dense(lu, M, nB, 8)
-    if shared:
-        monkeypatch.setattr(ldl, "THREADS_ABOVE", np.inf)   # (lu above: two threads)
-        one = BorderedLU(M, nB, ldl.SymbolicAnalyses())
-        assert np.array_equal(one.schur, lu.schur) and np.array_equal(one._D, lu._D)
-        assert all(np.array_equal(x, y) for x, y in zip(one._L.arrays, lu._L.arrays))
+    if shared:   # the same factors in one thread, and as the whole front's (ldl.SPLIT_ALIGN)
+        monkeypatch.setattr(ldl, "THREADS_ABOVE", np.inf)
+        one = BorderedLU(M, nB, analyses)
+        for other in (one, whole):
+            assert np.array_equal(other.schur, lu.schur) and np.array_equal(other._D, lu._D)
+            assert all(np.array_equal(x, y) for x, y in zip(other._L.arrays, lu._L.arrays))
 
 
 @pytest.mark.parametrize("shared", [False, True])
@@ -281,13 +285,20 @@ def test_two_threads_give_the_factors_of_one(poroelastic, elastic, monkeypatch, 
     else:
         M, nB = _free_block(poroelastic, float(kind.split("-")[1]), symmetric_form=True)
 
-    def factorise(threads_above):
+    def factorise(threads_above, analyses):
         monkeypatch.setattr(ldl, "THREADS_ABOVE", threads_above)
         if kind == "split":
-            return SplitBorderedLU(M, nB, elastic.system.split, ldl.SymbolicAnalyses())
-        return BorderedLU(M, nB, ldl.SymbolicAnalyses())
+            return SplitBorderedLU(M, nB, elastic.system.split, analyses)
+        return BorderedLU(M, nB, analyses)
 
-    one, two = factorise(np.inf), factorise(0.0)
+    # (the front is shared at a refactorisation: the first factorisation on the analyses keeps
+    # it whole, and gives the same factors bit for bit, ldl.SPLIT_ALIGN)
+    analyses = [ldl.SymbolicAnalyses() for _ in range(2)]
+    whole = [factorise(np.inf, a) for a in analyses]
+    one, two = factorise(np.inf, analyses[0]), factorise(0.0, analyses[1])
+    for a, b in zip(getattr(whole[0], "_parts", [whole[0]]), getattr(one, "_parts", [one])):
+        assert np.array_equal(a.schur, b.schur) and np.array_equal(a._D, b._D)
+        assert all(np.array_equal(x, y) for x, y in zip(a._L.arrays, b._L.arrays))
     for a, b in zip(getattr(one, "_parts", [one]), getattr(two, "_parts", [two])):
         assert a.quasi_definite and b.quasi_definite
         assert np.array_equal(a.schur, b.schur) and np.array_equal(a._D, b._D)
