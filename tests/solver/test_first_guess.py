@@ -5,7 +5,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from conftest import CONFIGS
@@ -13,6 +13,30 @@ from fault_screen import Scene
 from fault_screen.scene import SceneError
 from fault_screen.simulate import simulate
 from fault_screen.stepper import extrapolation_weights
+
+
+finite_or_not = st.floats(width=64, allow_subnormal=True)
+
+
+@settings(deadline=None)   # (the first call loads the kernel)
+@given(st.integers(1, 4).flatmap(lambda k: st.tuples(
+    st.lists(st.floats(-1e3, 1e3), min_size=k, max_size=k),
+    st.lists(st.lists(finite_or_not, min_size=6, max_size=6), min_size=k, max_size=k))))
+def test_weighted_sum_gives_the_floats_of_numpy_products_added_in_place(case):
+    """The extrapolation's sums (the guess, and the products summed instead of made whole):
+    bit for bit those of ``w0 * a0`` with ``+= w * a`` for each further array (the solver's
+    bit-for-bit results rest on it), infinities and NaN included, for 1 to 4 arrays."""
+    from fault_screen.solver import weighted_sum
+
+    weights, arrays = np.array(case[0]), [np.array(a) for a in case[1]]
+    expected = weights[0] * arrays[0]
+    with np.errstate(all="ignore"):
+        for w, a in zip(weights[1:], arrays[1:]):
+            expected += w * a
+        got = weighted_sum(weights, arrays)
+    assert got.dtype == np.float64 and got.shape == (6,)
+    assert np.array_equal(got, expected, equal_nan=True)
+    assert np.array_equal(np.signbit(got), np.signbit(expected))   # (zeros' signs too)
 
 
 @pytest.mark.parametrize("times, at", [([0.0, 5.0, 10.0], 15.0), ([1.0, 1.7, 4.2], 5.5),
