@@ -48,6 +48,11 @@ IN_SITU_ROUNDOFF = 4.0
 KEPT_STATE_PRODUCTS = 3
 
 
+#: ``_where_changed`` stops after the first block of this many unknowns that shows a change off
+#: the condensed ones (each block's loop has no branch, so that it is vectorised)
+CHANGE_BLOCK = 1024
+
+
 #: a deferred bulk update (see NewtonSolver._step) is made when the fault residual has not halved
 #: for this many Newton iterations
 STALLED_ITERATIONS = 3
@@ -185,6 +190,28 @@ def weighted_sum(weights, arrays) -> np.ndarray:
     out = weights[0] * arrays[0]
     for w, a in zip(weights[1:], arrays[1:]):
         out += w * a
+    return out
+
+
+@kernel
+def _where_changed(x, before, n_index):
+    """0 when x equals ``before`` (x - before zero everywhere), 1 when it differs only at
+    condensed unknowns (n_index >= 0), 2 when elsewhere too: one pass, stopping at the first
+    block of CHANGE_BLOCK with a change off them, where the difference and its counts took
+    three. (A NaN difference counts as a change, as count_nonzero counts it.)"""
+    n = x.shape[0]
+    out = 0
+    for start in range(0, n, CHANGE_BLOCK):
+        off = 0
+        on = 0
+        for k in range(start, min(start + CHANGE_BLOCK, n)):   # (branch-free: vectorised)
+            changed = x[k] - before[k] != 0.0
+            off += changed & (n_index[k] < 0)
+            on += changed
+        if off:
+            return 2
+        if on:
+            out = 1
     return out
 
 
@@ -506,17 +533,16 @@ class NewtonSolver:
                 last = self._products = _Products(x_n, x.copy(), last.AHx, np.zeros_like(x), True)
             return last.AHx, last.Cd
         if last is not None and (last.x_n is x_n or last.whole):
-            d = x - last.x
-            dN = d[self.N]
-            n_changed = np.count_nonzero(d)
-            if n_changed == 0 and last.x_n is x_n:
+            changed = _where_changed(x, last.x, self.n_index)
+            if changed == 0 and last.x_n is x_n:
                 return last.AHx, last.Cd
-            if n_changed == np.count_nonzero(dN):
+            if changed < 2:   # (x - last.x is zero off the condensed unknowns)
                 if last.x_n is x_n:
+                    dN = x[self.N] - last.x[self.N]
                     AHx, Cd = last.AHx + self._AH_N @ dN, last.Cd + self._C_N @ dN
                     self._products = _Products(x_n, x.copy(), AHx, Cd, False)
                     return AHx, Cd
-                if n_changed == 0:  # a new step from the last accepted state
+                if changed == 0:  # a new step from the last accepted state
                     Cd = np.zeros_like(x) if np.array_equal(x, x_n) else self.C @ (x - x_n)
                     self._products = _Products(x_n, x.copy(), last.AHx, Cd, True)
                     return last.AHx, Cd
