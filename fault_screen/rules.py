@@ -30,7 +30,6 @@ package.
 """
 from __future__ import annotations
 
-import math
 import re
 from dataclasses import dataclass
 
@@ -115,10 +114,11 @@ class Condition:
         self._tree = tree
         self.names = names
         """Every name the condition reads."""
+        self._uses_events = any(n in EVENT_METRICS for n in names)
 
     @property
     def uses_events(self) -> bool:
-        return any(n in EVENT_METRICS for n in self.names)
+        return self._uses_events
 
     def evaluate(self, values) -> bool:
         """True when the condition holds for ``values`` (name -> number; NaN or absent:
@@ -146,10 +146,6 @@ class Condition:
         return f"Condition({self.text!r})"
 
 
-def _missing(v) -> bool:
-    return v is None or (isinstance(v, float) and math.isnan(v))
-
-
 def _value(operand, values):
     kind, v = operand
     if kind == "num":
@@ -165,7 +161,7 @@ def _eval(node, values):
     tag = node[0]
     if tag == "cmp":
         a, b = _value(node[2], values), _value(node[3], values)
-        if _missing(a) or _missing(b):
+        if a is None or b is None or a != a or b != b:   # missing: absent or NaN
             return None
         return bool(_COMPARE[node[1]](a, b))
     if tag == "not":

@@ -48,6 +48,11 @@ IN_SITU_ROUNDOFF = 4.0
 KEPT_STATE_PRODUCTS = 3
 
 
+#: ``_where_changed`` stops after the first block of this many unknowns that shows a change off
+#: the condensed ones (each block's loop has no branch, so that it is vectorised)
+CHANGE_BLOCK = 1024
+
+
 #: a deferred bulk update (see NewtonSolver._step) is made when the fault residual has not halved
 #: for this many Newton iterations
 STALLED_ITERATIONS = 3
@@ -161,6 +166,56 @@ def _whole_products(A_indptr, A_indices, A_data, H_indptr, H_indices, H_data, C_
 
 
 @kernel
+def _weighted_sum_of(terms, w0, a0, w1, a1, w2, a2):
+    """w0 a0 + w1 a1 (+ w2 a2 when ``terms`` is 3) in one pass, each product rounded and the
+    sum added left to right as numpy makes ``w0 * a0``, ``+= w1 * a1``, ``+= w2 * a2``."""
+    n = a0.shape[0]
+    out = np.empty(n)
+    if terms == 3:
+        for k in range(n):
+            out[k] = (w0 * a0[k] + w1 * a1[k]) + w2 * a2[k]
+    else:
+        for k in range(n):
+            out[k] = w0 * a0[k] + w1 * a1[k]
+    return out
+
+
+def weighted_sum(weights, arrays) -> np.ndarray:
+    """sum_i weights[i] * arrays[i] (a new array), added in their order: the same floats as
+    ``weights[0] * arrays[0]`` with each further product added in place; one pass for two or
+    three arrays (an extrapolation's states), five numpy passes fewer."""
+    if len(arrays) in (2, 3):
+        w = [float(v) for v in weights] + [0.0]
+        return _weighted_sum_of(len(arrays), w[0], arrays[0], w[1], arrays[1], w[2], arrays[-1])
+    out = weights[0] * arrays[0]
+    for w, a in zip(weights[1:], arrays[1:]):
+        out += w * a
+    return out
+
+
+@kernel
+def _where_changed(x, before, n_index):
+    """0 when x equals ``before`` (x - before zero everywhere), 1 when it differs only at
+    condensed unknowns (n_index >= 0), 2 when elsewhere too: one pass, stopping at the first
+    block of CHANGE_BLOCK with a change off them, where the difference and its counts took
+    three. (A NaN difference counts as a change, as count_nonzero counts it.)"""
+    n = x.shape[0]
+    out = 0
+    for start in range(0, n, CHANGE_BLOCK):
+        off = 0
+        on = 0
+        for k in range(start, min(start + CHANGE_BLOCK, n)):   # (branch-free: vectorised)
+            changed = x[k] - before[k] != 0.0
+            off += changed & (n_index[k] < 0)
+            on += changed
+        if off:
+            return 2
+        if on:
+            out = 1
+    return out
+
+
+@kernel
 def _reference_norms(scale, AHx, Cd, dt, flow_known, mech_at, flow_at):
     """The convergence test's reference magnitudes: |scale A x| over the free mechanical
     unknowns, |scale (|C (x - x_n)| / dt + |Hf x| + known flow terms)| over the free flow ones."""
@@ -252,6 +307,11 @@ class NewtonSolver:
     @scale.setter
     def scale(self, value):
         self.system.scale = value
+
+    @property
+    def fixed_unknowns(self):
+        """The fixed unknowns (indices, ascending)."""
+        return self._fixed
 
     @property
     def factorizations(self):
@@ -369,8 +429,11 @@ class NewtonSolver:
         was accepted there (``_keep_state_products``), else made now. Whole products of equal
         states are equal to the bit, so sums of them do not depend on which were kept (a
         restored or forked run makes the same ones)."""
+        for kept in self._state_products:   # (by identity first: a comparison is a pass)
+            if kept[0] is x:
+                return kept
         for kept in self._state_products:
-            if kept[0] is x or np.array_equal(kept[0], x):
+            if np.array_equal(kept[0], x):
                 return kept
         AHx, Cx, _ = _whole_products(*self._csr_arrays, x, np.zeros_like(x))
         return x, AHx, Cx
@@ -391,11 +454,8 @@ class NewtonSolver:
             return None
         used = tuple(self._whole_state_products(x) for x in states)
         self._state_products = used[-KEPT_STATE_PRODUCTS:]
-        AHx, Cx = weights[0] * used[0][1], weights[0] * used[0][2]
-        for w, (_, AHx_i, Cx_i) in zip(weights[1:], used[1:]):
-            AHx += w * AHx_i
-            Cx += w * Cx_i
-        return AHx, Cx
+        return (weighted_sum(weights, [AHx for _, AHx, _ in used]),
+                weighted_sum(weights, [Cx for _, _, Cx in used]))
 
     def _residual(self, x, rhs, history, dt, pending, Lx=None):
         """Residual at x and the nonlinear terms' tangent and fault state. ``pending``
@@ -430,7 +490,7 @@ class NewtonSolver:
     def _reference(self, x, x_n, dt, ref0, flow_known, at_start=False):
         """Reference magnitudes of the convergence test at x: internal forces (mechanics);
         stored-volume rate plus conduction plus sources (flow); never below the step's first
-        residual norms ``ref0``. ``at_start``: x is the step's first guess x_n (see
+        residual norms ``ref0``. ``at_start``: x is the step's first guess, untouched (see
         ``_linear_products``)."""
         AHx, Cd = self._linear_products(x, x_n, at_start)
         mech, flow = _reference_norms(self.scale, AHx, Cd, dt, flow_known, self._free_mech,
@@ -464,25 +524,25 @@ class NewtonSolver:
         the last call are then brought up to date through those columns alone; and a step
         starts where the last one was accepted, whose products are at hand. (Across steps only
         products computed whole are reused, so that a restored run repeats them bit for bit.)
-        ``at_start``: x equals x_n and the products at hand are whole at x_n
-        (``_linear_times_start`` made sure): the comparisons below would find that."""
+        ``at_start``: x is the step's first guess, whose products are at hand: at x0
+        (``_linear_times_guess`` made them) or whole at x_n (``_linear_times_start`` made sure);
+        the comparisons below, two passes over x, would find that."""
         last = self._products
         if at_start:
-            if last.x_n is not x_n:
+            if last.x_n is not x_n:   # (only a first guess x_n: a guess x0 sets x_n)
                 last = self._products = _Products(x_n, x.copy(), last.AHx, np.zeros_like(x), True)
             return last.AHx, last.Cd
         if last is not None and (last.x_n is x_n or last.whole):
-            d = x - last.x
-            dN = d[self.N]
-            n_changed = np.count_nonzero(d)
-            if n_changed == 0 and last.x_n is x_n:
+            changed = _where_changed(x, last.x, self.n_index)
+            if changed == 0 and last.x_n is x_n:
                 return last.AHx, last.Cd
-            if n_changed == np.count_nonzero(dN):
+            if changed < 2:   # (x - last.x is zero off the condensed unknowns)
                 if last.x_n is x_n:
+                    dN = x[self.N] - last.x[self.N]
                     AHx, Cd = last.AHx + self._AH_N @ dN, last.Cd + self._C_N @ dN
                     self._products = _Products(x_n, x.copy(), AHx, Cd, False)
                     return AHx, Cd
-                if n_changed == 0:  # a new step from the last accepted state
+                if changed == 0:  # a new step from the last accepted state
                     Cd = np.zeros_like(x) if np.array_equal(x, x_n) else self.C @ (x - x_n)
                     self._products = _Products(x_n, x.copy(), last.AHx, Cd, True)
                     return last.AHx, Cd
@@ -536,10 +596,11 @@ class NewtonSolver:
         injection = disc.physics.injection
         if injection is not None:
             injection.load(disc, self.source, rhs, injection_value, dt, th)
-        known = np.zeros(disc.n_dofs)
-        for term in self.nonlinear_terms:
-            term.previous_step(disc, x_n, th, known)
-        rhs -= known
+        if th != 1.0:  # (the known part of a time-weighted term is (1 - theta) of it)
+            known = np.zeros(disc.n_dofs)
+            for term in self.nonlinear_terms:
+                term.previous_step(disc, x_n, th, known)
+            rhs -= known
         flow_known = np.abs(rhs - stored_n)  # sources and the known parts of the flow terms
         x = x_n.copy() if x0 is None else x0.copy()  # x0: a better first guess (continuation)
         Lx = (self._linear_times_start(x_n, stored_n) if x0 is None
@@ -592,8 +653,7 @@ class NewtonSolver:
             # at the first iteration the reference serves the deferred update and the bulk
             # balance test, which only a step-size-independent bulk can pass
             if pending is None and (check or (it == 0 and (defer or self.static_B))):
-                ref = exact_ref = self._reference(x, x_n, dt, ref0, flow_known,
-                                                  at_start=it == 0 and x0 is None)
+                ref = exact_ref = self._reference(x, x_n, dt, ref0, flow_known, at_start=it == 0)
                 if check and norms[0] <= tol * ref[0] and norms[1] <= tol * ref[1]:
                     reactions = np.zeros(disc.n_dofs)
                     reactions[self._fixed] = R[self._fixed]

@@ -33,7 +33,7 @@ from .outputs import SCHEMA, automatic_profile_due
 from .result import Result, atomic_hdf5
 from .scene import Scene
 from .schedule import StepSchedule
-from .solver import NewtonSolver, StepFailed, fault_at_rest
+from .solver import NewtonSolver, StepFailed, fault_at_rest, weighted_sum
 
 CHECKPOINT_FORMAT = 1
 
@@ -283,10 +283,9 @@ class Simulation:
             return None, None
         times = [t for t, _ in self.earlier_states] + [self.time]
         weights = extrapolation_weights(times, self.time + dt)
-        guess = weights[-1] * self.x
-        for w, (_, x) in zip(weights, self.earlier_states):
-            guess += w * x
-        fixed = self.disc.fixed   # (held by the boundary conditions: not extrapolated)
+        guess = weighted_sum([weights[-1], *weights[:-1]],
+                             [self.x] + [x for _, x in self.earlier_states])
+        fixed = self.solver.fixed_unknowns   # (held by the boundary conditions: not extrapolated)
         guess[fixed] = self.x[fixed]
         return guess, (weights, [x for _, x in self.earlier_states] + [self.x])
 

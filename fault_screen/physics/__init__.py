@@ -24,6 +24,7 @@ Which file holds which equation (Schwartzkopff et al. 2020):
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, fields
 
 from .base import BLOCK_ORDER, ConstantMatrices, Term
@@ -79,15 +80,17 @@ class Physics:
         """The term of type ``kind``, or None."""
         return next((t for t in self.terms if isinstance(t, kind)), None)
 
-    @property
+    # (found once: the stepper and the solver ask at every step; a cached_property writes the
+    # instance's __dict__, which a frozen dataclass allows)
+    @functools.cached_property
     def in_situ(self) -> InSituState:
         return self.find(InSituState)
 
-    @property
+    @functools.cached_property
     def contact(self) -> Contact | None:
         return self.find(Contact)
 
-    @property
+    @functools.cached_property
     def injection(self):
         return self.find(RateInjection) or self.find(PressureInjection)
 

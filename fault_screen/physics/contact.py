@@ -68,8 +68,10 @@ class RateStateFriction(FrictionLaw):
     def max_step(self, slip_rate) -> float:
         """Largest next step (s) the law allows after a step with these slip rates (m/s)."""
         b, dc = self.params[kc.STATE_B], self.params[kc.D_C]
+        if b == 0.0:   # (no state evolution: no limit, whatever the rates)
+            return np.inf
         v = float(np.max(np.abs(slip_rate))) if np.size(slip_rate) else 0.0
-        if b == 0.0 or v == 0.0:
+        if v == 0.0:
             return np.inf
         return self.STATE_SLIP_FRACTION * dc / v
 

@@ -33,7 +33,9 @@ class RateInjection(Term):
     def load(self, disc, source, rhs, volume, dt, time_weight):
         """Right-hand side of the step: the step-average rate (the same at both ends)."""
         rate = self.model_rate(volume, dt)
-        rhs += source * (time_weight * rate + (1.0 - time_weight) * rate)
+        # on the injection point's rows alone (the rest of ``source`` is zero)
+        at = disc.injection.p_dofs[disc.injection.p_dofs >= 0]
+        rhs[at] += source[at] * (time_weight * rate + (1.0 - time_weight) * rate)
 
     def model_fault_rate(self, disc, x, x_n, volume, dt, time_weight):
         """Rate into the model fault over the step (m^2/s); times NoF: the interval's."""

@@ -159,3 +159,22 @@ def test_return_map_solves_its_equation(b, stress_ratio):
     assert sigma_n == pytest.approx(sn0 + kN * tp * ds, rel=1e-14)
     assert tau == pytest.approx(tau_trial - kT * ds, rel=1e-14)
     assert abs(tau_trial - kT * ds - mu * sigma_n) <= 1e-12 * tau_trial
+
+
+def test_rate_state_step_limit_is_half_dc_over_the_peak_rate_and_none_without_state():
+    """dt <= 0.5 Dc / max|V| with state evolution (Dc 1e-5 m, peak 2e-6 m/s: 2.5 s); no limit
+    without it (b = 0), at rest, or with no fault points."""
+    import dataclasses
+    from pathlib import Path
+
+    from fault_screen import Scene
+    from fault_screen.physics.contact import RateStateFriction
+
+    scene = Scene.from_toml(Path(__file__).resolve().parents[2] / "configs" / "rustrel-2015-impermeable.toml")
+    scene = scene.replace(fault=dataclasses.replace(scene.fault, state_parameter=0.02,
+                                                    critical_slip_distance=1e-5))
+    evolving = RateStateFriction(scene, dilation=False, state_evolution=True)
+    rates = np.array([1e-7, -2e-6, 0.0])
+    assert evolving.max_step(rates) == pytest.approx(2.5, rel=1e-15)
+    assert evolving.max_step(np.zeros(3)) == np.inf and evolving.max_step(np.zeros(0)) == np.inf
+    assert RateStateFriction(scene, dilation=False, state_evolution=False).max_step(rates) == np.inf

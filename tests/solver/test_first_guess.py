@@ -5,7 +5,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from conftest import CONFIGS
@@ -13,6 +13,58 @@ from fault_screen import Scene
 from fault_screen.scene import SceneError
 from fault_screen.simulate import simulate
 from fault_screen.stepper import extrapolation_weights
+
+
+finite_or_not = st.floats(width=64, allow_subnormal=True)
+
+
+@settings(deadline=None)   # (the first call loads the kernel)
+@given(st.integers(1, 4).flatmap(lambda k: st.tuples(
+    st.lists(st.floats(-1e3, 1e3), min_size=k, max_size=k),
+    st.lists(st.lists(finite_or_not, min_size=6, max_size=6), min_size=k, max_size=k))))
+def test_weighted_sum_gives_the_floats_of_numpy_products_added_in_place(case):
+    """The extrapolation's sums (the guess, and the products summed instead of made whole):
+    bit for bit those of ``w0 * a0`` with ``+= w * a`` for each further array (the solver's
+    bit-for-bit results rest on it), infinities and NaN included, for 1 to 4 arrays."""
+    from fault_screen.solver import weighted_sum
+
+    weights, arrays = np.array(case[0]), [np.array(a) for a in case[1]]
+    with np.errstate(all="ignore"):
+        expected = weights[0] * arrays[0]
+        for w, a in zip(weights[1:], arrays[1:]):
+            expected += w * a
+        got = weighted_sum(weights, arrays)
+    assert got.dtype == np.float64 and got.shape == (6,)
+    assert np.array_equal(got, expected, equal_nan=True)
+    assert np.array_equal(np.signbit(got), np.signbit(expected))   # (zeros' signs too)
+
+
+@settings(deadline=None)   # (the first call loads the kernel)
+@given(st.integers(1, 2600).flatmap(lambda n: st.tuples(
+    st.just(n), st.lists(st.tuples(st.integers(0, n - 1), finite_or_not), max_size=6),
+    st.lists(st.integers(0, n - 1), max_size=40), st.integers(0, 2**32 - 1))))
+def test_where_changed_classifies_as_the_difference_and_its_counts(case):
+    """The solver's test of where an iterate moved since its products were made (0: nowhere,
+    1: at condensed unknowns only, 2: elsewhere too), against the numpy it replaced
+    (count_nonzero of x - before, and of its condensed entries): the same answer for changes
+    anywhere in arrays that span several blocks (CHANGE_BLOCK = 1024), NaN and infinity
+    included (inf - inf is NaN: a change)."""
+    from fault_screen.solver import _where_changed
+
+    n, changes, condensed, seed = case
+    before = np.random.default_rng(seed).normal(size=n)
+    before[::97] = np.inf
+    x = before.copy()
+    for k, v in changes:
+        x[k] = v
+    n_index = np.full(n, -1, dtype=np.int64)
+    N = np.unique(np.array(condensed, dtype=np.int64))
+    n_index[N] = np.arange(len(N))
+    with np.errstate(invalid="ignore"):
+        d = x - before
+    n_changed, n_changed_N = np.count_nonzero(d), np.count_nonzero(d[N])
+    expected = 0 if n_changed == 0 else (1 if n_changed == n_changed_N else 2)
+    assert _where_changed(x, before, n_index) == expected
 
 
 @pytest.mark.parametrize("times, at", [([0.0, 5.0, 10.0], 15.0), ([1.0, 1.7, 4.2], 5.5),
