@@ -102,3 +102,20 @@ def test_a_stale_entry_is_left_to_the_first_call():
         "from fault_screen import compile_ahead as ca\n"
         f"print(json.dumps({{'done': ca.compile_kernels({stale + SMALL!r})}}))\n")
     assert got == {"done": 2}
+
+
+def test_a_warm_start_asks_about_the_longest_kernels_only():
+    """With every kernel cached, nothing is missing; a kernel among the longest to compile (half
+    the whole time: 4 of 24) asked for with other types shows as missing, a short one does not
+    (it is not asked about: compiled at its first call)."""
+    from fault_screen.compile_ahead import _missing, compile_kernels
+
+    assert compile_kernels(KERNELS) == len(KERNELS)          # (loaded from the cache when warm)
+    assert _missing(KERNELS) == []
+    by_time = sorted(KERNELS, key=lambda k: -k[2])
+    head = sum(1 for i in range(len(by_time))
+               if sum(k[2] for k in by_time[:i]) < 0.5 * sum(k[2] for k in KERNELS))
+    assert head == 4
+    for k, missing in ((by_time[0], True), (by_time[-1], False)):
+        changed = [(m, n, w, "(int64,)") if (m, n) == k[:2] else (m, n, w, t) for m, n, w, t in KERNELS]
+        assert [x[1] for x in _missing(changed)] == ([k[1]] if missing else [])
