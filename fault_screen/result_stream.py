@@ -47,8 +47,8 @@ class ResultWriter:
 
     ``streams``: stream name -> {dataset path: (dtype, shape of one record)}; ``fixed``:
     dataset path -> array written once (the fault geometry); ``attrs``: root attributes
-    (``scene``, a first ``meta``). ``compress``: stream names whose datasets are gzip-compressed
-    (the profiles)."""
+    (``scene``, a first ``meta``). ``compress``: stream names whose datasets are byte-shuffled
+    and gzip-compressed (the profiles)."""
 
     def __init__(self, h5, path: Path, streams: dict, counts: dict | None = None, batch: int = BATCH):
         self.h5 = h5
