@@ -6,7 +6,10 @@ run builds its model, :func:`compile_ahead` deals the missing kernels to as many
 as there are cores (at most :data:`MOST_PROCESSES`), each compiling its share into numba's cache
 at the same time, waits for them, and the run then loads every kernel from the cache at its
 first call. The compilers' memory is the children's, so the run's own peak memory is that of a
-warm start.
+warm start. That is what it buys for certain; the wall time of the cold start drops only where
+the cores are otherwise idle, since the children's compilation takes more CPU time in all than
+one process's (each child starts Python and numba again, and cores that share caches compile
+more slowly side by side).
 
 Nothing depends on it: a kernel whose argument types differ from the list's (a changed kernel
 before the list was regenerated), a child that fails or cannot start, or a cache a child cannot

@@ -61,7 +61,7 @@ def run_scene(scene, *, scene_label: str, out: Path | None, plot_dir: Path | Non
             click.echo(line)
     from ..compile_ahead import compile_ahead
 
-    compile_ahead()        # an empty numba cache: its kernels compiled on two cores
+    compile_ahead()        # an empty numba cache: the kernels compiled by child processes
     progress = None if quiet else Progress(sys.stdout)
     part = out.with_name(out.name + ".part")
     try:
