@@ -3,6 +3,7 @@
     python benchmarks/cold_compile.py            # the top 10 kernels by compile CPU time
     python benchmarks/cold_compile.py --top 40   # more rows
     python benchmarks/cold_compile.py --json     # every compilation, one JSON object
+    python benchmarks/cold_compile.py --kernels  # fault_screen.compile_ahead.KERNELS for this run
 
 A child process with an empty NUMBA_CACHE_DIR runs the bundled scene as `fault-screen run`
 does (in-process, through the CLI) while a listener on numba's ``numba:compile`` event records
@@ -21,6 +22,7 @@ import resource
 import subprocess
 import sys
 import tempfile
+import textwrap
 import time
 from pathlib import Path
 
@@ -35,6 +37,27 @@ def _cpu():
 def _rss_mb():
     with open("/proc/self/statm") as f:
         return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+def _signature(args) -> str | None:
+    """Argument types in numba's signature syntax (``(float64[::1], int64)``), or None where
+    that syntax cannot say them (read-only or unaligned arrays, other types)."""
+    from numba.core import types
+
+    out = []
+    for t in args:
+        if isinstance(t, types.Array):
+            if not t.mutable or not t.aligned or t.layout not in "CA":
+                return None
+            dims = [":"] * t.ndim
+            if t.layout == "C":
+                dims[-1] = "::1"
+            out.append(f"{t.dtype}[{', '.join(dims)}]")
+        elif isinstance(t, (types.Integer, types.Float, types.Boolean)):
+            out.append(str(t))
+        else:
+            return None
+    return "(" + ", ".join(out) + ("," if len(out) == 1 else "") + ")"
 
 
 def record() -> dict:
@@ -58,6 +81,7 @@ def record() -> dict:
             compiles[index] = dict(
                 kernel=f"{d.py_func.__module__}.{d.py_func.__qualname__}",
                 args=", ".join(str(a) for a in ev.data["args"]),
+                signature=_signature(ev.data["args"]),
                 wall=time.perf_counter() - w0, cpu=_cpu() - cpu0, rss_mb=_rss_mb(),
                 depth=len(stack), inline=d.targetoptions.get("inline", "never"))
 
@@ -91,6 +115,7 @@ def measure() -> dict:
         # Python's bytecode cache on, as an installed package has it (benchmarks/performance.py)
         env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
         env["NUMBA_CACHE_DIR"] = cache
+        env["FAULT_SCREEN_COMPILE_AHEAD"] = "0"    # every kernel compiled here, at its first call
         env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
         out = subprocess.run([sys.executable, __file__, "--child"], capture_output=True, text=True,
                              cwd=ROOT, env=env)
@@ -103,6 +128,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--top", type=int, default=10, help="rows of the table (by own CPU time)")
     ap.add_argument("--json", action="store_true", help="print every compilation as JSON")
+    ap.add_argument("--kernels", action="store_true",
+                    help="print fault_screen.compile_ahead.KERNELS for this run (paste it there)")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
@@ -112,6 +139,16 @@ def main():
     r = measure()
     if args.json:
         print(json.dumps(r, indent=1))
+        return
+    if args.kernels:
+        print("KERNELS = (")
+        for c in r["compiles"]:
+            if c["depth"] == 0 and c["signature"] is not None:
+                module, _, name = c["kernel"].rpartition(".")
+                parts = textwrap.wrap(c["signature"], 84, break_on_hyphens=False, drop_whitespace=False)
+                print(f"    ({module!r}, {name!r}, {c['cpu']:.2f},\n" +
+                      "\n".join(f"     {p!r}" for p in parts) + "),")
+        print(")")
         return
     compiles = r["compiles"]
     by_kernel = {}

@@ -18,9 +18,14 @@ Rows (keys for --skip in brackets):
   process that made it once before (its kernels loaded from the cache and their first calls
   made: what a run costs inside a long-lived process such as the monitor).
 - [cold] the first `fault-screen run` (bundled scene, result written) in a new process with an
-  empty numba cache (JIT compilation included), then three more with that cache (best and
-  slowest); where a warm `fault-screen run` spends its time (imports, numba's cache loads of
-  the kernels, the rest), timed inside one process; `fault-screen --help` in a new process.
+  empty numba cache (JIT compilation included: fault_screen.compile_ahead's child processes,
+  their CPU time and largest peak memory), then three more with that cache (best and
+  slowest); a warm `fault-screen run` as a whole process, five times with fault_screen's
+  bytecode read from its .pyc files (as an installed package) and five times compiled from its
+  sources in each process (as with PYTHONDONTWRITEBYTECODE set before any process wrote them);
+  where a warm `fault-screen run` spends its time (imports, numba's cache loads of the kernels,
+  the rest), timed inside one process; `fault-screen --help` in a new process. Every other
+  process of this script runs with the bytecode written (PYTHONDONTWRITEBYTECODE removed).
 - [compile] the first `fault-screen run` again, in-process with a listener on numba's compile
   event (benchmarks/cold_compile.py): the CPU time of the compilation, the number of kernels
   compiled, the three that take longest, the process's peak memory.
@@ -184,20 +189,54 @@ def child(case: str, env=None, timeout=CASE_TIMEOUT) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def cli_run(env) -> tuple[float, float]:
-    """Wall time (s) and peak memory (MB) of `fault-screen run` of the bundled scene."""
+def cli_run(env, children: bool = False):
+    """Wall time (s) and peak memory (MB) of `fault-screen run` of the bundled scene; with
+    ``children``, also the largest peak memory (MB) and the CPU time (s) of its child processes
+    (at a cold start: those of fault_screen.compile_ahead)."""
     with tempfile.TemporaryDirectory() as tmp:
         code = ("import atexit, resource, sys; atexit.register(lambda: print('MAXRSS', resource.getrusage("
-                "resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)); from fault_screen.cli import main; "
-                "sys.argv[0] = 'fault-screen'; main()")
+                "resource.RUSAGE_SELF).ru_maxrss, *(lambda c: (c.ru_maxrss, c.ru_utime + c.ru_stime))("
+                "resource.getrusage(resource.RUSAGE_CHILDREN)), file=sys.stderr)); "
+                "from fault_screen.cli import main; sys.argv[0] = 'fault-screen'; main()")
         t0 = time.perf_counter()
         out = subprocess.run([sys.executable, "-c", code, "run", "--out", str(Path(tmp) / "r.h5"), "--quiet"],
                              capture_output=True, text=True, cwd=tmp, env=env, timeout=CASE_TIMEOUT)
         wall = time.perf_counter() - t0
     if out.returncode != 0:
         raise RuntimeError(out.stderr)
-    rss = [line.split()[1] for line in out.stderr.splitlines() if line.startswith("MAXRSS")]
-    return wall, float(rss[-1]) / 1024.0
+    rss = [line.split()[1:] for line in out.stderr.splitlines() if line.startswith("MAXRSS")][-1]
+    if children:
+        return wall, float(rss[0]) / 1024.0, float(rss[1]) / 1024.0, float(rss[2])
+    return wall, float(rss[0]) / 1024.0
+
+
+#: the child's first lines when it is to start as from a tree without fault_screen's bytecode
+#: (as in an environment with PYTHONDONTWRITEBYTECODE set, where no process ever wrote it): the
+#: package's modules compiled from their sources, every other module read from its .pyc
+_SOURCE_ONLY = ("import importlib.machinery as m, os, sys\n"
+                "_stats = m.SourceFileLoader.path_stats\n"
+                "def _no_bytecode(self, path, _pkg=os.path.join({tree!r}, 'fault_screen', '')):\n"
+                "    if path.startswith(_pkg):\n"
+                "        raise OSError('read from the source')\n"
+                "    return _stats(self, path)\n"
+                "m.SourceFileLoader.path_stats = _no_bytecode\n")
+
+
+def cli_run_warm(env, bytecode: bool, repeat: int = 5) -> list[float]:
+    """Wall times (s) of ``repeat`` warm `fault-screen run` processes of the bundled scene
+    (numba's cache in place), sorted: with fault_screen's bytecode read from its .pyc files as
+    a user's installed package has them, or (``bytecode=False``) compiled from the sources in
+    every process."""
+    code = ("" if bytecode else _SOURCE_ONLY.format(tree=str(TREE))) + \
+        "import sys\nfrom fault_screen.cli import main\nsys.argv[0] = 'fault-screen'\nmain()\n"
+    walls = []
+    for _ in range(repeat):
+        with tempfile.TemporaryDirectory() as tmp:
+            t0 = time.perf_counter()
+            subprocess.run([sys.executable, "-c", code, "run", "--out", str(Path(tmp) / "r.h5"), "--quiet"],
+                           capture_output=True, text=True, cwd=tmp, env=env, timeout=CASE_TIMEOUT, check=True)
+            walls.append(time.perf_counter() - t0)
+    return sorted(walls)
 
 
 def cli_help(env) -> float:
@@ -266,11 +305,13 @@ def main():
             f"{r['peak_mb']:.0f} MB warm")
     if "cold" not in args.skip:
         with tempfile.TemporaryDirectory() as cache:
-            cold, cold_mb = cli_run(_env(NUMBA_CACHE_DIR=cache))
+            cold, cold_mb, ahead_mb, ahead_cpu = cli_run(_env(NUMBA_CACHE_DIR=cache), children=True)
             later = sorted(cli_run(_env(NUMBA_CACHE_DIR=cache))[0] for _ in range(3))
         row("cold: first `fault-screen run` in a fresh process (JIT included)", "~10 s",
             "<= 10 s; <= 3 s from the second process on",
-            f"{_s(cold)}; later processes {_s(later[0])} (best of 3; slowest {_s(later[-1])})")
+            f"{_s(cold)} (kernels compiled ahead by child processes, one per core: CPU "
+            f"{_s(ahead_cpu)}, peak memory {ahead_mb:.0f} MB each at most); later processes "
+            f"{_s(later[0])} (best of 3; slowest {_s(later[-1])})")
         if "replay" not in args.skip:
             at = next(i for i, w in enumerate(rows) if w[0].startswith("peak memory of the process"))
             rows[at] = rows[at][:3] + (f"{cold_mb:.0f} MB cold (`fault-screen run`); {r['peak_mb']:.0f} MB warm",)
@@ -281,6 +322,13 @@ def main():
             f"(CPU {_s(split['cpu_imports'])}), numba's cache loads "
             f"{_s(split['kernels'])} ({split['n_kernels']} kernels; the first, with numba's own set-up, "
             f"{_s(split['first_kernel'])}), scene, model, steps and result {_s(split['rest'])}")
+        with_pyc, from_source = cli_run_warm(env, True), cli_run_warm(env, False)
+        row("warm `fault-screen run`, whole process (bundled scene, numba's cache in place; best and "
+            "median of 5)", "4.1 s median", "<= 2 s",
+            f"{_s(with_pyc[0])}, median {_s(with_pyc[2])} with fault_screen's bytecode (.pyc) as an "
+            f"installed package has it; {_s(from_source[0])}, median {_s(from_source[2])} compiling "
+            "fault_screen's modules from source in each process (PYTHONDONTWRITEBYTECODE set from "
+            "the start)")
         helps = sorted(cli_help(env) for _ in range(3))
         row("`fault-screen --help` in a fresh process (imports no model)", "-", "-",
             f"{_s(helps[0])} (best of 3; slowest {_s(helps[-1])})")

@@ -59,6 +59,9 @@ def run_scene(scene, *, scene_label: str, out: Path | None, plot_dir: Path | Non
         for line in estimate_run(scene, plot=plot_dir is not None,
                                  log_samples=len(log_arrays.get("time", ()))).lines():
             click.echo(line)
+    from ..compile_ahead import compile_ahead
+
+    compile_ahead()        # an empty numba cache: the kernels compiled by child processes
     progress = None if quiet else Progress(sys.stdout)
     part = out.with_name(out.name + ".part")
     try:
