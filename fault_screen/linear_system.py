@@ -24,6 +24,7 @@ import threading
 import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
+from scipy.linalg.blas import dsymv as _symv
 
 from ._jit import helper, kernel
 from .bordered_lu import (_linear_rows_symmetric, bordered_lu, lu_solve, release_freed_memory,
@@ -135,6 +136,7 @@ class CondensedSystem:
     _restored_condensed = None   # (tangent, dt) of the checkpoint's condensed block
     lu = None
     P = None
+    P_symmetric = False   # P made exactly symmetric (``condensation_symmetrised``)
     _row_factor = None   # per free unknown in the factors' order: -dt (flow), 1 (mechanics)
     _analyses = None     # the LDL^T's symbolic analyses of the symmetric form (ldl.py)
     _bulk = None         # the symmetric form's fixed pattern (fixed_pattern.FixedBulk)
@@ -320,6 +322,7 @@ class CondensedSystem:
                 # L D L^T's is Fortran-ordered, a C-ordered copy makes later sums in another order)
                 np.copyto(self.P, self._restored_P)
                 self._restored_P = None
+            self.P_symmetric = condensation_symmetrised(self.P)
         if self._blocks_fixed is None:  # rows of the fixed unknowns on the linear ones, in order
             self._blocks_fixed = [M[self._fixed].tocsc()[:, self.linear_order()].tocsr()
                                   for M in (self.A, self.C, self.Hf)]
@@ -487,7 +490,8 @@ class CondensedSystem:
         needed = self._rows_N_fixed
         R = np.zeros_like(x)
         R[needed] = self._L_rows_N_fixed @ x - rhs[needed]
-        R[self.N] += (pending.shift - self.P @ pending.fault) / self.scale[self.N]
+        R[self.N] += ((pending.shift - condensation_times(self.P, self.P_symmetric, pending.fault))
+                      / self.scale[self.N])
         return R
 
     def complete_bulk(self, x, pending, R):
@@ -533,16 +537,62 @@ class CondensedSystem:
                 self._restored_condensed = None
                 if self.factors_any_dt or dt0 == self.dt:
                     self._dense.set(self.P, self._linear_entries(dt0), tangent, dt0,
-                                    base=self.factorizations)
+                                    base=self.factorizations, symmetric=self.P_symmetric)
         tangent = (rows, cols, vals)
         # the Schur complements of one condensation (factorisation of the bulk) differ only in
         # the storage term, which the dense solver is told of when it serves every step size
-        self._dense.set(self.P, self._LNN_entries, tangent, self.dt, base=self.factorizations)
+        self._dense.set(self.P, self._LNN_entries, tangent, self.dt, base=self.factorizations,
+                        symmetric=self.P_symmetric)
         return self._dense
 
     def _linear_entries(self, dt):
         """L_NN's entries at step size dt (scaled; rows, columns, values)."""
         return self._fixed_sum("_sum_NN", self._blocks_NN).entries(dt)
+
+
+#: the condensation P = L_NB B^-1 L_BN is taken as symmetric, and made exactly so, when no entry
+#: differs from its mirror image by more than this fraction of its largest entry: the round-off
+#: of condensing a symmetric bulk (3e-13 on the fine 30 deg scene, factorised in parts). An
+#: unsymmetric one (a poroelastic bulk's flow rows, whose Schur complement is divided by -dt)
+#: differs at the scale of its entries
+CONDENSATION_SYMMETRY_ROUNDOFF = 1e-11
+
+#: rows of P compared and mirrored at a time (a temporary of this many rows, not n x n: the fine
+#: 30 deg scene's peak memory is close to its limit)
+_MIRROR_ROWS = 256
+
+
+def condensation_symmetrised(P) -> bool:
+    """Is P (square) symmetric to CONDENSATION_SYMMETRY_ROUNDOFF? If so, its upper triangle is
+    made the mirror image of its lower one, in place: its products then read one triangle
+    (``condensation_times``), half its bytes (34 MB on the fine 30 deg scene, read at every check
+    of a condensed solve and every residual with the bulk's answer pending)."""
+    n = len(P)
+    if n < 2:
+        return False
+    bound = CONDENSATION_SYMMETRY_ROUNDOFF * max(float(P.max()), -float(P.min()))
+    if not np.isfinite(bound):
+        return False
+    for a in range(0, n, _MIRROR_ROWS):
+        b = min(a + _MIRROR_ROWS, n)
+        if np.max(np.abs(P[a:b, :b] - P[:b, a:b].T)) > bound:
+            return False
+    for a in range(0, n, _MIRROR_ROWS):   # row block a:b takes the columns a:b above it
+        b = min(a + _MIRROR_ROWS, n)
+        block = P[a:b, a:b]
+        upper = np.triu_indices(b - a, 1)
+        block[upper] = block.T[upper]
+        P[:a, a:b] = P[a:b, :a].T
+    return True
+
+
+def condensation_times(P, symmetric, v):
+    """P v; ``symmetric`` (``condensation_symmetrised``): from one triangle of P (BLAS symv),
+    the same up to the order of the sums."""
+    if not symmetric:
+        return P @ v
+    # (a C-ordered P is its own transpose, a Fortran-ordered array: symv takes it without a copy)
+    return _symv(1.0, P if P.flags.f_contiguous else P.T, v, lower=1)
 
 
 @kernel
@@ -768,6 +818,7 @@ class CondensedSolver:
 
     def __init__(self, storage=None, position=None, scale=None):
         self.P = None
+        self._P_symmetric = False
         self._pattern = None
         # the tangent's triplets are on the whole system's unknowns: position in the block of
         # each (-1: not condensed) and the scaling (default: the block's own, unscaled)
@@ -790,14 +841,16 @@ class CondensedSolver:
             self._storage_rows = np.flatnonzero(np.diff(C.indptr))   # R
             self._C_R = C[self._storage_rows]
 
-    def set(self, P, linear, tangent, dt, base=None):
+    def set(self, P, linear, tangent, dt, base=None, symmetric=False):
         """The block to solve with next, M = -P + L_NN + T at step size ``dt``: ``linear``, L_NN's
         entries (rows, columns, values in the block) and ``tangent``, T's triplets (rows, columns,
         values, on the unknowns that ``position`` places in the block, scaled by ``scale``;
         duplicates summed). ``base`` tells which condensation P is (a count, not the array;
         None: unknown, the block is factorised); blocks of the same base and pattern differ by
-        the tangent and the step size alone."""
+        the tangent and the step size alone. ``symmetric``: P is exactly symmetric (its products
+        then read one triangle, ``condensation_times``)."""
         self.P = P
+        self._P_symmetric = symmetric
         self.inv_dt = 1.0 / dt
         self._step = dt
         self._base = base
@@ -829,7 +882,7 @@ class CondensedSolver:
 
     def _times(self, v):
         """M v = -P v + (L_NN + T) v."""
-        out = -(self.P @ v)
+        out = -condensation_times(self.P, self._P_symmetric, v)
         p = self._pattern
         _sparse_times(p.indptr, p.cols, self._sparse, v, out)
         return out
