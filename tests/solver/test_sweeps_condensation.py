@@ -71,18 +71,20 @@ FLOW = np.arange(N_MECH, N)
 
 
 def _blocks(order):
-    """L_NN's parts (A, storage C on the flow rows, H) and a symmetric P made symmetric."""
+    """L_NN's parts (A: a stiffness-like band, storage C on the flow rows reaching three
+    mechanical columns each, H: a few conduction terms) and a symmetric P made symmetric."""
     rng = np.random.default_rng(7)
-    A = sp.random(N, N, density=0.15, random_state=rng) + sp.diags(np.full(N, 8.0))
-    A = sp.csr_matrix(A + A.T)
-    C = sp.lil_matrix((N, N))
-    for i in FLOW:
-        C[i, i] = 0.03
-        C[i, rng.integers(0, N_MECH, 3)] = 0.004 * rng.standard_normal(3)
-    H = sp.csr_matrix(sp.random(N, N, density=0.05, random_state=rng))
+    A = sp.diags([np.full(N - 2, -1.0), np.full(N - 1, -2.0), np.full(N, 9.0),
+                  np.full(N - 1, -2.0), np.full(N - 2, -1.0)], [-2, -1, 0, 1, 2])
+    storage_rows = np.repeat(FLOW, 4)
+    storage_cols = np.column_stack([FLOW, rng.integers(0, N_MECH, (N_FLOW, 3))]).ravel()
+    storage = np.column_stack([np.full(N_FLOW, 0.03),
+                               0.004 * rng.standard_normal((N_FLOW, 3))]).ravel()
+    C = sp.coo_matrix((storage, (storage_rows, storage_cols)), shape=(N, N))
+    H = sp.random(N, N, density=0.05, random_state=rng)
     P = _symmetric(N, order, rng, 1e-15) * 0.05
     assert condensation_symmetrised(P)
-    return A, C.tocsr(), H, P
+    return sp.csr_matrix(A), C.tocsr(), sp.csr_matrix(H), P
 
 
 def _tangent(points, stiffness):
