@@ -874,7 +874,7 @@ class CondensedSolver:
         own (it remembers the arrays it last matched)."""
         twin = copy.copy(self)
         twin._pattern = copy.copy(self._pattern)
-        for name in ("_Z", "_Z1", "_have", "_have1"):
+        for name in ("_Z", "_T", "_have", "_have1"):
             value = getattr(self, name, None)
             if value is not None:
                 setattr(twin, name, value.copy(order="K"))   # (Fortran order kept)
@@ -899,7 +899,7 @@ class CondensedSolver:
         # the old factors and what was solved with them go before the new block is formed (the
         # run's peak memory on the fine 30 deg scene: three n x n arrays at once, not four)
         self.factors = None
-        self._Z = self._Z1 = self._Z_R = self._K_R = None
+        self._Z = self._T = self._Z_R = self._K_R = None
         M = self._form()
         self._M0_largest = max(float(M.max()), -float(M.min())) if M.size else 0.0
         self.factors = scipy.linalg.lu_factor(M, overwrite_a=True, check_finite=False)
@@ -922,11 +922,11 @@ class CondensedSolver:
         self._new_step_size(0.0)
 
     def _new_step_size(self, delta):
-        """The base M1 = M0 + delta E_R C_R: its capacitance's LU and the columns of M1^-1 kept
-        for it (``_base_columns``)."""
+        """The base M1 = M0 + delta E_R C_R: its capacitance's LU and the columns kept for it
+        (``_shift_columns``)."""
         self._delta = delta
         self._capacitance_R = None
-        self._Z1 = None
+        self._T = None
         self._have1 = np.zeros(len(self.P), dtype=bool)
 
     def _step_size_update(self):
@@ -992,11 +992,10 @@ class CondensedSolver:
         return D, K, DK, largest
 
     def _base_columns(self, K):
-        """M1^-1 E_K: the columns of M0^-1 at K (kept while M0 is: K grows as a front advances),
-        corrected for the step size (kept while it is that of M1). Both are made a page of
-        COLUMN_PAGE columns at a time, each page alone: a column's round-off then does not depend
-        on which others were asked for with it, so a restored run, which starts with none kept,
-        repeats them bit for bit."""
+        """M0^-1 E_K: the columns of M0^-1 at K, kept while M0 is (K grows as a front advances),
+        made a page of COLUMN_PAGE columns at a time, each page alone: a column's round-off then
+        does not depend on which others were asked for with it, so a restored run, which starts
+        with none kept, repeats them bit for bit."""
         n = len(self.P)
         if self._Z is None:
             self._Z = np.empty((n, n), order="F")  # (pages of unsolved columns stay untouched)
@@ -1005,14 +1004,18 @@ class CondensedSolver:
             E[page, np.arange(len(page))] = 1.0
             self._Z[:, page] = lu_solve(self.factors, E)
             self._have[page] = True
-        if self._delta == 0.0:
-            return self._Z[:, K]
-        if self._Z1 is None:
-            self._Z1 = np.empty((n, n), order="F")
+        return self._Z[:, K]
+
+    def _shift_columns(self, K):
+        """(I + delta K_R)^-1 C_R M0^-1 E_K, |R| rows: what the step size's correction takes
+        off M0^-1 E_K through Z_R (``_step_size_correction``), kept while the step size is, made
+        a page at a time like ``_base_columns``' (after them)."""
+        if self._T is None:
+            self._T = np.empty((len(self._storage_rows), len(self.P)), order="F")
         for page in self._pages(K, self._have1):
-            self._Z1[:, page] = self._step_size_correction(self._Z[:, page])
+            self._T[:, page] = lu_solve(self._capacitance_R, self._C_R @ self._Z[:, page])
             self._have1[page] = True
-        return self._Z1[:, K]
+        return self._T[:, K]
 
     @staticmethod
     def _pages(K, have):
@@ -1024,20 +1027,34 @@ class CondensedSolver:
     def _low_rank(self, b, DK, K):
         """Woodbury: with M = M1 + E D E^T (E: the columns of the identity at the changed rows
         and columns K), M^-1 b = y - Z (I + D Z_K)^-1 D y_K, y = M1^-1 b, Z = M1^-1 E. None when
-        the result misses the check."""
-        if len(K) == 0 and self._delta == 0.0:
+        the result misses the check.
+
+        M1^-1 is M0^-1 followed by the step size's correction, which is linear: so
+        y - Z s = correction(w - Z0 s) with w = M0^-1 b and Z0 = M0^-1 E, one correction of a
+        vector per solve, and Z itself is needed only in its rows K (for the capacitance): Z0_K
+        less delta Z_R[K] times the kept ``_shift_columns`` (|R| rows a column, where the n rows
+        of Z's columns cost a product with the n x |R| Z_R each, at every new step size)."""
+        delta = self._delta
+        if len(K) == 0 and delta == 0.0:
             return self._precondition(b)  # M is M0
         if len(K):
-            Z = self._base_columns(K)
-            capacitance = np.eye(len(K)) + DK @ Z[K]
+            Z0 = self._base_columns(K)
+            Z_K = Z0[K]
+            if delta != 0.0:
+                Z_R_K = self._Z_R[K]
+                Z_K = Z_K - delta * (Z_R_K @ self._shift_columns(K))
+            capacitance = np.eye(len(K)) + DK @ Z_K
             try:
                 cap = scipy.linalg.lu_factor(capacitance, check_finite=False)
             except (np.linalg.LinAlgError, ValueError):
                 return None
 
             def apply(r):
-                y = self._precondition(r)
-                return y - Z @ lu_solve(cap, DK @ y[K])
+                w = lu_solve(self.factors, r)
+                y_K = w[K]
+                if delta != 0.0:   # (y = M1^-1 r at K)
+                    y_K = y_K - delta * (Z_R_K @ lu_solve(self._capacitance_R, self._C_R @ w))
+                return self._step_size_correction(w - Z0 @ lu_solve(cap, DK @ y_K))
         else:  # only the step size changed
             apply = self._precondition
 
