@@ -808,7 +808,8 @@ class CondensedSolver:
       change below is taken from (without ``storage``, a new step size factorises M);
     - M - M1 = T - T0 (the same condensation: ``base``), read off the tangents' triplets. When
       it lies in few rows and columns K (a slip front that moved by a few fault points), exactly
-      by the Woodbury identity, at the cost of |K| solves with M1 in one block;
+      by the Woodbury identity, at the cost of |K| solves with M0 (kept while M0 is) and, at
+      another step size than M0's, of their rows K corrected for it (``_low_rank``);
     - when it is spread but small (rate-dependent friction, an evolving aperture), by iterative
       refinement with M1's factors and, if that contracts slowly, GMRES preconditioned with them
       (right preconditioning: the true residual of M is what converges), to CONDENSED_RTOL.
