@@ -20,7 +20,8 @@ pattern; nested dissection makes its separators such runs): L by columns, U by r
 of U^T), each stored in the order its sweep reads it, so both read memory forwards. Below its
 triangle a supernode is a dense block: a row index is read once per block row, not per entry,
 and the sums run four at a time (one sum alone is a chain of dependent adds); the sweeps index
-with unsigned integers, which LLVM vectorises along a block row (``_u``). A supernode's diagonal
+with unsigned integers, which LLVM vectorises along a block row (``ldl._unsigned``: a plain
+cast, where a helper's IR would be inlined at each of its calls). A supernode's diagonal
 block is stored up to its diagonal only (a square block's zeros above it were a tenth of the
 values on Rustrel 200 x 201: 124 against 113 MB, and the sweeps read every value stored). The
 sweeps are memory-bound: on the two cores of the reference machine one thread streams 10-13 GB/s
@@ -43,7 +44,7 @@ from scipy.linalg.lapack import dgetrs as _getrs
 
 from . import ldl
 from ._jit import helper, kernel, sweep_kernel
-from .ldl import NotQuasiDefinite, _u  # noqa: F401  (_u: the sweeps' unsigned index)
+from .ldl import NotQuasiDefinite, _unsigned  # noqa: F401  (_unsigned: the sweeps' index cast)
 
 
 @functools.cache
@@ -174,7 +175,7 @@ def _forward_sweep(first, width, row_at, value_at, rows, values, r):
         m = row_at[t + 1] - r0
         nonzero = False   # (a right-hand side zero on the supernode: nothing to do)
         for c in range(w):
-            if r[_u(j0 + c)] != 0.0:
+            if r[_unsigned(j0 + c)] != 0.0:
                 nonzero = True
                 break
         if not nonzero:
@@ -183,30 +184,30 @@ def _forward_sweep(first, width, row_at, value_at, rows, values, r):
             b = v0 + _triangle(k)
             a0 = 0.0
             for c in range(k):
-                a0 += values[_u(b + c)] * r[_u(j0 + c)]
-            r[_u(j0 + k)] -= a0
+                a0 += values[_unsigned(b + c)] * r[_unsigned(j0 + c)]
+            r[_unsigned(j0 + k)] -= a0
         below = _below(v0, w)
         k = w
         while k + 4 <= m:
             b = below + k * w
             a0 = a1 = a2 = a3 = 0.0
             for c in range(w):
-                yc = r[_u(j0 + c)]
-                a0 += values[_u(b + c)] * yc
-                a1 += values[_u(b + w + c)] * yc
-                a2 += values[_u(b + 2 * w + c)] * yc
-                a3 += values[_u(b + 3 * w + c)] * yc
-            r[_u(rows[_u(r0 + k)])] -= a0
-            r[_u(rows[_u(r0 + k + 1)])] -= a1
-            r[_u(rows[_u(r0 + k + 2)])] -= a2
-            r[_u(rows[_u(r0 + k + 3)])] -= a3
+                yc = r[_unsigned(j0 + c)]
+                a0 += values[_unsigned(b + c)] * yc
+                a1 += values[_unsigned(b + w + c)] * yc
+                a2 += values[_unsigned(b + 2 * w + c)] * yc
+                a3 += values[_unsigned(b + 3 * w + c)] * yc
+            r[_unsigned(rows[_unsigned(r0 + k)])] -= a0
+            r[_unsigned(rows[_unsigned(r0 + k + 1)])] -= a1
+            r[_unsigned(rows[_unsigned(r0 + k + 2)])] -= a2
+            r[_unsigned(rows[_unsigned(r0 + k + 3)])] -= a3
             k += 4
         for k in range(k, m):
             b = below + k * w
             a0 = 0.0
             for c in range(w):
-                a0 += values[_u(b + c)] * r[_u(j0 + c)]
-            r[_u(rows[_u(r0 + k)])] -= a0
+                a0 += values[_unsigned(b + c)] * r[_unsigned(j0 + c)]
+            r[_unsigned(rows[_unsigned(r0 + k)])] -= a0
 
 
 @kernel
@@ -238,41 +239,47 @@ def _backward_sweep(first, width, row_at, value_at, rows, values, diagonal, reve
         r0, v0 = row_at[t], value_at[t]
         m = row_at[t + 1] - r0
         for c in range(w):
-            acc[_u(c)] = 0.0
+            acc[_unsigned(c)] = 0.0
         below = _below(v0, w)
         groups = (m - w) // 4
         for g in range(groups):
             # the rows below the triangle four at a time: from the block's end when reverse
             k = m - 4 * (g + 1) if reverse else w + 4 * g
-            x0, x1 = x[_u(rows[_u(r0 + k)])], x[_u(rows[_u(r0 + k + 1)])]
-            x2, x3 = x[_u(rows[_u(r0 + k + 2)])], x[_u(rows[_u(r0 + k + 3)])]
+            x0 = x[_unsigned(rows[_unsigned(r0 + k)])]
+            x1 = x[_unsigned(rows[_unsigned(r0 + k + 1)])]
+            x2 = x[_unsigned(rows[_unsigned(r0 + k + 2)])]
+            x3 = x[_unsigned(rows[_unsigned(r0 + k + 3)])]
             b = below + k * w
             if reverse:
                 for cc in range(w):
                     c = w - 1 - cc
-                    acc[_u(c)] += ((values[_u(b + c)] * x0 + values[_u(b + w + c)] * x1)
-                               + (values[_u(b + 2 * w + c)] * x2 + values[_u(b + 3 * w + c)] * x3))
+                    acc[_unsigned(c)] += ((values[_unsigned(b + c)] * x0
+                                           + values[_unsigned(b + w + c)] * x1)
+                                          + (values[_unsigned(b + 2 * w + c)] * x2
+                                             + values[_unsigned(b + 3 * w + c)] * x3))
             else:
                 for c in range(w):
-                    acc[_u(c)] += ((values[_u(b + c)] * x0 + values[_u(b + w + c)] * x1)
-                               + (values[_u(b + 2 * w + c)] * x2 + values[_u(b + 3 * w + c)] * x3))
+                    acc[_unsigned(c)] += ((values[_unsigned(b + c)] * x0
+                                           + values[_unsigned(b + w + c)] * x1)
+                                          + (values[_unsigned(b + 2 * w + c)] * x2
+                                             + values[_unsigned(b + 3 * w + c)] * x3))
         left = m - w - 4 * groups   # the rows the groups left: right below the triangle if reverse
         for i in range(left):
             k = w + left - 1 - i if reverse else w + 4 * groups + i
-            xk = x[_u(rows[_u(r0 + k)])]
+            xk = x[_unsigned(rows[_unsigned(r0 + k)])]
             b = below + k * w
             for c in range(w):
-                acc[_u(c)] += values[_u(b + c)] * xk
+                acc[_unsigned(c)] += values[_unsigned(b + c)] * xk
         for c in range(w - 1, -1, -1):  # the triangle: each unknown, once known, into the
             b = v0 + _triangle(c)      # sums of those before it (along its block row)
             if scaled:   # (x_j = (c_j - d_j sum_k L_kj x_k) / d_j)
-                d = diagonal[_u(j0 + c)]
-                xc = (x[_u(j0 + c)] - d * acc[_u(c)]) / d
+                d = diagonal[_unsigned(j0 + c)]
+                xc = (x[_unsigned(j0 + c)] - d * acc[_unsigned(c)]) / d
             else:
-                xc = (x[_u(j0 + c)] - acc[_u(c)]) / values[_u(b + c)]
-            x[_u(j0 + c)] = xc
+                xc = (x[_unsigned(j0 + c)] - acc[_unsigned(c)]) / values[_unsigned(b + c)]
+            x[_unsigned(j0 + c)] = xc
             for k in range(c):
-                acc[_u(k)] += values[_u(b + k)] * xc
+                acc[_unsigned(k)] += values[_unsigned(b + k)] * xc
 
 
 class _Packed:

@@ -24,6 +24,7 @@ import threading
 import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
+from scipy.linalg.blas import dsymv as _symv
 
 from ._jit import helper, kernel
 from .bordered_lu import (_linear_rows_symmetric, bordered_lu, lu_solve, release_freed_memory,
@@ -135,6 +136,7 @@ class CondensedSystem:
     _restored_condensed = None   # (tangent, dt) of the checkpoint's condensed block
     lu = None
     P = None
+    P_symmetric = False   # P made exactly symmetric (``condensation_symmetrised``)
     _row_factor = None   # per free unknown in the factors' order: -dt (flow), 1 (mechanics)
     _analyses = None     # the LDL^T's symbolic analyses of the symmetric form (ldl.py)
     _bulk = None         # the symmetric form's fixed pattern (fixed_pattern.FixedBulk)
@@ -320,6 +322,7 @@ class CondensedSystem:
                 # L D L^T's is Fortran-ordered, a C-ordered copy makes later sums in another order)
                 np.copyto(self.P, self._restored_P)
                 self._restored_P = None
+            self.P_symmetric = condensation_symmetrised(self.P)
         if self._blocks_fixed is None:  # rows of the fixed unknowns on the linear ones, in order
             self._blocks_fixed = [M[self._fixed].tocsc()[:, self.linear_order()].tocsr()
                                   for M in (self.A, self.C, self.Hf)]
@@ -487,7 +490,8 @@ class CondensedSystem:
         needed = self._rows_N_fixed
         R = np.zeros_like(x)
         R[needed] = self._L_rows_N_fixed @ x - rhs[needed]
-        R[self.N] += (pending.shift - self.P @ pending.fault) / self.scale[self.N]
+        R[self.N] += ((pending.shift - condensation_times(self.P, self.P_symmetric, pending.fault))
+                      / self.scale[self.N])
         return R
 
     def complete_bulk(self, x, pending, R):
@@ -533,16 +537,62 @@ class CondensedSystem:
                 self._restored_condensed = None
                 if self.factors_any_dt or dt0 == self.dt:
                     self._dense.set(self.P, self._linear_entries(dt0), tangent, dt0,
-                                    base=self.factorizations)
+                                    base=self.factorizations, symmetric=self.P_symmetric)
         tangent = (rows, cols, vals)
         # the Schur complements of one condensation (factorisation of the bulk) differ only in
         # the storage term, which the dense solver is told of when it serves every step size
-        self._dense.set(self.P, self._LNN_entries, tangent, self.dt, base=self.factorizations)
+        self._dense.set(self.P, self._LNN_entries, tangent, self.dt, base=self.factorizations,
+                        symmetric=self.P_symmetric)
         return self._dense
 
     def _linear_entries(self, dt):
         """L_NN's entries at step size dt (scaled; rows, columns, values)."""
         return self._fixed_sum("_sum_NN", self._blocks_NN).entries(dt)
+
+
+#: the condensation P = L_NB B^-1 L_BN is taken as symmetric, and made exactly so, when no entry
+#: differs from its mirror image by more than this fraction of its largest entry: the round-off
+#: of condensing a symmetric bulk (3e-13 on the fine 30 deg scene, factorised in parts). An
+#: unsymmetric one (a poroelastic bulk's flow rows, whose Schur complement is divided by -dt)
+#: differs at the scale of its entries
+CONDENSATION_SYMMETRY_ROUNDOFF = 1e-11
+
+#: rows of P compared and mirrored at a time (a temporary of this many rows, not n x n: the fine
+#: 30 deg scene's peak memory is close to its limit)
+_MIRROR_ROWS = 256
+
+
+def condensation_symmetrised(P) -> bool:
+    """Is P (square) symmetric to CONDENSATION_SYMMETRY_ROUNDOFF? If so, its upper triangle is
+    made the mirror image of its lower one, in place: its products then read one triangle
+    (``condensation_times``), half its bytes (34 MB on the fine 30 deg scene, read at every check
+    of a condensed solve and every residual with the bulk's answer pending)."""
+    n = len(P)
+    if n < 2:
+        return False
+    bound = CONDENSATION_SYMMETRY_ROUNDOFF * max(float(P.max()), -float(P.min()))
+    if not np.isfinite(bound):
+        return False
+    for a in range(0, n, _MIRROR_ROWS):
+        b = min(a + _MIRROR_ROWS, n)
+        if np.max(np.abs(P[a:b, :b] - P[:b, a:b].T)) > bound:
+            return False
+    for a in range(0, n, _MIRROR_ROWS):   # row block a:b takes the columns a:b above it
+        b = min(a + _MIRROR_ROWS, n)
+        block = P[a:b, a:b]
+        upper = np.triu_indices(b - a, 1)
+        block[upper] = block.T[upper]
+        P[:a, a:b] = P[a:b, :a].T
+    return True
+
+
+def condensation_times(P, symmetric, v):
+    """P v; ``symmetric`` (``condensation_symmetrised``): from one triangle of P (BLAS symv),
+    the same up to the order of the sums."""
+    if not symmetric:
+        return P @ v
+    # (a C-ordered P is its own transpose, a Fortran-ordered array: symv takes it without a copy)
+    return _symv(1.0, P if P.flags.f_contiguous else P.T, v, lower=1)
 
 
 @kernel
@@ -758,7 +808,8 @@ class CondensedSolver:
       change below is taken from (without ``storage``, a new step size factorises M);
     - M - M1 = T - T0 (the same condensation: ``base``), read off the tangents' triplets. When
       it lies in few rows and columns K (a slip front that moved by a few fault points), exactly
-      by the Woodbury identity, at the cost of |K| solves with M1 in one block;
+      by the Woodbury identity, at the cost of |K| solves with M0 (kept while M0 is) and, at
+      another step size than M0's, of their rows K corrected for it (``_low_rank``);
     - when it is spread but small (rate-dependent friction, an evolving aperture), by iterative
       refinement with M1's factors and, if that contracts slowly, GMRES preconditioned with them
       (right preconditioning: the true residual of M is what converges), to CONDENSED_RTOL.
@@ -768,6 +819,7 @@ class CondensedSolver:
 
     def __init__(self, storage=None, position=None, scale=None):
         self.P = None
+        self._P_symmetric = False
         self._pattern = None
         # the tangent's triplets are on the whole system's unknowns: position in the block of
         # each (-1: not condensed) and the scaling (default: the block's own, unscaled)
@@ -790,14 +842,16 @@ class CondensedSolver:
             self._storage_rows = np.flatnonzero(np.diff(C.indptr))   # R
             self._C_R = C[self._storage_rows]
 
-    def set(self, P, linear, tangent, dt, base=None):
+    def set(self, P, linear, tangent, dt, base=None, symmetric=False):
         """The block to solve with next, M = -P + L_NN + T at step size ``dt``: ``linear``, L_NN's
         entries (rows, columns, values in the block) and ``tangent``, T's triplets (rows, columns,
         values, on the unknowns that ``position`` places in the block, scaled by ``scale``;
         duplicates summed). ``base`` tells which condensation P is (a count, not the array;
         None: unknown, the block is factorised); blocks of the same base and pattern differ by
-        the tangent and the step size alone."""
+        the tangent and the step size alone. ``symmetric``: P is exactly symmetric (its products
+        then read one triangle, ``condensation_times``)."""
         self.P = P
+        self._P_symmetric = symmetric
         self.inv_dt = 1.0 / dt
         self._step = dt
         self._base = base
@@ -821,7 +875,7 @@ class CondensedSolver:
         own (it remembers the arrays it last matched)."""
         twin = copy.copy(self)
         twin._pattern = copy.copy(self._pattern)
-        for name in ("_Z", "_Z1", "_have", "_have1"):
+        for name in ("_Z", "_T", "_have", "_have1"):
             value = getattr(self, name, None)
             if value is not None:
                 setattr(twin, name, value.copy(order="K"))   # (Fortran order kept)
@@ -829,7 +883,7 @@ class CondensedSolver:
 
     def _times(self, v):
         """M v = -P v + (L_NN + T) v."""
-        out = -(self.P @ v)
+        out = -condensation_times(self.P, self._P_symmetric, v)
         p = self._pattern
         _sparse_times(p.indptr, p.cols, self._sparse, v, out)
         return out
@@ -846,7 +900,7 @@ class CondensedSolver:
         # the old factors and what was solved with them go before the new block is formed (the
         # run's peak memory on the fine 30 deg scene: three n x n arrays at once, not four)
         self.factors = None
-        self._Z = self._Z1 = self._Z_R = self._K_R = None
+        self._Z = self._T = self._Z_R = self._K_R = None
         M = self._form()
         self._M0_largest = max(float(M.max()), -float(M.min())) if M.size else 0.0
         self.factors = scipy.linalg.lu_factor(M, overwrite_a=True, check_finite=False)
@@ -869,11 +923,11 @@ class CondensedSolver:
         self._new_step_size(0.0)
 
     def _new_step_size(self, delta):
-        """The base M1 = M0 + delta E_R C_R: its capacitance's LU and the columns of M1^-1 kept
-        for it (``_base_columns``)."""
+        """The base M1 = M0 + delta E_R C_R: its capacitance's LU and the columns kept for it
+        (``_shift_columns``)."""
         self._delta = delta
         self._capacitance_R = None
-        self._Z1 = None
+        self._T = None
         self._have1 = np.zeros(len(self.P), dtype=bool)
 
     def _step_size_update(self):
@@ -939,11 +993,10 @@ class CondensedSolver:
         return D, K, DK, largest
 
     def _base_columns(self, K):
-        """M1^-1 E_K: the columns of M0^-1 at K (kept while M0 is: K grows as a front advances),
-        corrected for the step size (kept while it is that of M1). Both are made a page of
-        COLUMN_PAGE columns at a time, each page alone: a column's round-off then does not depend
-        on which others were asked for with it, so a restored run, which starts with none kept,
-        repeats them bit for bit."""
+        """M0^-1 E_K: the columns of M0^-1 at K, kept while M0 is (K grows as a front advances),
+        made a page of COLUMN_PAGE columns at a time, each page alone: a column's round-off then
+        does not depend on which others were asked for with it, so a restored run, which starts
+        with none kept, repeats them bit for bit."""
         n = len(self.P)
         if self._Z is None:
             self._Z = np.empty((n, n), order="F")  # (pages of unsolved columns stay untouched)
@@ -952,14 +1005,18 @@ class CondensedSolver:
             E[page, np.arange(len(page))] = 1.0
             self._Z[:, page] = lu_solve(self.factors, E)
             self._have[page] = True
-        if self._delta == 0.0:
-            return self._Z[:, K]
-        if self._Z1 is None:
-            self._Z1 = np.empty((n, n), order="F")
+        return self._Z[:, K]
+
+    def _shift_columns(self, K):
+        """(I + delta K_R)^-1 C_R M0^-1 E_K, |R| rows: what the step size's correction takes
+        off M0^-1 E_K through Z_R (``_step_size_correction``), kept while the step size is, made
+        a page at a time like ``_base_columns``' (after them)."""
+        if self._T is None:
+            self._T = np.empty((len(self._storage_rows), len(self.P)), order="F")
         for page in self._pages(K, self._have1):
-            self._Z1[:, page] = self._step_size_correction(self._Z[:, page])
+            self._T[:, page] = lu_solve(self._capacitance_R, self._C_R @ self._Z[:, page])
             self._have1[page] = True
-        return self._Z1[:, K]
+        return self._T[:, K]
 
     @staticmethod
     def _pages(K, have):
@@ -971,20 +1028,34 @@ class CondensedSolver:
     def _low_rank(self, b, DK, K):
         """Woodbury: with M = M1 + E D E^T (E: the columns of the identity at the changed rows
         and columns K), M^-1 b = y - Z (I + D Z_K)^-1 D y_K, y = M1^-1 b, Z = M1^-1 E. None when
-        the result misses the check."""
-        if len(K) == 0 and self._delta == 0.0:
+        the result misses the check.
+
+        M1^-1 is M0^-1 followed by the step size's correction, which is linear: so
+        y - Z s = correction(w - Z0 s) with w = M0^-1 b and Z0 = M0^-1 E, one correction of a
+        vector per solve, and Z itself is needed only in its rows K (for the capacitance): Z0_K
+        less delta Z_R[K] times the kept ``_shift_columns`` (|R| rows a column, where the n rows
+        of Z's columns cost a product with the n x |R| Z_R each, at every new step size)."""
+        delta = self._delta
+        if len(K) == 0 and delta == 0.0:
             return self._precondition(b)  # M is M0
         if len(K):
-            Z = self._base_columns(K)
-            capacitance = np.eye(len(K)) + DK @ Z[K]
+            Z0 = self._base_columns(K)
+            Z_K = Z0[K]
+            if delta != 0.0:
+                Z_R_K = self._Z_R[K]
+                Z_K = Z_K - delta * (Z_R_K @ self._shift_columns(K))
+            capacitance = np.eye(len(K)) + DK @ Z_K
             try:
                 cap = scipy.linalg.lu_factor(capacitance, check_finite=False)
             except (np.linalg.LinAlgError, ValueError):
                 return None
 
             def apply(r):
-                y = self._precondition(r)
-                return y - Z @ lu_solve(cap, DK @ y[K])
+                w = lu_solve(self.factors, r)
+                y_K = w[K]
+                if delta != 0.0:   # (y = M1^-1 r at K)
+                    y_K = y_K - delta * (Z_R_K @ lu_solve(self._capacitance_R, self._C_R @ w))
+                return self._step_size_correction(w - Z0 @ lu_solve(cap, DK @ y_K))
         else:  # only the step size changed
             apply = self._precondition
 
