@@ -27,13 +27,6 @@ from ._jit import helper, kernel
 
 
 @helper
-def _u(i):
-    """An index known to be non-negative, as unsigned: numba then drops the wraparound of
-    negative indices, whose select keeps LLVM from vectorising a loop along a block row."""
-    return np.uint64(i)
-
-
-@helper
 def _filled(n, value):
     """n copies of ``value`` (int64) by a loop: numba's np.full and np.ones would each be
     compiled, and kept, for this module alone."""
@@ -268,8 +261,9 @@ def _amalgamate(fundamental, col_ptr, parent):
     return starts[:count + 1]
 
 
-#: ``_u`` as a plain cast, for the kernels below: numba types a cast at each use, whereas it
-#: inlines a helper's IR at each call (splitting the block there), and _eliminate has dozens
+#: an index known to be non-negative, as unsigned: numba then drops the wraparound of negative
+#: indices, whose select keeps LLVM from vectorising a loop along a block row. A plain cast, not
+#: a helper: numba types a cast at each use, whereas it inlines a helper's IR at each call
 _unsigned = np.uint64
 
 
