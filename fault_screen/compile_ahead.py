@@ -29,64 +29,68 @@ from pathlib import Path
 #: (module, kernel, compile CPU seconds measured by benchmarks/cold_compile.py: the weights that
 #: split the work, argument types in numba's signature syntax) of the bundled `fault-screen run`
 KERNELS = (
-    ('fault_screen.kernels.rock', 'elastic_stiffness_all', 1.41,
+    ('fault_screen.kernels.rock', 'elastic_stiffness_all', 1.48,
      '(float64[:, :, :, ::1], float64[:, ::1], float64[:, :, ::1])'),
-    ('fault_screen.assembly', 'scatter_matrices', 0.64,
+    ('fault_screen.assembly', 'scatter_matrices', 0.78,
      '(float64[:, :, ::1], int64[:, ::1], int64[:, ::1])'),
-    ('fault_screen.kernels.rock', 'biot_coupling_all', 0.55,
+    ('fault_screen.kernels.rock', 'biot_coupling_all', 0.68,
      '(float64[:, :, :, ::1], float64[:, :, ::1], float64[:, ::1], float64[::1])'),
-    ('fault_screen.kernels.rock', 'pore_storage_all', 0.53,
+    ('fault_screen.kernels.rock', 'pore_storage_all', 0.57,
      '(float64[:, :, ::1], float64[:, ::1], float64[::1])'),
-    ('fault_screen.kernels.rock', 'darcy_conductance_all', 0.54,
+    ('fault_screen.kernels.rock', 'darcy_conductance_all', 0.73,
      '(float64[:, :, :, ::1], float64[:, ::1], float64[::1])'),
-    ('fault_screen.kernels.contact', 'fault_jumps', 0.37,
+    ('fault_screen.kernels.contact', 'fault_jumps', 0.35,
      '(float64[::1], float64[:, ::1], int64[:, ::1], float64[::1], float64[::1])'),
-    ('fault_screen.kernels.fault_flow', 'assemble_evolving_conduction', 1.17,
+    ('fault_screen.kernels.fault_flow', 'assemble_evolving_conduction', 1.28,
      '(float64[::1], float64[::1], float64[:, ::1], int64[:, ::1], float64[:, ::1], '
      'float64[:, ::1], int64[:, ::1], float64[::1], float64[::1], float64, float64, '
      'float64, float64, float64, float64[::1])'),
-    ('fault_screen.kernels.contact', 'rate_state_law', 1.95,
+    ('fault_screen.kernels.contact', 'rate_state_law', 2.14,
      '(float64[::1], float64[::1], float64[::1], float64[:, ::1], float64[::1], float64)'),
-    ('fault_screen.kernels.contact', 'assemble_contact', 1.51,
+    ('fault_screen.kernels.contact', 'assemble_contact', 1.68,
      '(float64[:, ::1], int64[:, ::1], float64[::1], float64[::1], float64[::1], '
      'float64[:, ::1], float64[::1], float64[::1], float64[:, ::1], float64[::1])'),
-    ('fault_screen.ldl', '_etree', 0.54,
+    ('fault_screen.ldl', '_etree', 0.33,
      '(int32[::1], int64[::1], int64)'),
-    ('fault_screen.ldl', '_structure', 1.19,
+    ('fault_screen.ldl', '_structure', 1.13,
      '(int32[::1], int64[::1], int64, int64, int64[::1])'),
-    ('fault_screen.ldl', '_supernode_tree', 3.21,
+    ('fault_screen.ldl', '_supernode_tree', 3.05,
      '(int64[::1], int64[::1], int64[::1], int64)'),
-    ('fault_screen.ldl', '_eliminate', 10.46,
-     '(int64, int64, int32[::1], int32[::1], float64[::1], int64, int64[::1], int64[::1], '
-     'int64[::1], int64[::1], int64[::1], int64[::1], int64[::1], int64[::1], '
-     'float64[::1], float64[::1], float64[:, ::1], float64[::1], int64[::1], int64[::1], '
-     'int64, int64, int64)'),
-    ('fault_screen.solver', '_scaled_field_norms', 0.63,
+    ('fault_screen.ldl', '_eliminate', 10.83,
+     '(int64[::1], int32[::1], int32[::1], float64[::1], int64, int64[::1], int64[::1], '
+     'int64[::1], int64[::1], int64[::1], int64[::1], int64[::1], int64[::1], int64[::1], '
+     'int64[::1], float64[::1], float64[::1], float64[:, ::1], float64[::1], int64, '
+     'int64[::1], int64, int64)'),
+    ('fault_screen.solver', '_scaled_field_norms', 0.74,
      '(float64[::1], float64[::1], uint64[::1], uint64[::1])'),
-    ('fault_screen.solver', '_reference_norms', 0.73,
+    ('fault_screen.solver', '_reference_norms', 0.66,
      '(float64[::1], float64[::1], float64[::1], float64, float64[::1], uint64[::1], '
      'uint64[::1])'),
-    ('fault_screen.linear_system', '_block_values', 0.76,
+    ('fault_screen.linear_system', '_block_values', 0.43,
      '(int64, int64[::1], float64[::1], int64[::1], float64[::1], float64[::1])'),
-    ('fault_screen.linear_system', '_tangent_change', 0.50,
+    ('fault_screen.solver', '_where_changed', 0.28,
+     '(float64[::1], float64[::1], int64[::1])'),
+    ('fault_screen.linear_system', '_tangent_change', 0.90,
      '(int64, uint64[::1], uint64[::1], int64[::1], float64[::1], float64[::1], '
      'float64[::1])'),
-    ('fault_screen.linear_system', '_sparse_times', 0.20,
+    ('fault_screen.linear_system', '_sparse_times', 0.17,
      '(uint64[::1], uint64[::1], float64[::1], float64[::1], float64[::1])'),
-    ('fault_screen.bordered_lu', '_backward_sweep', 1.94,
+    ('fault_screen.bordered_lu', '_backward_sweep', 1.30,
      '(int64[::1], int64[::1], int64[::1], int64[::1], int32[::1], float64[::1], '
      'float64[::1], bool, float64[::1])'),
     ('fault_screen.linear_system', '_scaled_update', 0.19,
      '(float64[::1], uint64[::1], float64[::1], float64[::1])'),
-    ('fault_screen.solver', '_whole_products', 0.60,
+    ('fault_screen.solver', '_whole_products', 0.62,
      '(uint32[::1], uint32[::1], float64[::1], uint32[::1], uint32[::1], float64[::1], '
      'uint32[::1], uint32[::1], float64[::1], float64[::1], float64[::1])'),
-    ('fault_screen.linear_system', '_negated_at', 0.18,
+    ('fault_screen.solver', '_weighted_sum_of', 0.17,
+     '(int64, float64, float64[::1], float64, float64[::1], float64, float64[::1])'),
+    ('fault_screen.linear_system', '_negated_at', 0.13,
      '(float64[::1], uint64[::1], float64[::1])'),
-    ('fault_screen.bordered_lu', '_forward_sweep', 1.04,
+    ('fault_screen.bordered_lu', '_forward_sweep', 0.49,
      '(int64[::1], int64[::1], int64[::1], int64[::1], int32[::1], float64[::1], '
      'float64[::1])'),
-    ('fault_screen.linear_system', '_arnoldi_column', 1.19,
+    ('fault_screen.linear_system', '_arnoldi_column', 0.95,
      '(float64[:, ::1], float64[:, ::1], float64[::1], float64[::1], float64[::1], int64, '
      'float64[::1])'),
 )
