@@ -145,8 +145,9 @@ def lookaheads(scene, times: Sequence[float], drive=None, start: Optional[dateti
     volume = drive.volume if drive is not None else None
     keywords = member_steps(steps)
     for t in times:
-        while sim.advance(t, volume=volume, align=history is None, max_steps=1):
-            screen_row(screening, sim)
+        with sim.solver.blas_threads():   # (held over the steps, not limited and restored at each)
+            while sim.advance(t, volume=volume, align=history is None, max_steps=1):
+                screen_row(screening, sim)
         yield LookAhead(sim, screening, drive=drive, start=start, **keywords)
 
 
