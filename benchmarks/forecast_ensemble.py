@@ -4,6 +4,7 @@
                                                         # scene's steps, both scenes, 3 plans
     python benchmarks/forecast_ensemble.py --quick      # 4 members, 10 min ahead (a smoke run)
     python benchmarks/forecast_ensemble.py --doc        # also write docs/performance/forecast-ensemble.md
+    python benchmarks/forecast_ensemble.py --scene SI --malloc-ab 2   # the workers' malloc setting, A/B
 
 Each member is the calibrated Rustrel scene (the default one in the paper's units, and the SI
 one) with one draw of the varied parameters: it runs its history from 0 to ``--at`` (700 s, on
@@ -70,15 +71,19 @@ PLANS = ("hold", "stop", "scale:1.5")
 TARGET_MEMBERS, TARGET_S = 32, 30.0
 
 
-def ensemble(scene, draws, at, horizon, plans, workers, steps=None):
-    """(wall of the batch (s), wall of the cluster's start (s), the member runs)."""
+def ensemble(scene, draws, at, horizon, plans, workers, steps=None, environ=None):
+    """(wall of the batch (s), wall of the cluster's start (s), the member runs), and with
+    ``environ`` (a variable's name) the workers' values of it."""
     calls = [(i, scene.to_dict(), d, [at], plans, horizon, None, None, None, steps)
              for i, d in enumerate(draws)]
     t0 = time.perf_counter()
     with Runner(workers) as runner:
         started = time.perf_counter() - t0
+        seen = []
         if runner.client is not None:   # the workers import the package and load the numba cache
             runner.client.run(_warm)
+            if environ is not None:
+                seen = list(runner.client.run(os.environ.get, environ).values())
         t1 = time.perf_counter()
         runs = [None] * len(calls)
         dealt, ensemble_id = chunks(calls, workers), uuid.uuid4().hex
@@ -88,7 +93,7 @@ def ensemble(scene, draws, at, horizon, plans, workers, steps=None):
             for run in chunk:
                 runs[run.index] = run
         wall = time.perf_counter() - t1
-    return wall, started, runs
+    return (wall, started, runs) if environ is None else (wall, started, runs, seen)
 
 
 def _warm():
@@ -216,6 +221,45 @@ def history_cost(scene_label, label, exact_runs, runs):
     return [(scene_label, label, str(n), f"{du:.1e}", f"{dp:.1e}", str(dlevel), f"{dtty:.0f}", pa, pb)]
 
 
+#: what Dask's nanny sets in its workers before it starts them unless told not to
+#: (fault_screen.ensemble.WORKER_CONFIG unsets it): what the A/B of --malloc-ab puts back
+DASK_MALLOC_TRIM = 65536
+
+
+def malloc_ab(scene, draws, at, horizon, plans, workers, steps, rounds):
+    """Rows of the ensemble run alternately with the workers' environment as the package sets it
+    (MALLOC_TRIM_THRESHOLD_ unset) and with Dask's default put back, ``rounds`` times each, the
+    order swapped every round (one session, the same members). The setting must be in the
+    nanny's environment before it starts a worker (glibc reads it once, at the start), as
+    Dask's own ``distributed.nanny.pre-spawn-environ`` puts it there."""
+    from fault_screen import ensemble as runner_module
+
+    environ = runner_module.WORKER_CONFIG["distributed"]["nanny"]["pre-spawn-environ"]
+    out = []
+    for k in range(rounds):
+        for value in ((None, DASK_MALLOC_TRIM) if k % 2 == 0 else (DASK_MALLOC_TRIM, None)):
+            saved, before = environ["MALLOC_TRIM_THRESHOLD_"], os.environ.get("MALLOC_TRIM_THRESHOLD_")
+            environ["MALLOC_TRIM_THRESHOLD_"] = value
+            try:
+                wall, started, runs, seen = ensemble(scene, draws, at, horizon, plans, workers, steps,
+                                                     environ="MALLOC_TRIM_THRESHOLD_")
+            finally:
+                environ["MALLOC_TRIM_THRESHOLD_"] = saved
+                # (the nanny sets its pre-spawn variables in this process's environment too,
+                # where the next cluster's workers would inherit them)
+                if before is None:
+                    os.environ.pop("MALLOC_TRIM_THRESHOLD_", None)
+                else:
+                    os.environ["MALLOC_TRIM_THRESHOLD_"] = before
+            ok = [r for r in runs if r.ok]
+            cpu = sorted(r.cpu_s for r in ok)
+            out.append((f"{k + 1}", "unset" if value is None else str(value), ", ".join(map(str, seen)),
+                        f"{len(ok)}/{len(runs)}", f"{wall:.1f}", f"{started:.1f}",
+                        f"{cpu[len(cpu) // 2]:.2f}", f"{sum(cpu) / max(workers, 1):.1f}"))
+            print(out[-1], flush=True)
+    return out
+
+
 def table(head, rows):
     out = ["| " + " | ".join(head) + " |", "|" + "|".join("---" for _ in head) + "|"]
     out += ["| " + " | ".join(r) + " |" for r in rows]
@@ -238,6 +282,9 @@ def main(argv=None):
     ap.add_argument("--profile", type=int, default=3, metavar="N",
                     help="members whose CPU time is split into phases, in this process (0: none) [3]")
     ap.add_argument("--scene", choices=("default", "SI", "both"), default="both", help="scenes [both]")
+    ap.add_argument("--malloc-ab", type=int, default=0, metavar="ROUNDS",
+                    help="only the A/B of the workers' MALLOC_TRIM_THRESHOLD_ (unset, as the package "
+                         "starts them, against Dask's 65536), ROUNDS alternations on the ladder [0: not]")
     ap.add_argument("--quick", action="store_true", help="4 members, 10 min ahead")
     ap.add_argument("--doc", action="store_true", help="write docs/performance/forecast-ensemble.md")
     args = ap.parse_args(argv)
@@ -252,6 +299,17 @@ def main(argv=None):
     print(f"{members} members on a ladder to {args.ladder:g} s and {exact} on the scene's steps x {len(plans)} "
           f"plans ({', '.join(PLANS)}) at {args.at:g} s, {horizon:g} s ahead, {args.workers} workers; "
           f"{os.cpu_count()} cores, load average {load:.1f} at the start", flush=True)
+    if args.malloc_ab:
+        ab = []
+        for name in (("default", "SI") if args.scene == "both" else (args.scene,)):
+            ab += [(name, *row) for row in malloc_ab(Scene.from_toml(SCENES[name]), draws[:members], args.at,
+                                                     horizon, plans, args.workers, {"ladder": args.ladder},
+                                                     args.malloc_ab)]
+        print("\n".join(table(("scene", "round", "MALLOC_TRIM_THRESHOLD_ set", "the workers had",
+                                "members ok", "wall (s)",
+                                "cluster start (s)", "CPU per member, median (s)",
+                                f"sum of CPU / {args.workers} workers (s)"), ab)), flush=True)
+        return 0
     rows, costs, phases = [], [], []
     for name in (("default", "SI") if args.scene == "both" else (args.scene,)):
         scene = Scene.from_toml(SCENES[name])

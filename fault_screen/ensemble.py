@@ -37,11 +37,17 @@ WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THRE
 #: dashboard's figures; the worker's own spill and pause checks, while the nanny still ends a
 #: worker over its memory limit at its own pace): together an eighth to a fifth of a task's CPU
 #: on the Rustrel scenes with the defaults (benchmarks/forecast_ensemble.py gives the other
-#: threads' share)
+#: threads' share). And glibc's own memory thresholds: Dask's nanny starts its workers with
+#: MALLOC_TRIM_THRESHOLD_=64 kB, which also fixes glibc's mmap threshold at 128 kB, so every
+#: array of a step above that size is mapped and unmapped afresh (page faults, the heap trimmed
+#: at every free): a member of the SI Rustrel scene took a fifth to a quarter more CPU, nearly
+#: all of it in the kernel (benchmarks/forecast_ensemble.py --malloc-ab); None leaves the
+#: variable unset (Dask's way of removing one), so the heap reuses what a step frees
 WORKER_CONFIG = {"distributed": {"worker": {"profile": {"enabled": False},
                                             "memory": {"monitor-interval": "1s"}},
                                  "admin": {"tick": {"interval": "500ms"},
-                                           "system-monitor": {"interval": "2s"}}}}
+                                           "system-monitor": {"interval": "2s"}},
+                                 "nanny": {"pre-spawn-environ": {"MALLOC_TRIM_THRESHOLD_": None}}}}
 
 
 def _dotted(config: dict, prefix: str = "") -> dict:

@@ -1,7 +1,8 @@
 """The stepper: a scene advanced step by step with data that may arrive later.
 
 ``Simulation(scene)`` builds the terms, the discretisation and the solver and records the
-in-situ state at t = 0. ``advance(t_next, volume=...)`` (rate control) or
+in-situ state at t = 0 (``recording="lean"``: the newest row only, with what the screening reads
+of it, :class:`LeanRecorder`). ``advance(t_next, volume=...)`` (rate control) or
 ``advance(t_next, pressure=...)`` (pressure control) moves it to ``t_next`` with the scene's
 step sequence (first step ``time.dt``, growing by ``time.growth`` up to ``time.dt_max``); a step
 whose Newton iteration fails is halved and retried up to ``solver.max_step_cuts`` times.
@@ -17,6 +18,7 @@ continues from its natural size afterwards.
 """
 from __future__ import annotations
 
+import collections
 import json
 import math
 import time as _time
@@ -66,8 +68,9 @@ class Simulation:
 
     _solver_origin = None   # the solver state a fork or a restored run began from
 
-    def __init__(self, scene: Scene):
+    def __init__(self, scene: Scene, *, recording: str = "full"):
         wall0 = _time.perf_counter()
+        recorder_type = _recorder_type(recording)
         self.scene = scene
         self.disc = discretise(scene)
         self.physics = self.disc.physics
@@ -93,7 +96,7 @@ class Simulation:
         self.earlier_states = ()
         # a quasi-static instability can only be told from the slip rate of a rate-dependent law
         self.watch_instability = contact is not None and contact.law.rate_dependent
-        self.recorder = Recorder(self.disc, scene)
+        self.recorder = recorder_type(self.disc, scene)
         self.recorder.record(0.0, self.x, fault_at_rest(self.disc, self.x), slip_rate=0.0,
                              flow_rate=0.0, volume=0.0, leaked=0.0, iterations=0, cuts=0, dt=0.0)
         self.disc.release_element_groups()   # (assembled: the steps do not read them)
@@ -723,6 +726,71 @@ class Recorder:
                       fault_weights=fp.weight, fault=fault, injection=group("injection"),
                       balance=group("balance"), solver=group("solver"), meta=dict(meta),
                       fault_time=None if len(kept) == len(rows) else fault_time)
+
+
+class LeanRecorder(Recorder):
+    """The newest row only, holding only what the screening (``MetricsTracker.row_metrics``) and
+    a look-ahead read of it: the time, the fault's slip rate, contact state, shear traction and
+    effective normal stress, the injection point's overpressure and slip, and the step's
+    iterations, cuts and size, each computed as :class:`Recorder` computes it. For runs screened
+    row by row and never written (an ensemble member's history and look-aheads): no result, no
+    stream, no checkpoint."""
+
+    def __init__(self, disc: Discretisation, scene: Scene):
+        self.disc = disc
+        self.number_of_fractures = scene.injection.number_of_fractures
+        self.rows = collections.deque(maxlen=1)
+        self.last: dict | None = None
+        self.count = 0
+        self.writer = None
+        self._open = False
+        self.profile_every = self.profile_interval = None
+
+    def record(self, t, x, point, *, slip_rate, flow_rate, volume, leaked, iterations, cuts, dt):
+        disc = self.disc
+        s_inj, _ = disc.injection_jump(x)
+        row = dict(time=t, slip=point["slip"],
+                   slip_rate=np.asarray(slip_rate, dtype=float) * np.ones(len(disc.fault_points.s)),
+                   shear_traction=point["shear_traction"],
+                   effective_normal_stress=point["effective_normal_stress"],
+                   contact_state=point["contact_state"],
+                   inj_overpressure=disc.injection_overpressure(x), inj_slip=s_inj,
+                   iterations=iterations, cuts=cuts, dt=dt, profile=False)
+        self.count += 1
+        self.last = row
+        self.rows.append(row)
+
+    def keep_profile(self) -> None:
+        pass
+
+    def fork(self) -> "LeanRecorder":
+        twin = super().fork()
+        twin.rows = collections.deque(twin.rows, maxlen=1)
+        return twin
+
+    def _refuse(self, what: str):
+        raise RuntimeError(f"a lean recording keeps the newest row only: no {what} "
+                           f"(make the Simulation with recording='full')")
+
+    def stream(self, writer) -> None:
+        self._refuse("result file")
+
+    def state(self) -> dict:
+        self._refuse("checkpoint")
+
+    def result(self, scene, meta) -> Result:
+        self._refuse("result")
+
+
+#: what ``Simulation(scene, recording=...)`` records of each step
+RECORDINGS = {"full": Recorder, "lean": LeanRecorder}
+
+
+def _recorder_type(recording: str) -> type:
+    try:
+        return RECORDINGS[recording]
+    except KeyError:
+        raise ValueError(f"recording {recording!r}: one of {', '.join(RECORDINGS)}") from None
 
 
 #: the (time, x) fault profiles, in the schema's order

@@ -94,6 +94,19 @@ class MemberRun:
     worker: int = 0
 
 
+#: what a member's run records of each step (``Simulation(recording=...)``): the newest row
+#: only, what the screening and the look-aheads read (``stepper.LeanRecorder``); its forecasts
+#: equal those of a full recording bit for bit (tests/forecast/test_forecast_lean.py)
+MEMBER_RECORDING = "lean"
+
+
+def screen_row(screening, sim) -> None:
+    """Screen the newest row of a member's run: the screening's state (its tracker, the
+    screener's level and holds) moves on, no record of the row is kept (a look-ahead reads the
+    state only)."""
+    screening.update(sim.last_row, unstable=(sim.stopped or {}).get("reason") == "unstable")
+
+
 def member_steps(steps: Optional[dict]) -> dict:
     """The keywords of :class:`LookAhead` for one member's look-aheads: ``growth``/``dt_max`` as
     given, or ``ladder`` (dt_max in s) made into a :class:`StepLadder` of the member's own (a
@@ -125,15 +138,16 @@ def lookaheads(scene, times: Sequence[float], drive=None, start: Optional[dateti
         if not float(history) > 0:
             raise ValueError(f"history steps: dt_max {history!r} must be > 0")
         scene = scene.replace(time=dataclasses.replace(scene.time, growth=2.0, dt_max=float(history)))
-    sim = Simulation(scene)
+    sim = Simulation(scene, recording=MEMBER_RECORDING)
     fp = sim.disc.fault_points
     screening = StepScreening.for_scene(scene, fp.s - sim.disc.injection.s, fp.weight)
-    screening.screen_simulation(sim)
+    screen_row(screening, sim)
     volume = drive.volume if drive is not None else None
     keywords = member_steps(steps)
     for t in times:
-        while sim.advance(t, volume=volume, align=history is None, max_steps=1):
-            screening.screen_simulation(sim)
+        with sim.solver.blas_threads():   # (held over the steps, not limited and restored at each)
+            while sim.advance(t, volume=volume, align=history is None, max_steps=1):
+                screen_row(screening, sim)
         yield LookAhead(sim, screening, drive=drive, start=start, **keywords)
 
 
@@ -429,10 +443,10 @@ class LiveEnsemble:
         from ..stepper import Simulation
 
         for index, params in self._entries:
-            sim = Simulation(scene_with(scene, params) if params else scene)
+            sim = Simulation(scene_with(scene, params) if params else scene, recording=MEMBER_RECORDING)
             fp = sim.disc.fault_points
             screening = StepScreening.for_scene(sim.scene, fp.s - sim.disc.injection.s, fp.weight)
-            screening.screen_simulation(sim)
+            screen_row(screening, sim)
             self.members.append((index, dict(params), sim, screening))
         self._entries = None
 
@@ -474,7 +488,7 @@ class LiveEnsemble:
             try:
                 steps = 0
                 while sim.advance(t_next, volume=volume, pressure=pressure, align=align, max_steps=1):
-                    screening.screen_simulation(sim)
+                    screen_row(screening, sim)
                     steps += 1
                 alive.append(member)
                 taken = steps if taken is None else taken

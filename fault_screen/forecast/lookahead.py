@@ -161,21 +161,24 @@ class LookAhead:
         rows = {k: [v] for k, v in self._first.items()}
         end = self.made_at + float(horizon)
         ladder = self.ladder
-        while True:
-            if ladder is not None and sim.stopped is None and sim.time < end * (1 - 1e-12):
-                made = ladder.set_step(sim, self._rungs, end)
-            if not sim.advance(end, max_steps=1, **drive):
-                break
-            if ladder is not None:
-                ladder.keep(sim, made)
-            record, level = _screen_newest(screening, sim)
-            iterations += int(sim.last_row.get("iterations", 0))
-            times.append(float(sim.time))
-            levels.append(int(level))
-            for k, v in record.items():
-                rows.setdefault(k.rsplit("/", 1)[1], []).append(v)
-            if until is not None and level >= until:
-                break
+        # BLAS held on one thread over all the steps (a ladder's systems then find it held),
+        # not limited and restored at each step
+        with sim.solver.blas_threads():
+            while True:
+                if ladder is not None and sim.stopped is None and sim.time < end * (1 - 1e-12):
+                    made = ladder.set_step(sim, self._rungs, end)
+                if not sim.advance(end, max_steps=1, **drive):
+                    break
+                if ladder is not None:
+                    ladder.keep(sim, made)
+                record, level = _screen_newest(screening, sim)
+                iterations += int(sim.last_row.get("iterations", 0))
+                times.append(float(sim.time))
+                levels.append(int(level))
+                for k, v in record.items():
+                    rows.setdefault(k.rsplit("/", 1)[1], []).append(v)
+                if until is not None and level >= until:
+                    break
         stopped = (sim.stopped or {}).get("message")
         if until is not None and levels[-1] >= until and len(levels) > 1 and sim.time < end * (1 - 1e-12):
             stopped = (f"look-ahead stopped at t = {sim.time:.6g} s, where it reached "

@@ -4,7 +4,7 @@ every array of every forecast must equal the member's run alone, bit for bit.
 
 The scene: the SI calibrated Rustrel scene (rock pore pressure: the bulk is factorised per step
 size) on a 20 x 21 mesh, 60 s of history, then 60 s ahead on a step ladder to 40 s (steps of
-10, 20, 20 and 10 s): three factorisations a member, 5, 10 and 20 s. The number of fractures
+5, 10, 20, 20 and 5 s): three factorisations a member, 5, 10 and 20 s. The number of fractures
 enters the source only, so members varying it factorise equal matrices. The friction leaves the
 bulk as it is but enters the contact's tangent, and so the scaling of the fault's unknowns, which
 borders the factorised matrix: a member of another friction makes its own factors (their

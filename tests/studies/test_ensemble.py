@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import dataclasses
+import os
 
 import pytest
 
@@ -79,8 +80,8 @@ def test_local_dask_cluster_gives_the_in_process_numbers(tiny, tmp_path):
 
 def test_local_workers_run_without_the_profiler_and_keep_the_users_settings():
     """The local workers' own settings (WORKER_CONFIG: no statistical profiler, a 500-ms tick, a
-    1-s memory monitor) go on top of the user's: a setting of the user's elsewhere in the same
-    sections reaches them."""
+    1-s memory monitor, no MALLOC_TRIM_THRESHOLD_) go on top of the user's: a setting of the
+    user's elsewhere in the same sections reaches them."""
     import dask
     import distributed  # noqa: F401  (its defaults in this process's settings before they are changed)
 
@@ -89,6 +90,8 @@ def test_local_workers_run_without_the_profiler_and_keep_the_users_settings():
     with dask.config.set({"distributed.worker.memory.target": 0.55}):
         with Runner(1) as runner:
             seen = [list(runner.client.run(dask.config.get, key).values()) for key in keys]
+            # glibc's malloc left to its own thresholds (Dask sets MALLOC_TRIM_THRESHOLD_=65536)
+            trim = list(runner.client.run(os.environ.get, "MALLOC_TRIM_THRESHOLD_").values())
             # the scheduler and the nanny, in this process, tick and monitor at the same pace
             # (ms; Dask's defaults: a 20-ms tick, a 100-ms memory monitor, a 500-ms system monitor)
             scheduler, (nanny,) = runner.cluster.scheduler, runner.cluster.workers.values()
@@ -97,6 +100,7 @@ def test_local_workers_run_without_the_profiler_and_keep_the_users_settings():
                      nanny.periodic_callbacks["tick"].callback_time,
                      nanny.periodic_callbacks["memory_monitor"].callback_time]
     assert seen == [[False], ["500ms"], ["1s"], [0.55]]
+    assert trim == [os.environ.get("MALLOC_TRIM_THRESHOLD_")]   # (the user's own, if any: None here)
     assert paces == [500, 2000, 500, 1000]
     assert dask.config.get(keys[0]) is True   # this process's settings untouched
     assert dask.config.get(keys[1]) == "20ms" and dask.config.get(keys[3]) == 0.6
