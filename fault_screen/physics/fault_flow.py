@@ -115,15 +115,19 @@ class EvolvingApertureConduction(Term):
         pd = disc.fault_points.p_dofs
         return pd[pd >= 0]
 
-    def _assemble(self, disc, x, time_weight, residual):
+    def _assemble(self, disc, x, time_weight, residual, opening=None):
         fp = disc.fault_points
-        _, opening = disc.fault_jump(x)
+        if opening is None:
+            _, opening = disc.fault_jump(x)
         return fault_flow.assemble_evolving_conduction(
             x, opening, fp.N, fp.jump_dofs, fp.Np, fp.dNp_ds, fp.p_dofs, disc.fault.normal, fp.weight,
             self.aperture0, self.asperity_height_std, self.viscosity, self.kappa, time_weight, residual)
 
     def residual(self, disc, x, history, dt, time_weight, residual, point):
-        vals, aperture = self._assemble(disc, x, time_weight, residual)
+        # the jumps at x go into ``point`` for the terms after this one (the contact term)
+        if "opening" not in point:
+            point["slip"], point["opening"] = disc.fault_jump(x)
+        vals, aperture = self._assemble(disc, x, time_weight, residual, point["opening"])
         point["hydraulic_aperture"] = aperture
         return (*self.pattern(disc), vals)
 

@@ -67,3 +67,35 @@ def test_assembled_tangent_matches_finite_differences(state, kind):
             fd = (residual(x + e)[0] - residual(x - e)[0]) / (2 * h)
             exact = J[:, j].toarray().ravel()
             assert np.max(np.abs(fd - exact)) <= TOL * scale, f"column {j}"
+
+
+def test_terms_share_the_jumps_at_x_without_changing_a_bit(state):
+    """The conduction term leaves the jumps it computes at x in ``point`` for the contact term
+    after it (one computation of the jumps per residual): the residual, the tangents' values and
+    the fault state equal, to the bit, those of each term given a point of its own, at an
+    iterate whose jumps differ from the accepted state's."""
+    sim = state
+    disc = sim.disc
+    dt, theta = 5.0, sim.solver.time_weight
+    rng = np.random.default_rng(3)
+    x = sim.x.copy()
+    jumps = disc.fault_points.jump_dofs
+    moved = np.unique(jumps[jumps >= 0])
+    x[moved] *= 1.0 + 1e-3 * rng.standard_normal(len(moved))
+    terms = sim.solver.nonlinear_terms
+    assert [type(t) for t in terms] == [EvolvingApertureConduction, Contact]
+    shared, alone = {}, []
+    R_shared, R_alone = np.zeros(disc.n_dofs), np.zeros(disc.n_dofs)
+    vals_shared = [t.residual(disc, x, sim.history, dt, theta, R_shared, shared)[2] for t in terms]
+    vals_alone = []
+    for t in terms:
+        point = {}
+        vals_alone.append(t.residual(disc, x, sim.history, dt, theta, R_alone, point)[2])
+        alone.append(point)
+    assert np.array_equal(R_shared, R_alone) and np.any(R_shared != 0.0)
+    for a, b in zip(vals_shared, vals_alone):
+        assert np.array_equal(a, b)
+    for key in ("slip", "opening", "shear_traction", "effective_normal_stress", "friction"):
+        assert np.array_equal(shared[key], alone[1][key]), key
+    assert np.array_equal(shared["hydraulic_aperture"], alone[0]["hydraulic_aperture"])
+    assert np.array_equal(shared["opening"], disc.fault_jump(x)[1])
