@@ -1,0 +1,161 @@
+"""Where a step of the bundled Rustrel scenes goes, and how much of its sweeps' time is the cache
+(issue 28: per-step cost).
+
+    python benchmarks/per_step.py                    # the SI scene and the paper-units scene
+    python benchmarks/per_step.py --scenes paper --repeat 5
+
+In one process per scene, after a first run that loads the kernels from numba's cache:
+
+- ``runs``: the scene run whole ``--repeat`` times (``Simulation`` made, advanced to the end, its
+  result made): process CPU seconds per run (median, least) and the median step's CPU time in ms
+  (steps after the first, whose factorisation is the set-up's);
+- per step, what the solver calls (counts, the same on any machine): forward and backward sweeps
+  through the bulk's factors, solves with the condensed block's dense LU (``lu_solve``) and
+  products with the condensation P;
+- the sweeps: their CPU time a call inside a run (median), and on the same factors after the run
+  (the right-hand sides of a run's size), back to back and with a pass over ``--traffic`` MB of
+  other memory before each sweep: a sweep whose factor no longer sits in the cache reads it
+  from memory, and the MB it takes to get there tell how much of a step's own traffic between
+  two sweeps the cache holds beside the factor;
+- ``shared``: the same run inside ``shared_bulk.sharing()`` (a run after an equal one: the order,
+  the symbolic analyses and the factors reused, bit for bit) against one outside it, interleaved,
+  CPU seconds per run (median), and whether the final states are equal to the bit.
+
+On a shared machine every time measures the other processes too: compare the rows of one run,
+and say how busy the machine was.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+SCENES = {"rustrel": ROOT / "configs" / "rustrel-2015-calibrated.toml",
+          "paper": ROOT / "configs" / "rustrel-2015-calibrated-paper-units.toml"}
+
+
+def _run(path):
+    """One whole run: (process CPU s, the Simulation, the CPU s of each step)."""
+    from fault_screen import Scene, Simulation
+
+    c0 = time.process_time()
+    sim = Simulation(Scene.from_toml(path))
+    marks = [time.process_time()]
+    sim.advance(sim.scene.time.end, progress=lambda *_: marks.append(time.process_time()))
+    sim.result()
+    return time.process_time() - c0, sim, np.diff(marks)
+
+
+class _Counted:
+    """Wraps a module's function: calls and CPU seconds of each call."""
+
+    def __init__(self, module, name):
+        self.module, self.name, self.original = module, name, getattr(module, name)
+        self.times = []
+        setattr(module, name, self)
+
+    def __call__(self, *args, **kwargs):
+        c0 = time.process_time()
+        out = self.original(*args, **kwargs)
+        self.times.append(time.process_time() - c0)
+        return out
+
+    def restore(self):
+        setattr(self.module, self.name, self.original)
+
+
+def _sweep_times(lu, traffic_mb, repeat):
+    """Median CPU ms of a forward and a backward sweep on ``lu`` after a pass over
+    ``traffic_mb`` MB of other memory before each (0: back to back)."""
+    from fault_screen import bordered_lu
+
+    rng = np.random.default_rng(0)
+    r_linear, r_condensed = rng.standard_normal(lu.n_linear), rng.standard_normal(lu.n - lu.n_linear)
+    other = np.ones(max(1, int(traffic_mb * 1e6 / 8)))
+    forward, backward = _Counted(bordered_lu, "_forward_sweep"), _Counted(bordered_lu, "_backward_sweep")
+    try:
+        for _ in range(repeat):
+            if traffic_mb:
+                other += 1.0
+            swept, _ = lu.forward(r_linear, r_condensed)
+            if traffic_mb:
+                other += 1.0
+            lu.backward(swept, r_condensed)
+    finally:
+        forward.restore()
+        backward.restore()
+    return 1e3 * np.median(forward.times), 1e3 * np.median(backward.times)
+
+
+def scene_rows(name, repeat, traffic, sweep_repeat):
+    from fault_screen import bordered_lu, linear_system, shared_bulk
+
+    path = SCENES[name]
+    _run(path)   # (the kernels loaded)
+    cpu, step_ms = [], []
+    for _ in range(repeat):
+        c, sim, steps = _run(path)
+        cpu.append(c)
+        step_ms.append(1e3 * np.median(steps[1:]))
+    print(f"\n### {name}: {sim.disc.n_dofs} unknowns, {len(sim.solver.B)} in the bulk, "
+          f"{len(sim.solver.N)} condensed\n")
+    print("| runs | CPU s a run (median, least) | median step CPU ms |")
+    print("|---|---|---|")
+    print(f"| {repeat} | {np.median(cpu):.3f}, {min(cpu):.3f} | {np.median(step_ms):.2f} |")
+
+    counted = [_Counted(bordered_lu, "_forward_sweep"), _Counted(bordered_lu, "_backward_sweep"),
+               _Counted(linear_system, "lu_solve"), _Counted(linear_system, "condensation_times")]
+    try:
+        _, sim, steps = _run(path)
+    finally:
+        for c in counted:
+            c.restore()
+    n_steps = len(steps)
+    lu = sim.solver.system.lu
+    print(f"\nper step ({n_steps} steps; calls a step): forward sweeps "
+          f"{len(counted[0].times) / n_steps:.2f}, backward sweeps {len(counted[1].times) / n_steps:.2f}, "
+          f"condensed LU solves {len(counted[2].times) / n_steps:.2f}, products with P "
+          f"{len(counted[3].times) / n_steps:.2f}; packed factor {8e-6 * lu.packed_values:.1f} MB\n")
+    print("| sweeps, CPU ms a call (median) | forward | backward |")
+    print("|---|---|---|")
+    print(f"| in the run | {1e3 * np.median(counted[0].times):.3f} | {1e3 * np.median(counted[1].times):.3f} |")
+    for mb in traffic:
+        f, b = _sweep_times(lu, mb, sweep_repeat)
+        what = "back to back" if mb == 0 else f"after {mb:g} MB of other memory"
+        print(f"| on the run's factors, {what} | {f:.3f} | {b:.3f} |")
+
+    store = shared_bulk.SharedBulk()
+    with shared_bulk.sharing(store):
+        _run(path)   # (what the shared runs reuse)
+    plain, shared = [], []
+    for _ in range(repeat):
+        c, alone, _ = _run(path)
+        plain.append(c)
+        with shared_bulk.sharing(store):
+            c, inside, _ = _run(path)
+        shared.append(c)
+    print("\n| second run | CPU s (median) |\n|---|---|")
+    print(f"| alone | {np.median(plain):.3f} |")
+    print(f"| inside `shared_bulk.sharing()` after an equal run | {np.median(shared):.3f} |")
+    print(f"\nfinal states equal to the bit: {np.array_equal(alone.x, inside.x)}")
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--scenes", nargs="+", choices=sorted(SCENES), default=["rustrel", "paper"])
+    p.add_argument("--repeat", type=int, default=3, help="runs per row (default 3)")
+    p.add_argument("--traffic", type=float, nargs="+", default=[0, 4, 8, 16, 32],
+                   help="MB of other memory passed over before each sweep (default 0 4 8 16 32)")
+    p.add_argument("--sweep-repeat", type=int, default=40, help="sweeps per traffic row (default 40)")
+    a = p.parse_args(argv)
+    for name in a.scenes:
+        scene_rows(name, a.repeat, a.traffic, a.sweep_repeat)
+
+
+if __name__ == "__main__":
+    main()
