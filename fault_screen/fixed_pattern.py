@@ -69,6 +69,18 @@ def _canonical(X):
     return X
 
 
+def _sorted_unique(keys):
+    """The distinct values of the integer array ``keys``, ascending (``np.unique``'s result):
+    by a sort and a comparison of neighbours. np.unique hashes integers first, and the keys
+    here (column * rows + row, runs of near neighbours) took it 0.27 s for the 460,000 of the
+    paper-units Rustrel bulk, against 0.01 s sorted."""
+    keys = np.sort(keys)
+    distinct = np.empty(len(keys), dtype=bool)
+    distinct[:1] = True
+    np.not_equal(keys[1:], keys[:-1], out=distinct[1:])
+    return keys[distinct]
+
+
 def _positions(blocks, shape):
     """The union pattern of ``blocks`` (sparse, one shape) as sorted keys column * rows + row
     (CSC order), and per block the position in the union of each of its entries (CSC order)."""
@@ -79,7 +91,7 @@ def _positions(blocks, shape):
         X.sum_duplicates()
         cols = np.repeat(np.arange(X.shape[1], dtype=np.int64), np.diff(X.indptr))
         keyed.append((X, cols * n_rows + X.indices.astype(np.int64)))
-    union = np.unique(np.concatenate([k for _, k in keyed]))
+    union = _sorted_unique(np.concatenate([k for _, k in keyed]))
     return union, [(X, np.searchsorted(union, k)) for X, k in keyed]
 
 

@@ -234,3 +234,15 @@ def test_parts_of_a_twin_with_other_values():
     after = bulk.parts(3.0)
     assert np.array_equal(before[0].data, after[0].data) and np.array_equal(before[1], after[1])
     assert not np.array_equal(before[0].data, twin.parts(3.0)[0].data)
+
+
+@pytest.mark.parametrize("n, high", [(0, 5), (1, 5), (2000, 50), (5000, 10 ** 12)])
+def test_sorted_unique_equals_numpy(n, high):
+    """The fixed pattern's union of keys (``_sorted_unique``, by a sort): np.unique's array,
+    value for value and in its dtype, with many repeats (high 50) and with almost none."""
+    from fault_screen.fixed_pattern import _sorted_unique
+
+    keys = np.random.default_rng(n).integers(0, high, n, dtype=np.int64)
+    got, want = _sorted_unique(keys), np.unique(keys)
+    assert got.dtype == want.dtype and np.array_equal(got, want)
+    assert high > n or len(got) < n   # (the repeats were there to remove)
