@@ -69,6 +69,18 @@ def _canonical(X):
     return X
 
 
+def _sorted_unique(keys):
+    """The distinct values of the integer array ``keys``, ascending (``np.unique``'s result):
+    by a sort and a comparison of neighbours. np.unique hashes integers first, and the keys
+    here (column * rows + row, runs of near neighbours) took it 0.27 s for the 460,000 of the
+    paper-units Rustrel bulk, against 0.01 s sorted."""
+    keys = np.sort(keys)
+    distinct = np.empty(len(keys), dtype=bool)
+    distinct[:1] = True
+    np.not_equal(keys[1:], keys[:-1], out=distinct[1:])
+    return keys[distinct]
+
+
 def _positions(blocks, shape):
     """The union pattern of ``blocks`` (sparse, one shape) as sorted keys column * rows + row
     (CSC order), and per block the position in the union of each of its entries (CSC order)."""
@@ -79,7 +91,7 @@ def _positions(blocks, shape):
         X.sum_duplicates()
         cols = np.repeat(np.arange(X.shape[1], dtype=np.int64), np.diff(X.indptr))
         keyed.append((X, cols * n_rows + X.indices.astype(np.int64)))
-    union = np.unique(np.concatenate([k for _, k in keyed]))
+    union = _sorted_unique(np.concatenate([k for _, k in keyed]))
     return union, [(X, np.searchsorted(union, k)) for X, k in keyed]
 
 
@@ -175,6 +187,7 @@ class FixedBulk:
         self._read_indptr = _index(np.bincount(cols[read], minlength=n))
         self._read_indices = rows[read]
         self._read_at = [at[read] for at in self._at]
+        self._read_data = None   # (``_read_blocks``)
 
     @staticmethod
     def pattern_key(blocks, order, flow, n_linear):
@@ -195,6 +208,7 @@ class FixedBulk:
         twin._data = [X.data for X in map(_canonical, blocks)]
         twin._time_weight = time_weight
         twin._scale = np.ascontiguousarray(scale[self._order])
+        twin._read_data = None
         return twin
 
     def _row_factor(self, dt):
@@ -211,13 +225,25 @@ class FixedBulk:
                        self._row_factor(dt), 1.0 / dt, self._time_weight, out)
         return out
 
+    def _read_blocks(self):
+        """Each block's values at the entries that ``parts`` computes, in their order (zero
+        where the block has none), gathered at its first call, and the positions 0, 1, ... into
+        them: a new step size's pass then streams through them in order. Gathered at each step
+        size, the blocks' values were read at scattered positions that the factorisation before
+        had evicted from the caches (3 ms of the pass's 3.5 on paper-units Rustrel, for 4 MB
+        held there)."""
+        if self._read_data is None:
+            n = len(self._read_indices)
+            self._read_data = ([_gather(x, at) for x, at in zip(self._data, self._read_at)],
+                               np.arange(n, dtype=_index_type(n)))
+        return self._read_data
+
     def parts(self, dt):
         """(``lower``, ``condensed``) at step size dt, the values of those entries alone
         computed (each as ``values`` computes it: the same numbers to the last bit)."""
         read = np.empty(len(self._read_indices))
-        a, c, h = self._data
-        at_a, at_c, at_h = self._read_at
-        _scaled_values(self._read_indptr, self._read_indices, at_a, at_c, at_h, a, c, h,
+        (a, c, h), at = self._read_blocks()
+        _scaled_values(self._read_indptr, self._read_indices, at, at, at, a, c, h,
                        self._scale, self._row_factor(dt), 1.0 / dt, self._time_weight, read)
         n_lower = len(self.lower_indices)
         return self._lower_of(read[:n_lower]), self._condensed_of(read[n_lower:])

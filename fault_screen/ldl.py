@@ -18,6 +18,7 @@ U12 = D L21^T (the symmetric form has M_BN = M_NB^T).
 """
 from __future__ import annotations
 
+import _thread
 import threading
 
 import numpy as np
@@ -659,6 +660,34 @@ def _front_step(what, t, c0, b, begin, end, blocks, front, where, indptr, indice
         _to_condensed(front, m, w, r0, relative, condensed.reshape(-1), condensed.shape[0])
 
 
+def _in_background(fn, *args):
+    """Start fn(*args) in a thread of its own and return at once: a function that waits for it
+    to end and raises what it raised. (``threading.Thread.start`` waits until the new thread
+    runs, which on a busy machine is a scheduler's time slice during which the caller could
+    already factorise its own part; a ``threading.Thread``'s exception is only printed.)"""
+    done = _thread.allocate_lock()
+    done.acquire()
+    failed = []
+
+    def body():
+        try:
+            fn(*args)
+        except BaseException as error:   # (handed to the caller by ``join``)
+            failed.append(error)
+        finally:
+            done.release()
+
+    _thread.start_new_thread(body, ())
+
+    def join(raise_failure=True):
+        with done:
+            pass
+        if failed and raise_failure:
+            raise failed[0]
+
+    return join
+
+
 def _split_front(t, lower, symbolic, diagonal, values, stack, update_at, condensed, threads):
     """Supernode t (the last of the top: a root) factorised by panels of PANEL columns, each
     panel's pivot block in the calling thread, then its rows below and their update in two
@@ -720,8 +749,7 @@ def _split_front(t, lower, symbolic, diagonal, values, stack, update_at, condens
                 barrier.abort()
                 raise
 
-        worker = threading.Thread(target=second_half, name="fault-screen-ldl")
-        worker.start()
+        join = _in_background(second_half)
         try:
             for c0, b, u, rows, update in panels:
                 step(1, c0, b)
@@ -730,11 +758,12 @@ def _split_front(t, lower, symbolic, diagonal, values, stack, update_at, condens
                 barrier.wait()
                 step(3, c0, b, 0, u, 0, update[0])
                 barrier.wait()
-        except BaseException:
+        except BaseException as error:
             barrier.abort()
+            # (a barrier broken by the other thread: its error is the one to raise)
+            join(raise_failure=isinstance(error, threading.BrokenBarrierError))
             raise
-        finally:
-            worker.join()
+        join()
     else:
         for c0, b, u, rows, update in panels:
             step(1, c0, b)
@@ -814,12 +843,13 @@ def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=No
     if threads is None:
         threads = 2 if symbolic.multiply_adds > THREADS_ABOVE else 1
     if threads >= 2 and len(sequences[0]) and len(sequences[1]):
-        worker = threading.Thread(target=run, args=(1, second_part), name="fault-screen-ldl")
-        worker.start()
+        join = _in_background(run, 1, second_part)
         try:
             run(0, first_part)
-        finally:
-            worker.join()
+        except BaseException:
+            join(raise_failure=False)
+            raise
+        join()
     else:
         run(0, first_part)
         run(1, second_part)

@@ -196,3 +196,53 @@ def test_a_block_without_entries():
         X, Y, Z = bulk.components()
         np.testing.assert_allclose((X + dt * Y + Z / dt).toarray(), M.toarray(), rtol=1e-15,
                                    atol=0.0)
+
+
+def _random_blocks(rng, n):
+    K = sp.random(n, n, density=0.15, random_state=rng) + sp.eye(n)
+    H = sp.random(n, n, density=0.05, random_state=rng)
+    return ((K + K.T).tocsr(), sp.diags(rng.uniform(1.0, 2.0, n)).tocsr(), (H + H.T).tocsr())
+
+
+def test_parts_of_a_twin_with_other_values():
+    """``parts`` streams through the blocks' values gathered at its first call: a twin with
+    other values (``with_values``, as ensemble members share a pattern) gathers its own, and
+    each bulk's parts equal, bit for bit, those of a bulk made from its own blocks, before and
+    after the other's were gathered."""
+    rng = np.random.default_rng(11)
+    n, n_linear = 50, 38
+    first = _random_blocks(rng, n)
+    # the same nonzero pattern, other values
+    second = tuple(sp.csr_matrix((rng.uniform(0.5, 1.5, X.nnz) * np.sign(X.data), X.indices,
+                                  X.indptr), shape=X.shape) for X in first)
+    scale, order = rng.uniform(0.5, 2.0, n), rng.permutation(n)
+    flow = np.zeros(n, dtype=bool)
+    flow[::4] = True
+    bulk = FixedBulk(first, 0.5, order, scale, flow, n_linear)
+    before = bulk.parts(3.0)
+    scale2 = rng.uniform(0.5, 2.0, n)
+    twin = bulk.with_values(second, 0.7, scale2)
+    alone = FixedBulk(second, 0.7, order, scale2, flow, n_linear)
+    for dt in (3.0, 250.0):
+        (lower, condensed), (want_lower, want_condensed) = twin.parts(dt), alone.parts(dt)
+        assert np.array_equal(lower.data, want_lower.data)
+        assert np.array_equal(condensed, want_condensed)
+        # and each part as ``values`` computes it
+        values = alone.values(dt)
+        assert np.array_equal(lower.data, alone.lower(values).data)
+        assert np.array_equal(condensed, alone.condensed(values))
+    after = bulk.parts(3.0)
+    assert np.array_equal(before[0].data, after[0].data) and np.array_equal(before[1], after[1])
+    assert not np.array_equal(before[0].data, twin.parts(3.0)[0].data)
+
+
+@pytest.mark.parametrize("n, high", [(0, 5), (1, 5), (2000, 50), (5000, 10 ** 12)])
+def test_sorted_unique_equals_numpy(n, high):
+    """The fixed pattern's union of keys (``_sorted_unique``, by a sort): np.unique's array,
+    value for value and in its dtype, with many repeats (high 50) and with almost none."""
+    from fault_screen.fixed_pattern import _sorted_unique
+
+    keys = np.random.default_rng(n).integers(0, high, n, dtype=np.int64)
+    got, want = _sorted_unique(keys), np.unique(keys)
+    assert got.dtype == want.dtype and np.array_equal(got, want)
+    assert high > n or len(got) < n   # (the repeats were there to remove)

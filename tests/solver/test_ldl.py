@@ -7,6 +7,7 @@ Tolerances: the Schur complement, the swept right-hand sides and the solution to
 relative to the reference's largest entry (tests/solver/test_bordered_lu.py's check), the solve of the whole system
 to a normwise backward error |M x - r| / (|M| |x| + |r|) (infinity norms) below 1e-15 (measured
 2e-17 and less), which a wrong factor entry anywhere exceeds by orders of magnitude."""
+import threading
 from dataclasses import replace
 
 import numpy as np
@@ -310,6 +311,35 @@ def test_two_threads_give_the_factors_of_one(poroelastic, elastic, monkeypatch, 
         assert len(first_part) > 10 and len(second_part) > 10 and len(top) >= 1
         assert (symbolic.split_front == top[-1]) if shared else symbolic.split_front == -1
     _check_against_dense(two, M, nB, 9)
+
+
+@pytest.mark.parametrize("kernel", ["_eliminate", "_front_step"])
+def test_an_error_in_the_second_thread_reaches_the_caller(poroelastic, monkeypatch, kernel):
+    """The second thread of a refactorisation (``ldl._in_background``: a part of the tree, or
+    the second half of the shared front) failing: its own error is raised by the
+    factorisation, in the calling thread (not printed and lost, nor a broken barrier), and the
+    threads' next factorisation is whole again: the same factors bit for bit as one thread's."""
+    monkeypatch.setattr(ldl, "SPLIT_FRONT_ABOVE", 0.0)
+    M, nB = _free_block(poroelastic, 600.0, symmetric_form=True)
+    analyses = ldl.SymbolicAnalyses()
+    BorderedLU(M, nB, analyses)   # (the first factorisation: the front not shared yet)
+    monkeypatch.setattr(ldl, "THREADS_ABOVE", 0.0)
+    works = getattr(ldl, kernel)
+
+    def failing(*args):
+        if threading.current_thread() is not threading.main_thread():
+            raise RuntimeError("the second thread failed")
+        return works(*args)
+
+    monkeypatch.setattr(ldl, kernel, failing)
+    with pytest.raises(RuntimeError, match="the second thread failed"):
+        BorderedLU(M, nB, analyses)
+    monkeypatch.setattr(ldl, kernel, works)
+    two = BorderedLU(M, nB, analyses)
+    monkeypatch.setattr(ldl, "THREADS_ABOVE", np.inf)
+    one = BorderedLU(M, nB, analyses)
+    assert np.array_equal(one.schur, two.schur) and np.array_equal(one._D, two._D)
+    assert all(np.array_equal(x, y) for x, y in zip(one._L.arrays, two._L.arrays))
 
 
 def test_the_plan_of_a_forest_and_of_a_chain(monkeypatch):
