@@ -158,6 +158,27 @@ def test_view_of_a_short_result_is_the_result(long_file):
         assert np.array_equal(view.fault[k], v), k
 
 
+def test_view_without_profiles_has_the_series_of_the_full_view(long_file):
+    """What ``run`` reads back for its summary without --plot: the same 202-value envelopes
+    of every series and group, no fault profile (0 of 50), the fault's geometry."""
+    from fault_screen.result import ResultFile
+
+    with ResultFile(long_file, read_rows=100) as rf:
+        full, bare = rf.view(points=200, profiles=50), rf.view(points=200, profiles=0)
+    assert len(bare.time) == 202 and np.array_equal(bare.time, full.time)
+    for group in ("injection", "balance", "solver"):
+        assert getattr(bare, group).keys() == getattr(full, group).keys()
+        for k, v in getattr(full, group).items():
+            assert np.array_equal(getattr(bare, group)[k], v), (group, k)
+    assert bare.extra.keys() == full.extra.keys()
+    for g, arrays in full.extra.items():
+        assert all(np.array_equal(bare.extra[g][k], v) for k, v in arrays.items()), g
+    assert len(bare.profile_time) == 0 and len(full.profile_time) == 50
+    assert bare.fault.keys() == full.fault.keys()
+    assert all(v.shape == (0, full.fault_x.size) for v in bare.fault.values())
+    assert np.array_equal(bare.fault_x, full.fault_x)
+
+
 def test_profile_reductions_read_a_bounded_number_of_values(long_file):
     from fault_screen.result import ResultFile
 
