@@ -11,7 +11,7 @@ import numpy as np
 
 from ..budget import fluid_budget
 from ._common import events_report, load_events
-from ._options import BadInput, check_size
+from ._options import BadInput, check_size, leave_to_the_system
 from ._progress import Progress, format_duration
 
 
@@ -63,6 +63,7 @@ def run_scene(scene, *, scene_label: str, out: Path | None, plot_dir: Path | Non
     from ..compile_ahead import compile_ahead
 
     compile_ahead()        # an empty numba cache: the kernels compiled by child processes
+    leave_to_the_system()  # the imported modules' objects: out of the collector's walks
     progress = None if quiet else Progress(sys.stdout)
     part = out.with_name(out.name + ".part")
     try:
