@@ -80,11 +80,8 @@ def test_run_help_imports_no_numpy_and_no_run_machinery():
                     "fault_screen.cli.run"], ours
 
 
-def test_a_whole_run_imports_no_ensemble_and_starts_no_ldconfig(tmp_path):
-    """A whole ``run`` of a scene without ``--set`` (a 4 x 5 mesh, 4 steps) imports
-    fault_screen.ensemble (what ``--set`` changes a scene with) not at all, no other command's
-    module, and not ctypes.util, whose ``find_library`` starts ``ldconfig`` in a child process
-    (the heap trim finds glibc's malloc_trim in the C library already loaded)."""
+def _tiny_scene(tmp_path):
+    """A 4 x 5 mesh run for 4 steps of 5 s, as a scene file."""
     from fault_screen import Scene
 
     scene = tmp_path / "tiny.toml"
@@ -93,6 +90,15 @@ def test_a_whole_run_imports_no_ensemble_and_starts_no_ldconfig(tmp_path):
         "initial": {"effective_stress": [-5.649e6, -3.351e6, 0.964e6], "pore_pressure": 2.764e6},
         "injection": {"number_of_fractures": 10, "schedule": [[0.0, 1e-3]]},
         "time": {"end": 20.0, "dt": 5.0}}).to_toml())
+    return scene
+
+
+def test_a_whole_run_imports_no_ensemble_and_starts_no_ldconfig(tmp_path):
+    """A whole ``run`` of a scene without ``--set`` (a 4 x 5 mesh, 4 steps) imports
+    fault_screen.ensemble (what ``--set`` changes a scene with) not at all, no other command's
+    module, and not ctypes.util, whose ``find_library`` starts ``ldconfig`` in a child process
+    (the heap trim finds glibc's malloc_trim in the C library already loaded)."""
+    scene = _tiny_scene(tmp_path)
     modules = imported_after("run", str(scene), "--out", str(tmp_path / "r.h5"), "--quiet")
     assert (tmp_path / "r.h5").is_file()
     assert "fault_screen.stepper" in modules and "fault_screen.bordered_lu" in modules
@@ -122,15 +128,10 @@ def test_the_console_script_leaves_its_objects_to_the_system_at_exit(tmp_path):
 
     from click.testing import CliRunner
 
-    from fault_screen import Result, Scene
+    from fault_screen import Result
     from fault_screen.cli import main
 
-    scene = tmp_path / "tiny.toml"
-    scene.write_text(Scene.from_dict({
-        "mesh": {"nx": 4, "ny": 5, "lx": 50.0, "ly": 50.0},
-        "initial": {"effective_stress": [-5.649e6, -3.351e6, 0.964e6], "pore_pressure": 2.764e6},
-        "injection": {"number_of_fractures": 10, "schedule": [[0.0, 1e-3]]},
-        "time": {"end": 20.0, "dt": 5.0}}).to_toml())
+    scene = _tiny_scene(tmp_path)
     out = tmp_path / "r.h5"
     code = ("import atexit, gc, sys\n"
             "atexit.register(lambda: print('FROZEN', gc.get_freeze_count(), file=sys.stderr))\n"
