@@ -49,14 +49,16 @@ from .ldl import NotQuasiDefinite, _unsigned  # noqa: F401  (_unsigned: the swee
 
 @functools.cache
 def _libc_malloc_trim():
-    """glibc's malloc_trim, or None (another C library)."""
+    """glibc's malloc_trim, or None (another C library). Looked up in the C library the
+    process already has loaded: ``ctypes.util.find_library`` would start ``ldconfig``."""
     import ctypes
-    import ctypes.util
 
-    try:
-        return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").malloc_trim
-    except (OSError, AttributeError):
-        return None
+    for name in (None, "libc.so.6"):
+        try:
+            return ctypes.CDLL(name).malloc_trim
+        except (OSError, AttributeError):
+            continue
+    return None
 
 
 def release_freed_memory():

@@ -171,6 +171,7 @@ class ResultFile:
         self.read_rows = int(read_rows)
         self.largest_read = 0          # rows of the largest single read so far
         self.h5 = _open_for_reading(path)
+        self._datasets = {}
         try:
             self.scene = Scene.from_dict(tomllib.loads(self.h5.attrs["scene"]))
             self.meta = json.loads(self.h5.attrs["meta"])
@@ -191,23 +192,31 @@ class ResultFile:
         self.h5.close()
 
     # -- reads -------------------------------------------------------------------------------
+    def _dataset(self, path: str):
+        """The dataset ``path``, looked up once: h5py's lookup by path costs about as much as
+        reading a short series (a view asks for each dataset five times)."""
+        ds = self._datasets.get(path)
+        if ds is None:
+            ds = self._datasets[path] = self.h5[path]
+        return ds
+
     def _read(self, path: str, index):
         """Rows ``index`` (a slice or increasing integer array) of dataset ``path``: the one
         place rows are read, so :attr:`largest_read` holds the largest read."""
-        ds = self.h5[path]
+        ds = self._dataset(path)
         n = len(range(*index.indices(ds.shape[0]))) if isinstance(index, slice) else len(index)
         self.largest_read = max(self.largest_read, n)
         return ds[index]
 
     def blocks(self, path: str):
         """(first row, rows) of dataset ``path`` in blocks of at most ``read_rows`` rows."""
-        n = self.h5[path].shape[0]
+        n = self._dataset(path).shape[0]
         for i0 in range(0, n, self.read_rows):
             yield i0, self._read(path, slice(i0, min(n, i0 + self.read_rows)))
 
     def last(self, path: str):
         """The last row of dataset ``path``."""
-        n = self.h5[path].shape[0]
+        n = self._dataset(path).shape[0]
         return self._read(path, slice(n - 1, n))[0]
 
     def maximum(self, path: str) -> float:
@@ -222,20 +231,21 @@ class ResultFile:
         """``ufunc`` over time of ``transform(rows)`` of the fault profile ``name``: one value per
         fault point (e.g. the largest |slip| of each point: ``profile_reduce("slip", np.abs)``)."""
         path = f"fault/{name}"
-        rows = max(1, self.read_rows // max(1, self.h5[path].shape[1]))
+        ds = self._dataset(path)
+        rows = max(1, self.read_rows // max(1, ds.shape[1]))
         out = None
-        n = self.h5[path].shape[0]
+        n = ds.shape[0]
         for i0 in range(0, n, rows):
             part = ufunc.reduce(transform(self._read(path, slice(i0, min(n, i0 + rows)))), axis=0)
             out = part if out is None else ufunc(out, part)
-        return out if out is not None else np.zeros(self.h5[path].shape[1])
+        return out if out is not None else np.zeros(ds.shape[1])
 
     def row_blocks(self, paths: list, rows: int | None = None):
         """(first row, {path: its rows}) of the datasets ``paths`` side by side, first ``rows``
         rows (default: every output time), in blocks of at most ``read_rows`` values of the
         widest of them (at least one row)."""
         n = self.rows if rows is None else int(rows)
-        widest = max((int(np.prod(self.h5[p].shape[1:], dtype=np.int64)) or 1 for p in paths),
+        widest = max((int(np.prod(self._dataset(p).shape[1:], dtype=np.int64)) or 1 for p in paths),
                      default=1)
         step = max(1, self.read_rows // widest)
         for i0 in range(0, n, step):
@@ -321,8 +331,9 @@ class ResultFile:
         between, the bucket's smallest and largest value in the order they came, at the
         bucket's first and last time: the envelope, so no peak is lost. The profiles are
         spread evenly over the run, the first and last among them."""
-        h5 = self.h5
-        series = {g: [k for k in h5[g] if h5[g][k].ndim == 1 and h5[g][k].dtype.names is None]
+        h5, ds = self.h5, self._dataset
+        series = {g: [k for k in h5[g]
+                      if ds(f"{g}/{k}").ndim == 1 and ds(f"{g}/{k}").dtype.names is None]
                   for g in _SERIES_GROUPS if g in h5}
         if not self.growing:
             self._check_shapes(series)
@@ -357,14 +368,14 @@ class ResultFile:
     def _check_shapes(self, series: dict) -> None:
         """ValueError (one line) unless every series has a row per output time and every
         profile a row per profile time and a column per fault point (as Result.check_lengths)."""
-        h5, n_x = self.h5, self.h5["fault/x"].shape[0]
+        h5, ds, n_x = self.h5, self._dataset, self._dataset("fault/x").shape[0]
         for g, keys in series.items():
             for k in keys:
-                if h5[g][k].shape[0] != self.rows:
-                    raise ValueError(f"damaged result: /{g}/{k} has {h5[g][k].shape[0]} rows for "
-                                     f"{self.rows} output times")
+                if ds(f"{g}/{k}").shape[0] != self.rows:
+                    raise ValueError(f"damaged result: /{g}/{k} has {ds(f'{g}/{k}').shape[0]} rows "
+                                     f"for {self.rows} output times")
         for k in h5["fault"]:
-            shape = h5["fault"][k].shape
+            shape = ds(f"fault/{k}").shape
             if k not in ("x", "xy", "weight", "time") and shape != (self.profiles, n_x):
                 raise ValueError(f"damaged result: /fault/{k} has shape {shape} for "
                                  f"{self.profiles} times and {n_x} fault points")
@@ -377,7 +388,7 @@ class ResultFile:
 
     def _rows_of(self, path: str, rows: np.ndarray) -> np.ndarray:
         """Rows ``rows`` (increasing) of ``path``, read at most ``read_rows`` values at once."""
-        ds = self.h5[path]
+        ds = self._dataset(path)
         width = int(np.prod(ds.shape[1:], dtype=np.int64)) or 1
         step = max(1, self.read_rows // width)
         parts = [self._read(path, rows[i:i + step]) for i in range(0, len(rows), step)]
@@ -386,14 +397,14 @@ class ResultFile:
     def _envelope(self, paths: list, n: int, points: int) -> dict:
         """path -> the envelope of :meth:`view` of datasets of ``n`` rows."""
         if n <= max(points, 2):
-            return {p: np.concatenate([b for _, b in self.blocks(p)]) if n else self.h5[p][()]
+            return {p: np.concatenate([b for _, b in self.blocks(p)]) if n else self._dataset(p)[()]
                     for p in paths}
         inner = n - 2                                     # rows 1 .. n - 2 go into buckets
         size = -(-inner // max(1, points // 2))           # rows per bucket
         buckets = -(-inner // size)
         out = {}
         for p in paths:
-            ds = self.h5[p]
+            ds = self._dataset(p)
             env = np.empty(2 * buckets + 2, dtype=ds.dtype)
             env[0], env[-1] = self._read(p, slice(0, 1))[0], self.last(p)
             # the times increase: their envelope is each bucket's first and last time

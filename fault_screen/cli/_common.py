@@ -127,7 +127,6 @@ def stored_events(result):
 
 def apply_sets(scene, sets):
     """The scene with ``--set KEY=VALUE`` changes (numbers, true/false or text)."""
-    from ..ensemble import scene_with
     changes = {}
     for item in sets:
         key, eq, text = item.partition("=")
@@ -146,6 +145,8 @@ def apply_sets(scene, sets):
         changes[key.strip()] = value
     if not changes:
         return scene
+    from ..ensemble import scene_with   # here: a run without --set has no use for the ensemble
+
     with reading("--set"):
         return scene_with(scene, changes)
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..budget import fluid_budget
 from ._common import events_report, load_events
-from ._options import BadInput, check_size
+from ._options import BadInput, check_size, leave_to_the_system
 from ._progress import Progress, format_duration
 
 
@@ -34,7 +34,8 @@ def run_scene(scene, *, scene_label: str, out: Path | None, plot_dir: Path | Non
     renamed when complete; a failed run leaves no file), then the figures and the summary;
     returns (result read back, out path, screening). The result is read back in bounded pieces
     (:meth:`fault_screen.result.ResultFile.view`: a long run's series as envelopes, a bounded
-    number of profiles); the summary's numbers are exact reductions over the whole file."""
+    number of profiles, and none without ``plot_dir``); the summary's numbers are exact
+    reductions over the whole file."""
     import os
 
     from ..api import run_streamed
@@ -62,6 +63,7 @@ def run_scene(scene, *, scene_label: str, out: Path | None, plot_dir: Path | Non
     from ..compile_ahead import compile_ahead
 
     compile_ahead()        # an empty numba cache: the kernels compiled by child processes
+    leave_to_the_system()  # the imported modules' objects: out of the collector's walks
     progress = None if quiet else Progress(sys.stdout)
     part = out.with_name(out.name + ".part")
     try:
@@ -88,7 +90,8 @@ def run_scene(scene, *, scene_label: str, out: Path | None, plot_dir: Path | Non
         if part.exists():
             part.unlink()
     with ResultFile(out) as whole:
-        result = whole.view()
+        # the fault profiles only for the figures: the summary's slip is reduced over the file
+        result = whole.view() if plot_dir is not None else whole.view(profiles=0)
         exact = {"steps": whole.rows - 1,
                  "peak_overpressure": whole.maximum("injection/overpressure"),
                  "slip_split": slip_split(whole)}

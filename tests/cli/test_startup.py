@@ -78,3 +78,76 @@ def test_run_help_imports_no_numpy_and_no_run_machinery():
     assert ours == ["fault_screen", "fault_screen.cli", "fault_screen.cli._common",
                     "fault_screen.cli._options", "fault_screen.cli._verdict",
                     "fault_screen.cli.run"], ours
+
+
+def _tiny_scene(tmp_path):
+    """A 4 x 5 mesh run for 4 steps of 5 s, as a scene file."""
+    from fault_screen import Scene
+
+    scene = tmp_path / "tiny.toml"
+    scene.write_text(Scene.from_dict({
+        "mesh": {"nx": 4, "ny": 5, "lx": 50.0, "ly": 50.0},
+        "initial": {"effective_stress": [-5.649e6, -3.351e6, 0.964e6], "pore_pressure": 2.764e6},
+        "injection": {"number_of_fractures": 10, "schedule": [[0.0, 1e-3]]},
+        "time": {"end": 20.0, "dt": 5.0}}).to_toml())
+    return scene
+
+
+def test_a_whole_run_imports_no_ensemble_and_starts_no_ldconfig(tmp_path):
+    """A whole ``run`` of a scene without ``--set`` (a 4 x 5 mesh, 4 steps) imports
+    fault_screen.ensemble (what ``--set`` changes a scene with) not at all, no other command's
+    module, and not ctypes.util, whose ``find_library`` starts ``ldconfig`` in a child process
+    (the heap trim finds glibc's malloc_trim in the C library already loaded)."""
+    scene = _tiny_scene(tmp_path)
+    modules = imported_after("run", str(scene), "--out", str(tmp_path / "r.h5"), "--quiet")
+    assert (tmp_path / "r.h5").is_file()
+    assert "fault_screen.stepper" in modules and "fault_screen.bordered_lu" in modules
+    assert sorted(m for m in ("fault_screen.ensemble", "ctypes.util") if m in modules) == []
+    assert sorted(c for c in COMMANDS if f"fault_screen.cli.{c}" in modules) == ["run"]
+
+
+def test_the_heap_trim_is_glibcs_malloc_trim():
+    """On glibc (this machine's C library) the trim is found, and trimming returns 0 or 1
+    (whether memory was handed back), as glibc's malloc_trim does."""
+    import platform
+
+    from fault_screen.bordered_lu import _libc_malloc_trim
+
+    if platform.libc_ver()[0] != "glibc":
+        pytest.skip("not glibc")
+    trim = _libc_malloc_trim()
+    assert trim is not None and trim(0) in (0, 1)
+
+
+def test_the_console_script_leaves_its_objects_to_the_system_at_exit(tmp_path):
+    """``main()`` as the console script calls it (the command line from sys.argv) hands every
+    object to the system at exit (gc.freeze: tens of thousands of objects after a run, none
+    before the command), and the result it wrote is whole: 5 rows, every dataset readable.
+    The same run through a CliRunner (a caller that goes on) freezes nothing."""
+    import gc
+
+    from click.testing import CliRunner
+
+    from fault_screen import Result
+    from fault_screen.cli import main
+
+    scene = _tiny_scene(tmp_path)
+    out = tmp_path / "r.h5"
+    code = ("import atexit, gc, sys\n"
+            "atexit.register(lambda: print('FROZEN', gc.get_freeze_count(), file=sys.stderr))\n"
+            "from fault_screen.cli import main\n"
+            "before = gc.get_freeze_count()\n"
+            f"sys.argv[:] = ['fault-screen', 'run', {str(scene)!r}, '--out', {str(out)!r}, '--quiet']\n"
+            "print('BEFORE', before, file=sys.stderr)\n"
+            "main()\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    counts = dict(line.split() for line in proc.stderr.splitlines()
+                  if line.startswith(("BEFORE", "FROZEN")))
+    assert int(counts["BEFORE"]) == 0 and int(counts["FROZEN"]) > 10_000, counts
+    result = Result.load(out)
+    assert len(result.time) == 5 and result.time[-1] == 20.0
+    frozen = gc.get_freeze_count()
+    again = CliRunner().invoke(main, ["run", str(scene), "--out", str(tmp_path / "s.h5"), "--quiet"])
+    assert again.exit_code == 0, again.output
+    assert gc.get_freeze_count() == frozen
