@@ -1040,30 +1040,34 @@ class CondensedSolver:
         return D, K, DK, largest
 
     def _base_columns(self, K):
-        """M0^-1 E_K: the columns of M0^-1 at K, kept while M0 is (K grows as a front advances),
-        made a page of COLUMN_PAGE columns at a time, each page alone: a column's round-off then
-        does not depend on which others were asked for with it, so a restored run, which starts
-        with none kept, repeats them bit for bit."""
+        """M0^-1 E_K: the columns of M0^-1 from K's first to its last (a view, not a copy: a
+        slip front's K is nearly contiguous; the columns between that are not in K are zero
+        or solved, and are multiplied by zero), kept while M0 is (K grows as a front
+        advances), made a page of COLUMN_PAGE columns at a time, each page alone: a column's
+        round-off then does not depend on which others were asked for with it, so a restored
+        run, which starts with none kept, repeats them bit for bit."""
         n = len(self.P)
         if self._Z is None:
-            self._Z = np.empty((n, n), order="F")  # (pages of unsolved columns stay untouched)
+            # (zeros: columns never solved stay finite in the span; their pages are not touched)
+            self._Z = np.zeros((n, n), order="F")
         for page in self._pages(K, self._have):
             E = np.zeros((n, len(page)))
             E[page, np.arange(len(page))] = 1.0
             self._Z[:, page] = lu_solve(self.factors, E)
             self._have[page] = True
-        return self._Z[:, K]
+        return self._Z[:, K[0]:K[-1] + 1]
 
     def _shift_columns(self, K):
-        """(I + delta K_R)^-1 C_R M0^-1 E_K, |R| rows: what the step size's correction takes
-        off M0^-1 E_K through Z_R (``_step_size_correction``), kept while the step size is, made
-        a page at a time like ``_base_columns``' (after them)."""
+        """(I + delta K_R)^-1 C_R M0^-1 E_K, |R| rows, over K's span like ``_base_columns``
+        (after them): what the step size's correction takes off M0^-1 E_K through Z_R
+        (``_step_size_correction``), kept while the step size is, made a page at a time."""
         if self._T is None:
-            self._T = np.empty((len(self._storage_rows), len(self.P)), order="F")
+            self._T = np.zeros((len(self._storage_rows), len(self.P)), order="F")
         for page in self._pages(K, self._have1):
-            self._T[:, page] = lu_solve(self._capacitance_R, self._C_R @ self._Z[:, page])
+            columns = self._Z[:, page[0]:page[-1] + 1]
+            self._T[:, page] = lu_solve(self._capacitance_R, self._C_R @ columns)
             self._have1[page] = True
-        return self._T[:, K]
+        return self._T[:, K[0]:K[-1] + 1]
 
     @staticmethod
     def _pages(K, have):
@@ -1086,23 +1090,30 @@ class CondensedSolver:
         if len(K) == 0 and delta == 0.0:
             return self._precondition(b)  # M is M0
         if len(K):
-            Z0 = self._base_columns(K)
-            Z_K = Z0[K]
+            Z0 = self._base_columns(K)   # (K's span: a product with it takes s at K, zeros between)
+            at = K - K[0]
+            Z_K = Z0[K][:, at]
             if delta != 0.0:
                 Z_R_K = self._Z_R[K]
-                Z_K = Z_K - delta * (Z_R_K @ self._shift_columns(K))
+                T_K = self._shift_columns(K)
+                Z_K = Z_K - delta * (Z_R_K @ T_K[:, at])
             capacitance = np.eye(len(K)) + DK @ Z_K
             try:
                 cap = scipy.linalg.lu_factor(capacitance, check_finite=False)
             except (np.linalg.LinAlgError, ValueError):
                 return None
+            spread = np.zeros(Z0.shape[1])
 
             def apply(r):
                 w = lu_solve(self.factors, r)
-                y_K = w[K]
-                if delta != 0.0:   # (y = M1^-1 r at K)
-                    y_K = y_K - delta * (Z_R_K @ lu_solve(self._capacitance_R, self._C_R @ w))
-                return self._step_size_correction(w - Z0 @ lu_solve(cap, DK @ y_K))
+                if delta == 0.0:
+                    spread[at] = lu_solve(cap, DK @ w[K])
+                    return w - Z0 @ spread
+                # the step size's correction of w - Z0 s from that of w (u, also y = M1^-1 r at
+                # K) and the kept shift columns: one solve with its capacitance, not two
+                u = lu_solve(self._capacitance_R, self._C_R @ w)
+                spread[at] = lu_solve(cap, DK @ (w[K] - delta * (Z_R_K @ u)))
+                return (w - Z0 @ spread) - delta * (self._Z_R @ (u - T_K @ spread))
         else:  # only the step size changed
             apply = self._precondition
 
