@@ -32,7 +32,9 @@ too: compare the rows of one run, and read the CPU columns.
 from numba's cache, timed too), with timers around the set-up's phases (mesh, fault geometry,
 the fault's points, the elements' tabulation, the rest of the discretisation, the assembly of
 the constant matrices, the fill-reducing order, the factorisations) and the steps' (forward and
-backward sweeps with the separator's solves, the condensed solve, the residual, the contact
+backward sweeps with the separator's solves, the condensed solve with its LAPACK solves
+with the condensed block's LU (getrs, on vectors and pages of columns) and its products with
+the dense condensation P counted apart, the residual (with its products with P), the contact
 law, the output per step, the rest of the Newton iteration). Each phase's own time (the
 phases it calls subtracted), wall and process CPU (the sweep worker thread's included, in the
 sweeps), in seconds.
@@ -282,6 +284,10 @@ PHASES = [
     ("fault_screen.bordered_lu", "BorderedLU.backward", "steps: backward sweeps"),
     ("fault_screen.bordered_lu", "SplitBorderedLU.backward", "steps: backward sweeps"),
     ("fault_screen.linear_system", "CondensedSolver.solve", "steps: condensed solve"),
+    # (names looked up in linear_system's namespace at each call: the condensed block's solves
+    # and the products with P, wherever linear_system makes them)
+    ("fault_screen.linear_system", "lu_solve", "steps: condensed block's getrs"),
+    ("fault_screen.linear_system", "condensation_times", "steps: products with P"),
     ("fault_screen.solver", "NewtonSolver._residual", "steps: residual"),
     ("fault_screen.physics.contact", "Contact.residual", "steps: contact law"),
     ("fault_screen.stepper", "Recorder.record", "steps: output per step"),

@@ -20,6 +20,7 @@ import contextlib
 import copy
 import functools
 import threading
+from typing import NamedTuple
 
 import numpy as np
 import scipy.linalg
@@ -477,7 +478,11 @@ class CondensedSystem:
         dxN = dense.solve(g) if len(N) else g
         out[N] = dxN
         if defer:
-            return out, dxN, (None if swept is None else (swept, rN - g))
+            # P dxN, when the condensed solve's check made it: the residual with the bulk's
+            # answer pending then sums the products (``PendingBulk``) instead of a pass over P
+            return out, dxN, Deferred(None if swept is None else swept,
+                                      None if swept is None else rN - g,
+                                      dense.condensation_product(dxN) if len(N) else None)
         out[linear] = self.lu.backward(swept, dxN)
         return out, None, None
 
@@ -490,7 +495,7 @@ class CondensedSystem:
         needed = self._rows_N_fixed
         R = np.zeros_like(x)
         R[needed] = self._L_rows_N_fixed @ x - rhs[needed]
-        R[self.N] += ((pending.shift - condensation_times(self.P, self.P_symmetric, pending.fault))
+        R[self.N] += ((pending.shift - pending.condensed(self.P, self.P_symmetric))
                       / self.scale[self.N])
         return R
 
@@ -629,31 +634,63 @@ def _with_shared(shared, make):
     return make() if store is None else shared(store, make)
 
 
+class Deferred(NamedTuple):
+    """What ``CondensedSystem.solve`` hands on with a fault update dx_N whose bulk answer is
+    deferred: at a step's first iteration the forward-swept linear rows' residual ``swept`` and
+    its effect on the fault rows ``shift`` (else both None), and ``product``, P dx_N when the
+    condensed solve's check made it (else None)."""
+    swept: np.ndarray | None
+    shift: np.ndarray | None
+    product: np.ndarray | None
+
+
 class PendingBulk:
     """The bulk's answer to a step's Newton updates, not yet in x[B] (``NewtonSolver._step``):
     B^-1 (r_B - L_BN sum(dx_N)), r_B the linear rows' residual at the step's first iteration
-    (kept forward-swept), and its effect on the fault rows, L_NB B^-1 r_B (``shift``)."""
+    (kept forward-swept), and its effect on the fault rows, L_NB B^-1 r_B (``shift``).
+
+    P sum(dx_N), which every residual with the answer pending needs, is kept as the sum of the
+    updates' products that the condensed solves' checks made (``product``), plus a product of
+    the updates that came without one (``unproduced``): one pass over the dense P (20-34 MB on
+    the large scenes) less per Newton iteration, equal up to the order of the sums."""
 
     def __init__(self, n_condensed):
         self.swept = None
         self.shift = np.zeros(n_condensed)
         self.fault = np.zeros(n_condensed)
+        self.product = np.zeros(n_condensed)
+        self.unproduced = None
 
-    def add(self, alpha, dxN, swept):
+    def add(self, alpha, dxN, deferred):
         """Add the update alpha dx_N and, at a step's first iteration, the forward sweep of the
-        linear rows' residual with its effect on the fault rows (``swept``: (c, shift), see
-        ``CondensedSystem.solve``), both linear in the step length."""
+        linear rows' residual with its effect on the fault rows (``deferred``: see ``Deferred``;
+        None: neither, nor P dx_N), all linear in the step length."""
         self.fault += alpha * dxN
-        if swept is not None:
-            c, shift = swept
+        product = None if deferred is None else deferred.product
+        if product is not None:
+            self.product += alpha * product
+        elif self.unproduced is None:
+            self.unproduced = alpha * dxN
+        else:
+            self.unproduced += alpha * dxN
+        if deferred is not None and deferred.swept is not None:
+            c = deferred.swept
             self.swept = alpha * c if self.swept is None else self.swept + alpha * c
-            self.shift += alpha * shift
+            self.shift += alpha * deferred.shift
+
+    def condensed(self, P, symmetric):
+        """P times the sum of the updates (``condensation_times``)."""
+        if self.unproduced is None:
+            return self.product
+        return self.product + condensation_times(P, symmetric, self.unproduced)
 
     def copy(self):
         out = PendingBulk(0)
         out.swept = self.swept
         out.shift = self.shift.copy()
         out.fault = self.fault.copy()
+        out.product = self.product.copy()
+        out.unproduced = None if self.unproduced is None else self.unproduced.copy()
         return out
 
 
@@ -820,6 +857,7 @@ class CondensedSolver:
     def __init__(self, storage=None, position=None, scale=None):
         self.P = None
         self._P_symmetric = False
+        self._product = (None, None)   # (v, P v) of the last product with M
         self._pattern = None
         # the tangent's triplets are on the whole system's unknowns: position in the block of
         # each (-1: not condensed) and the scaling (default: the block's own, unscaled)
@@ -852,6 +890,7 @@ class CondensedSolver:
         then read one triangle, ``condensation_times``)."""
         self.P = P
         self._P_symmetric = symmetric
+        self._product = (None, None)
         self.inv_dt = 1.0 / dt
         self._step = dt
         self._base = base
@@ -882,11 +921,19 @@ class CondensedSolver:
         return twin
 
     def _times(self, v):
-        """M v = -P v + (L_NN + T) v."""
-        out = -condensation_times(self.P, self._P_symmetric, v)
+        """M v = -P v + (L_NN + T) v; P v is kept with v (``condensation_product``)."""
+        Pv = condensation_times(self.P, self._P_symmetric, v)
+        self._product = (v, Pv)
+        out = -Pv
         p = self._pattern
         _sparse_times(p.indptr, p.cols, self._sparse, v, out)
         return out
+
+    def condensation_product(self, x):
+        """P x when the last product with M (a solve's check) was of this very array x (not
+        written to since: a solve's result is not), else None."""
+        v, Pv = self._product
+        return Pv if v is x else None
 
     def _form(self):
         """M as a dense array (the one n x n array of its own this solver makes), in Fortran
@@ -993,30 +1040,34 @@ class CondensedSolver:
         return D, K, DK, largest
 
     def _base_columns(self, K):
-        """M0^-1 E_K: the columns of M0^-1 at K, kept while M0 is (K grows as a front advances),
-        made a page of COLUMN_PAGE columns at a time, each page alone: a column's round-off then
-        does not depend on which others were asked for with it, so a restored run, which starts
-        with none kept, repeats them bit for bit."""
+        """M0^-1 E_K: the columns of M0^-1 from K's first to its last (a view, not a copy: a
+        slip front's K is nearly contiguous; the columns between that are not in K are zero
+        or solved, and are multiplied by zero), kept while M0 is (K grows as a front
+        advances), made a page of COLUMN_PAGE columns at a time, each page alone: a column's
+        round-off then does not depend on which others were asked for with it, so a restored
+        run, which starts with none kept, repeats them bit for bit."""
         n = len(self.P)
         if self._Z is None:
-            self._Z = np.empty((n, n), order="F")  # (pages of unsolved columns stay untouched)
+            # (zeros: columns never solved stay finite in the span; their pages are not touched)
+            self._Z = np.zeros((n, n), order="F")
         for page in self._pages(K, self._have):
             E = np.zeros((n, len(page)))
             E[page, np.arange(len(page))] = 1.0
             self._Z[:, page] = lu_solve(self.factors, E)
             self._have[page] = True
-        return self._Z[:, K]
+        return self._Z[:, K[0]:K[-1] + 1]
 
     def _shift_columns(self, K):
-        """(I + delta K_R)^-1 C_R M0^-1 E_K, |R| rows: what the step size's correction takes
-        off M0^-1 E_K through Z_R (``_step_size_correction``), kept while the step size is, made
-        a page at a time like ``_base_columns``' (after them)."""
+        """(I + delta K_R)^-1 C_R M0^-1 E_K, |R| rows, over K's span like ``_base_columns``
+        (after them): what the step size's correction takes off M0^-1 E_K through Z_R
+        (``_step_size_correction``), kept while the step size is, made a page at a time."""
         if self._T is None:
-            self._T = np.empty((len(self._storage_rows), len(self.P)), order="F")
+            self._T = np.zeros((len(self._storage_rows), len(self.P)), order="F")
         for page in self._pages(K, self._have1):
-            self._T[:, page] = lu_solve(self._capacitance_R, self._C_R @ self._Z[:, page])
+            columns = self._Z[:, page[0]:page[-1] + 1]
+            self._T[:, page] = lu_solve(self._capacitance_R, self._C_R @ columns)
             self._have1[page] = True
-        return self._T[:, K]
+        return self._T[:, K[0]:K[-1] + 1]
 
     @staticmethod
     def _pages(K, have):
@@ -1039,23 +1090,30 @@ class CondensedSolver:
         if len(K) == 0 and delta == 0.0:
             return self._precondition(b)  # M is M0
         if len(K):
-            Z0 = self._base_columns(K)
-            Z_K = Z0[K]
+            Z0 = self._base_columns(K)   # (K's span: a product with it takes s at K, zeros between)
+            at = K - K[0]
+            Z_K = Z0[K][:, at]
             if delta != 0.0:
                 Z_R_K = self._Z_R[K]
-                Z_K = Z_K - delta * (Z_R_K @ self._shift_columns(K))
+                T_K = self._shift_columns(K)
+                Z_K = Z_K - delta * (Z_R_K @ T_K[:, at])
             capacitance = np.eye(len(K)) + DK @ Z_K
             try:
                 cap = scipy.linalg.lu_factor(capacitance, check_finite=False)
             except (np.linalg.LinAlgError, ValueError):
                 return None
+            spread = np.zeros(Z0.shape[1])
 
             def apply(r):
                 w = lu_solve(self.factors, r)
-                y_K = w[K]
-                if delta != 0.0:   # (y = M1^-1 r at K)
-                    y_K = y_K - delta * (Z_R_K @ lu_solve(self._capacitance_R, self._C_R @ w))
-                return self._step_size_correction(w - Z0 @ lu_solve(cap, DK @ y_K))
+                if delta == 0.0:
+                    spread[at] = lu_solve(cap, DK @ w[K])
+                    return w - Z0 @ spread
+                # the step size's correction of w - Z0 s from that of w (u, also y = M1^-1 r at
+                # K) and the kept shift columns: one solve with its capacitance, not two
+                u = lu_solve(self._capacitance_R, self._C_R @ w)
+                spread[at] = lu_solve(cap, DK @ (w[K] - delta * (Z_R_K @ u)))
+                return (w - Z0 @ spread) - delta * (self._Z_R @ (u - T_K @ spread))
         else:  # only the step size changed
             apply = self._precondition
 

@@ -3,7 +3,9 @@
 when its asymmetry is round-off, made exactly symmetric with its lower triangle kept bit for bit,
 its products agree with the full product to round-off, the condensed solver's every path still
 meets CONDENSED_RTOL against the dense block, and on a scene the elastic bulk's P is found
-symmetric (and equals the dense condensation) while the poroelastic bulk's is not."""
+symmetric (and equals the dense condensation) while the poroelastic bulk's is not. A residual with
+the bulk's answer pending takes P times the fault updates from the products the condensed solves'
+checks made (``PendingBulk.condensed``), to the round-off of the sums."""
 from dataclasses import replace
 
 import numpy as np
@@ -170,3 +172,60 @@ def test_an_elastic_bulks_condensation_is_found_symmetric(kind):
         assert np.array_equal(system.P, system.P.T)
     else:
         assert np.abs(dense - dense.T).max() > 1e3 * CONDENSATION_SYMMETRY_ROUNDOFF * largest
+
+
+def test_a_checked_solves_product_is_handed_on_bit_for_bit():
+    """A Woodbury solve is checked by a product with M, whose P x is kept with x: the product
+    handed on is P x itself (bit for bit: the same call), for that array only."""
+    blocks = _blocks("F")
+    dense = CondensedSolver(blocks[1])
+    _set(dense, blocks, 1e3, _tangent(np.arange(10, 20), 50.0))
+    dense.solve(np.ones(N))   # (the factorisation: no check, no product)
+    _set(dense, blocks, 1e3, _tangent(np.arange(10, 22), 50.0))
+    b = np.random.default_rng(4).standard_normal(N)
+    x = dense.solve(b)
+    assert dense.updates == 1
+    assert np.array_equal(dense.condensation_product(x), condensation_times(blocks[3], True, x))
+    assert dense.condensation_product(x.copy()) is None
+    _set(dense, blocks, 1e3, _tangent(np.arange(10, 22), 50.0))
+    assert dense.condensation_product(x) is None   # (a new block forgets it)
+
+
+@pytest.mark.parametrize("symmetric", [False, True])
+def test_pending_updates_products_sum_to_the_product_of_their_sum(symmetric, monkeypatch):
+    """P times a step's summed fault updates, from the checks' products (each scaled by its step
+    length) plus one product of the updates that came without one: equal to P (sum) to the
+    round-off of the sums (bound: 8 eps |P| |updates|), and no pass over P when every update
+    brought its product."""
+    rng = np.random.default_rng(21)
+    n = 300
+    P = _symmetric(n, "F", rng, 0.0) if symmetric else np.asfortranarray(rng.standard_normal((n, n)))
+    if symmetric:
+        assert condensation_symmetrised(P)
+    updates = [rng.standard_normal(n) for _ in range(4)]
+    alphas = [1.0, 0.5, 0.25, 1.0]
+    calls = []
+    original = linear_system.condensation_times
+
+    def counted(*args):
+        calls.append(1)
+        return original(*args)
+
+    monkeypatch.setattr(linear_system, "condensation_times", counted)
+    every = linear_system.PendingBulk(n)
+    some = linear_system.PendingBulk(n)
+    for k, (alpha, dx) in enumerate(zip(alphas, updates)):
+        with_product = linear_system.Deferred(None, None, original(P, symmetric, dx))
+        every.add(alpha, dx, with_product)
+        some.add(alpha, dx, with_product if k % 2 else None)
+    exact = P @ every.fault
+    bound = 8 * EPS * (np.abs(P) @ sum(abs(a) * np.abs(dx) for a, dx in zip(alphas, updates)))
+    assert np.all(np.abs(every.condensed(P, symmetric) - exact) <= bound)
+    assert calls == []
+    assert np.all(np.abs(some.condensed(P, symmetric) - exact) <= bound)
+    assert len(calls) == 1
+    twin = some.copy()
+    twin.add(0.5, updates[0], None)
+    assert np.all(np.abs(twin.condensed(P, symmetric) - P @ twin.fault)
+                  <= bound + 8 * EPS * 0.5 * (np.abs(P) @ np.abs(updates[0])))
+    assert np.array_equal(some.fault, every.fault)
