@@ -31,6 +31,15 @@ class ConstantMatrices:
     source: np.ndarray  # unit injection source (rate control): times the model fault's rate
 
 
+def fault_jump_at(disc, x, point) -> tuple[np.ndarray, np.ndarray]:
+    """(slip, opening) at the fault's points at ``x``, computed once per residual evaluation:
+    ``point`` is that evaluation's fault state (a new dict for each x), so the first term that
+    asks keeps them there for the others."""
+    if "opening" not in point:
+        point["slip"], point["opening"] = disc.fault_jump(x)
+    return point["slip"], point["opening"]
+
+
 class Term:
     """Base of all physics terms; see the module docstring for the hooks."""
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels import contact as kc
-from .base import Term
+from .base import Term, fault_jump_at
 
 
 #: Slip rate above which a point of a rate-friction fault counts as sliding (its contact state),
@@ -159,9 +159,7 @@ class Contact(Term):
 
     def residual(self, disc, x, history, dt, time_weight, residual, point):
         fp = disc.fault_points
-        # (the jumps at x, when a term before this one made them: ``point`` is of this x)
-        slip, opening = ((point["slip"], point["opening"]) if "opening" in point
-                         else disc.fault_jump(x))
+        slip, opening = fault_jump_at(disc, x, point)
         traction, contact_state, tangent, new_history = self.law(slip, opening, history, fp.sigma_n0, dt)
         vals = kc.assemble_contact(fp.N, fp.jump_dofs, disc.fault.tangent, disc.fault.normal,
                                    fp.weight, traction, fp.tau0, fp.sigma_n0, tangent, residual)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels import fault_flow
-from .base import Term
+from .base import Term, fault_jump_at
 
 
 def _line_block(line):
@@ -124,10 +124,8 @@ class EvolvingApertureConduction(Term):
             self.aperture0, self.asperity_height_std, self.viscosity, self.kappa, time_weight, residual)
 
     def residual(self, disc, x, history, dt, time_weight, residual, point):
-        # the jumps at x go into ``point`` for the terms after this one (the contact term)
-        if "opening" not in point:
-            point["slip"], point["opening"] = disc.fault_jump(x)
-        vals, aperture = self._assemble(disc, x, time_weight, residual, point["opening"])
+        _, opening = fault_jump_at(disc, x, point)   # (kept for the contact term)
+        vals, aperture = self._assemble(disc, x, time_weight, residual, opening)
         point["hydraulic_aperture"] = aperture
         return (*self.pattern(disc), vals)
 
