@@ -480,8 +480,7 @@ class CondensedSystem:
         if defer:
             # P dxN, when the condensed solve's check made it: the residual with the bulk's
             # answer pending then sums the products (``PendingBulk``) instead of a pass over P
-            return out, dxN, Deferred(None if swept is None else swept,
-                                      None if swept is None else rN - g,
+            return out, dxN, Deferred(swept, None if swept is None else rN - g,
                                       dense.condensation_product(dxN) if len(N) else None)
         out[linear] = self.lu.backward(swept, dxN)
         return out, None, None
