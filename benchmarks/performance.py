@@ -43,7 +43,9 @@ Rows (keys for --skip in brackets):
   run's wall time against the plain 1400-s run's (target <= 2x). One run has only 13 steps at
   an unchanged size: the run is made GROWING_RUNS times, the steps pooled, each run's ratio
   printed beside the pooled one, in wall and in CPU time, with the changed step's parts
-  (re-preparation, numeric factorisation, condensed LU, Newton iterations).
+  (re-preparation, numeric factorisation, condensed LU, Newton iterations), and the Newton
+  iterations of the changed steps solved again from the same states at their own size and at
+  the previous step's (``growing_iterations``).
 - [tests] `python -m pytest -q` (the README's test command), wall time.
 """
 from __future__ import annotations
@@ -105,6 +107,8 @@ def run_case(case: str) -> dict:
 
     if case == "paper-growing":
         return run_growing()
+    if case == "paper-growing-iterations":
+        return growing_iterations()
     if case.endswith("-second"):   # the same run again in this process, its kernels loaded
         case = case[: -len("-second")]
         first = Simulation(_scene(case))
@@ -192,6 +196,35 @@ def run_growing() -> dict:
     iterations = np.asarray(result.solver["iterations"])[-len(steps):]
     return dict(case="paper-growing", wall=wall, cpu=cpu, steps=steps,
                 iterations=iterations.tolist())
+
+
+def growing_iterations() -> dict:
+    """Newton iterations of each changed step of the [stepsize] run solved twice more from the
+    same state, with the same extrapolated first guess made for each size: at its own size and
+    at the previous step's (an unchanged size). Equal counts say that the changed steps' extra
+    iterations are the run's phase (injection, early shut-in), not the change. (Not timed: the
+    extra solves refactorise.)"""
+    from fault_screen import Simulation
+    import fault_screen.stepper as stepper
+
+    take = stepper.Simulation._step
+    counts = dict(own=[], previous=[])
+    last = []
+
+    def step(self, dt, step_value):
+        if last and dt != last[-1]:
+            for key, size in (("own", dt), ("previous", last[-1])):
+                guess, combination = self._extrapolated_guess(size)
+                counts[key].append(self.solver.step(self.x, self.history, size, step_value,
+                                                    x0=guess, combination=combination).iterations)
+        last.append(dt)
+        return take(self, dt, step_value)
+
+    stepper.Simulation._step = step
+    scene = _scene("paper-growing")
+    sim = Simulation(scene)
+    sim.advance(scene.time.end)
+    return dict(case="paper-growing-iterations", **counts)
 
 
 def growing_summary(runs: list[dict]) -> dict:
@@ -490,6 +523,7 @@ def main():
     if "stepsize" not in args.skip:
         plain = child("paper", env)
         runs = [child("paper-growing", env) for _ in range(GROWING_RUNS)]
+        iterations = child("paper-growing-iterations", env)
         what = "step-size change, paper-units Rustrel (growth 1.2, dt_max 600 s, 3 h shut-in)"
         if any("timeout" in g for g in runs):
             row(what, "80x; 31 s", "<= 3x; <= 2x the 1400-s run",
@@ -508,7 +542,9 @@ def main():
                 f"{g['factorise_cpu_ms']:.0f} ms), condensed LU {g['condensed_lu_cpu_ms']:.1f} ms, "
                 f"Newton iterations {g['newton_changed']:.1f} against {g['newton_unchanged']:.1f} "
                 f"(means; the changed steps are the injection's and early shut-in's, the unchanged "
-                f"ones the late shut-in's); whole run {_s(g['wall'])} (median) = "
+                f"ones the late shut-in's: the {len(iterations['own'])} changed steps solved again "
+                f"take {sum(iterations['own'])} iterations at their size, "
+                f"{sum(iterations['previous'])} at the previous step's); whole run {_s(g['wall'])} (median) = "
                 f"{g['wall'] / plain['wall']:.1f}x the 1400-s run ({_s(plain['wall'])})")
     if "tests" not in args.skip:
         t0 = time.perf_counter()
