@@ -40,8 +40,10 @@ The table is printed and written to docs/performance/factorisation.md (generated
 ``--fronts`` prints instead, per scene at the largest step size, where the numeric LDL^T's work
 goes: multiply-adds of the pivot blocks, of the rows below them (L21) and of the updates of the
 later rows, with the part that the condensed rows N cause (their rows of L21, their updates of
-S and of the bulk rows), by front size; the entries moved by the extend-add; the CPU time of the
-numeric factorisation with the large fronts through BLAS (``ldl.BLAS_MIN_WIDTH`` and
+S and of the bulk rows), by front size, with the entries each pass over the fronts touches
+(zeroed, the matrix's own added, the children's updates added, L packed, the update copied
+out) and the multiply-adds per entry moved; the entries moved by the extend-add; the CPU time
+of the numeric factorisation with the large fronts through BLAS (``ldl.BLAS_MIN_WIDTH`` and
 ``BLAS_MIN_ROWS``) and with every front by loops, the same matrix alternately in one run; and the
 CPU time of numpy's matrix product (BLAS dgemm, one thread) on the very shapes of the products
 the BLAS fronts make, which bounds what those fronts can take; and the parts that a
@@ -295,14 +297,19 @@ def fronts(key, repeat):
           f"total {total.sum() / 1e6:.1f}, of which caused by N "
           f"{by_N.sum() / 1e6:.1f} ({100 * by_N.sum() / total.sum():.0f} %); extend-add entries "
           f"{np.sum((u * (u + 1) / 2.0)[tparent >= 0]) / 1e6:.1f} M")
-    print("| front rows | fronts | multiply-adds (M) | N's share | median width |\n"
-          "|---|---|---|---|---|")
+    moved = _entries_moved(lower, symbolic)
+    print("| front rows | fronts | multiply-adds (M) | N's share | median width | entries moved "
+          "(M): zeroed, own, extend-add in, packed, update out | multiply-adds per entry moved |\n"
+          "|---|---|---|---|---|---|---|")
     for lo, hi in ((0, 64), (64, 128), (128, 256), (256, 512), (512, 1 << 40)):
         at = (m >= lo) & (m < hi)
         if at.any():
+            each = moved[:, at].sum(axis=1)
             print(f"| {lo}-{hi if hi < 1 << 40 else ''} | {int(at.sum())} "
                   f"| {total[at].sum() / 1e6:.1f} "
-                  f"| {100 * by_N[at].sum() / total[at].sum():.0f} % | {np.median(w[at]):.0f} |")
+                  f"| {100 * by_N[at].sum() / total[at].sum():.0f} % | {np.median(w[at]):.0f} "
+                  f"| {', '.join(f'{x / 1e6:.2f}' for x in each)} "
+                  f"| {total[at].sum() / each.sum():.1f} |")
     times = {"BLAS fronts": np.inf, "loops only": np.inf}
     for _ in range(repeat):
         for name, limits in (("BLAS fronts", (ldl.BLAS_MIN_WIDTH, ldl.BLAS_MIN_ROWS)),
@@ -339,6 +346,23 @@ def fronts(key, repeat):
           f"{1e3 * front_path:.1f} ms on their path: the two threads' path "
           f"{1e3 * (max(first_cpu, second_cpu) + top_cpu + front_path):.1f} ms; wall in one "
           f"thread {1e3 * walls[1]:.1f} ms, in two {1e3 * walls[2]:.1f} ms (at this load)")
+
+def _entries_moved(lower, symbolic):
+    """Entries each front's passes over memory touch in a numeric factorisation
+    (``ldl._eliminate``), rows: its lower triangle zeroed, the matrix's own entries of its columns added, its
+    children's updates added (extend-add), its packed L written, its update copied out (to the
+    stack, or added into the condensed block); columns: the supernodes."""
+    first, width, row_at = symbolic.tree[:3]
+    m = np.diff(row_at)
+    u = m - width
+    own = lower.indptr[first + width] - lower.indptr[first]
+    child_in = np.zeros(len(m))
+    for t in range(len(m)):
+        kids = symbolic.child_list[symbolic.child_ptr[t]:symbolic.child_ptr[t + 1]]
+        child_in[t] = np.sum(u[kids] * (u[kids] + 1) / 2.0)
+    return np.array([m * (m + 1) / 2.0, own, child_in, width * (width + 1) / 2.0 + u * width,
+                     u * (u + 1) / 2.0])
+
 
 def _parts(lower, condensed, symbolic, repeat):
     """The least thread CPU time of each part of the numeric factorisation run in one thread
