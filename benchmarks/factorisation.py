@@ -349,9 +349,9 @@ def fronts(key, repeat):
 
 def _entries_moved(lower, symbolic):
     """Entries each front's passes over memory touch in a numeric factorisation
-    (``ldl._eliminate``), rows: its lower triangle zeroed, the matrix's own entries of its columns added, its
-    children's updates added (extend-add), its packed L written, its update copied out (to the
-    stack, or added into the condensed block); columns: the supernodes."""
+    (``ldl._eliminate``), rows: its lower triangle zeroed, the matrix's own entries of its
+    columns added, its children's updates added (extend-add), its packed L written, its update
+    copied out (to the stack, or added into the condensed block); columns: the supernodes."""
     first, width, row_at = symbolic.tree[:3]
     m = np.diff(row_at)
     u = m - width
