@@ -35,9 +35,13 @@ the constant matrices, the fill-reducing order, the factorisations) and the step
 backward sweeps with the separator's solves, the condensed solve with its LAPACK solves
 with the condensed block's LU (getrs, on vectors and pages of columns) and its products with
 the dense condensation P counted apart, the residual (with its products with P), the contact
-law, the output per step, the rest of the Newton iteration). Each phase's own time (the
-phases it calls subtracted), wall and process CPU (the sweep worker thread's included, in the
-sweeps), in seconds.
+law, the output per step, and the passes over whole vectors around them: the products A x, Hf x,
+C x of the convergence references, the scaled residual's norms, the bulk solve's and update's
+gathers and scatters, the step's set-up and first guess; what is left is the rest of the Newton
+iteration and the step control). Each phase's own time (the phases it calls subtracted), wall
+and process CPU (the sweep worker thread's included, in the sweeps), in seconds, and its calls
+(a call inside one of its own phase, a split block's part inside the block's sweep, is not
+counted again: ``forward sweeps`` counts the step's forward sweeps through all the parts).
 
     python benchmarks/sweeps.py --fill              # what the fill-reducing order leaves to read
 
@@ -291,6 +295,24 @@ PHASES = [
     ("fault_screen.solver", "NewtonSolver._residual", "steps: residual"),
     ("fault_screen.physics.contact", "Contact.residual", "steps: contact law"),
     ("fault_screen.stepper", "Recorder.record", "steps: output per step"),
+    # what was "the rest of the Newton iteration": the passes over whole vectors around the
+    # linear algebra, each named
+    ("fault_screen.solver", "_whole_products", "steps: whole products A x, Hf x, C x (references)"),
+    ("fault_screen.solver", "NewtonSolver._reference",
+     "steps: references' other work (norms, products through N)"),
+    ("fault_screen.solver", "_scaled_field_norms", "steps: scaled residual and its norms"),
+    ("fault_screen.solver", "NewtonSolver._prepare", "steps: step set-up (prepare)"),
+    ("fault_screen.solver", "NewtonSolver._linear_times_start",
+     "steps: products at a step's start"),
+    ("fault_screen.solver", "NewtonSolver._linear_times_guess",
+     "steps: products at a step's start"),
+    ("fault_screen.linear_system", "CondensedSystem.solve",
+     "steps: bulk solve's own vectors (gathers, scatters around the sweeps)"),
+    ("fault_screen.linear_system", "CondensedSystem.complete_bulk",
+     "steps: bulk update's own vectors (scatter into x, reactions)"),
+    ("fault_screen.linear_system", "CondensedSystem.condensed",
+     "steps: condensed block set (its values, its LU when new)"),
+    ("fault_screen.stepper", "Simulation._extrapolated_guess", "steps: first guess"),
 ]
 
 
@@ -325,7 +347,9 @@ class _PhaseTimers:
                 own = self.own.setdefault(phase, [0.0, 0.0, 0])
                 own[0] += wall - cw
                 own[1] += cpu - cc
-                own[2] += 1
+                # a call inside a call of its own phase (a split block's parts inside its
+                # sweep) is not counted again: the calls are the step's sweeps
+                own[2] += not any(frame[0] == phase for frame in self.stack)
                 inside = self.timed.setdefault(self.stage, [0.0, 0.0])
                 inside[0] += wall - cw
                 inside[1] += cpu - cc
@@ -392,10 +416,14 @@ def print_phases(name):
     print(f"\n## {name}: {totals['dofs']} unknowns, {totals['steps']} steps; whole run {totals['total'][0]:.2f} s "
           f"wall, {totals['total'][1]:.2f} s CPU (the first run in this process, kernels loaded: "
           f"{totals['first_run'][0]:.2f} s wall, {totals['first_run'][1]:.2f} s CPU)")
-    print("| phase | calls | wall s | CPU s |")
-    print("|---|---|---|---|")
+    print("| phase | calls | per step | wall s | CPU s | CPU ms a step |")
+    print("|---|---|---|---|---|---|")
+    steps = max(totals["steps"], 1)
     for phase, wall, cpu, calls in sorted(rows, key=lambda r: (not r[0].startswith("set-up"), -r[2])):
-        print(f"| {phase} | {calls} | {wall:.2f} | {cpu:.2f} |")
+        each_step = phase.startswith("steps")
+        per_step = f"{calls / steps:.2f}" if each_step and "the rest" not in phase else ""
+        cpu_ms = f"{1e3 * cpu / steps:.2f}" if each_step else ""
+        print(f"| {phase} | {calls} | {per_step} | {wall:.2f} | {cpu:.2f} | {cpu_ms} |")
 
 
 def main(argv=None):
