@@ -224,10 +224,10 @@ def run_split() -> dict:
     t0, c0 = time.perf_counter(), time.process_time()
     groups = []
     for label, modules in IMPORT_GROUPS:
-        a = time.perf_counter()
+        a, ca = time.perf_counter(), time.process_time()
         for m in modules:
             importlib.import_module(m)
-        groups.append((label, time.perf_counter() - a))
+        groups.append((label, time.perf_counter() - a, time.process_time() - ca))
     import fault_screen.cli
     t1, c1 = time.perf_counter(), time.process_time()
     from numba.core.dispatcher import Dispatcher
@@ -236,11 +236,11 @@ def run_split() -> dict:
     compile_ = Dispatcher.compile
 
     def timed(self, sig):
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         try:
             return compile_(self, sig)
         finally:
-            spans.append((start, time.perf_counter()))
+            spans.append((start, time.perf_counter(), cpu, time.process_time()))
             loaded.add(self.py_func)
 
     Dispatcher.compile = timed
@@ -255,20 +255,40 @@ def run_split() -> dict:
     t2, c2 = time.perf_counter(), time.process_time()
     # a kernel that two threads call first is asked for twice, the second waiting for the
     # first's load: the time is that of the spans' union
-    loads = [tuple(x) for x in _union(spans)]
-    # each part's own time: its calls' union less the kernel loads and later parts inside it
+    loads = [tuple(x) for x in _union([sp[:2] for sp in spans])]
+    # each part's own time: its calls' union less the kernel loads and later parts inside it;
+    # its own CPU time (the process's, every thread's): its calls' less that of the outermost
+    # kernel loads and later parts inside each call
     order = list(dict.fromkeys(name for name, _, _ in RUN_PARTS))
-    own = {}
+    own, own_cpu = {}, {}
     for i, name in enumerate(order):
         mine = _union([(a, b) for n, a, b, _, _ in parts if n == name])
-        inside = _union(loads + [(a, b) for n, a, b, _, _ in parts if n in order[i + 1:]])
+        later = [p[1:] for p in parts if p[0] in order[i + 1:]] + spans
+        inside = _union(loads + [(a, b) for a, b, _, _ in later])
         own[name] = sum(b - a - _overlap(a, b, inside) for a, b in mine)
+        own_cpu[name] = sum(cb - ca - _outermost_cpu(a, b, later)
+                            for n, a, b, ca, cb in parts if n == name)
     kernels = sum(b - a for a, b in loads)
+    kernels_cpu = _outermost_cpu(t1, t2, spans)
     rest = t2 - t1
     return dict(imports=t1 - t0, import_groups=groups, kernels=kernels, n_kernels=len(loaded),
                 first_kernel=(loads[0][1] - loads[0][0]) if loads else 0.0, parts=own,
+                parts_cpu=own_cpu, kernels_cpu=kernels_cpu,
                 other=rest - kernels - sum(own.values()), rest=rest - kernels, total=t2 - t0,
                 cpu_imports=c1 - c0, cpu=c2 - c0)
+
+
+def _outermost_cpu(a, b, items) -> float:
+    """The CPU time of the items (wall start, wall end, CPU start, CPU end) inside the wall
+    interval (a, b) that no other of them contains."""
+    inside = sorted((x for x in items if a <= x[0] and x[1] <= b), key=lambda x: (x[0], -x[1]))
+    total, end = 0.0, -float("inf")
+    for x in inside:
+        if x[1] <= end:
+            continue   # inside one counted already
+        total += x[3] - x[2]
+        end = x[1]
+    return total
 
 
 def interpreter_start(env) -> float:
@@ -433,10 +453,12 @@ def main():
             f"{_s(split['first_kernel'])}), scene, model, steps and result {_s(split['rest'])}")
         starts = sorted(interpreter_start(env) for _ in range(5))
         row("the same split, finer (imports in the order listed, each group without what an earlier "
-            "one imported; each part without the cache loads and the parts inside it)", "-", "-",
+            "one imported; each part without the cache loads and the parts inside it; CPU: the process's, every thread's)", "-", "-",
             f"interpreter start and exit (`python -c pass`, best of 5) {_ms(starts[0])}; imports: "
-            + ", ".join(f"{label} {_ms(t)}" for label, t in split["import_groups"])
-            + "; " + ", ".join(f"{name} {_ms(t)}" for name, t in split["parts"].items())
+            + ", ".join(f"{label} {_ms(t)} (CPU {_ms(c)})" for label, t, c in split["import_groups"])
+            + f"; numba's cache loads {_ms(split['kernels'])} (CPU {_ms(split['kernels_cpu'])}); "
+            + ", ".join(f"{name} {_ms(t)} (CPU {_ms(split['parts_cpu'][name])})"
+                        for name, t in split["parts"].items())
             + f", other {_ms(split['other'])}")
         (with_pyc, teardown), (from_source, _) = cli_run_warm(env, True), cli_run_warm(env, False)
         row("warm `fault-screen run`, whole process (bundled scene, numba's cache in place; best and "
