@@ -24,7 +24,11 @@ Rows (keys for --skip in brackets):
   bytecode read from its .pyc files (as an installed package) and five times compiled from its
   sources in each process (as with PYTHONDONTWRITEBYTECODE set before any process wrote them);
   where a warm `fault-screen run` spends its time (imports, numba's cache loads of the kernels,
-  the rest), timed inside one process; `fault-screen --help` in a new process. Every other
+  the rest), timed inside one process, and the same finer: the interpreter's start and exit
+  (`python -c pass`), each import group (IMPORT_GROUPS) and each part of the run (RUN_PARTS:
+  scene, set-up, discretisation, assembly, result file, steps, first factorisation, screening,
+  writes, close, read-back, summary) without the cache loads inside it; `fault-screen --help`
+  in a new process. Every other
   process of this script runs with the bytecode written (PYTHONDONTWRITEBYTECODE removed).
 - [compile] the first `fault-screen run` again, in-process with a listener on numba's compile
   event (benchmarks/cold_compile.py): the CPU time of the compilation, the number of kernels
@@ -264,46 +268,162 @@ def growing_summary(runs: list[dict]) -> dict:
         wall=float(np.median([r["wall"] for r in runs])))
 
 
+#: the import groups of a warm `fault-screen run`, imported one after the other in this order
+#: (a later group's time leaves out what an earlier one imported: numba imports part of scipy)
+IMPORT_GROUPS = [("the CLI (click)", ["click", "fault_screen.cli"]),
+                 ("numpy", ["numpy"]),
+                 ("scipy (sparse, linalg)", ["scipy.sparse", "scipy.linalg"]),
+                 ("numba", ["numba"]),
+                 ("h5py", ["h5py"]),
+                 ("fault_screen's model modules", ["fault_screen.api", "fault_screen.cli.run",
+                                                   "fault_screen.cli._running", "fault_screen.result_stream"])]
+
+#: the parts of a warm `fault-screen run` timed in one process: (name, module, attribute of the
+#: function timed); a part's time leaves out the kernels' cache loads inside it and the parts
+#: nested in it (those that follow it here and run within it)
+RUN_PARTS = [("scene load and validation", "fault_screen.cli.run", "load_scene"),
+             ("model set-up", "fault_screen.stepper", "Simulation.__init__"),
+             ("mesh and discretisation", "fault_screen.stepper", "discretise"),
+             ("constant matrices", "fault_screen.solver", "assemble_constant"),
+             ("result file created", "fault_screen.result_stream", "ResultWriter.create"),
+             ("steps", "fault_screen.api", "_screened_run"),
+             ("first factorisation (ordering, symbolic, numeric)", "fault_screen.linear_system",
+              "CondensedSystem._factorise_held"),
+             ("step screening", "fault_screen.screening.stepwise", "StepScreening.screen_simulation"),
+             ("result file closed", "fault_screen.stepper", "Simulation.close_stream"),
+             ("result read back", "fault_screen.result", "ResultFile.view"),
+             ("result read back", "fault_screen.result", "ResultFile.maximum"),
+             ("result read back", "fault_screen.cli._running", "slip_split"),
+             ("summary", "fault_screen.cli._running", "_summary"),
+             ("result rows written (during the steps and at the close)", "fault_screen.result_stream",
+              "ResultWriter._write")]
+
+
+def _timed_parts(parts, record):
+    """Wrap each of ``parts`` (RUN_PARTS) so that its calls append (name, start, end, cpu start,
+    cpu end) to ``record``; returns a function that unwraps them."""
+    import functools
+    import importlib
+
+    undo = []
+    for name, module, attr in parts:
+        owner = importlib.import_module(module)
+        *path, leaf = attr.split(".")
+        for a in path:
+            owner = getattr(owner, a)
+        raw = owner.__dict__[leaf] if isinstance(owner, type) else getattr(owner, leaf)
+        func = raw.__func__ if isinstance(raw, classmethod) else raw
+
+        def wrapped(*args, _name=name, _func=func, **kw):
+            t, c = time.perf_counter(), time.process_time()
+            try:
+                return _func(*args, **kw)
+            finally:
+                record.append((_name, t, time.perf_counter(), c, time.process_time()))
+
+        functools.update_wrapper(wrapped, func)
+        setattr(owner, leaf, classmethod(wrapped) if isinstance(raw, classmethod) else wrapped)
+        undo.append((owner, leaf, raw))
+    return lambda: [setattr(o, leaf, raw) for o, leaf, raw in undo]
+
+
+def _union(spans):
+    """The union of the intervals (a, b) as a sorted list of disjoint intervals."""
+    out = []
+    for a, b in sorted(spans):
+        if out and a <= out[-1][1]:
+            out[-1][1] = max(out[-1][1], b)
+        else:
+            out.append([a, b])
+    return out
+
+
+def _overlap(a, b, union):
+    return sum(max(0.0, min(b, y) - max(a, x)) for x, y in union)
+
+
 def run_split() -> dict:
     """Where a warm `fault-screen run` of the bundled scene spends its time, in one process:
-    the imports (the CLI, then the model's modules: numba, scipy, h5py), numba's cache loads
-    of the kernels (each kernel's first call), and the rest (scene, model, steps, screening,
-    result file, summary)."""
+    the imports by group (IMPORT_GROUPS), numba's cache loads of the kernels (each kernel's first
+    call), and the run's parts (RUN_PARTS), each without the cache loads and parts inside it;
+    "other" is what no part covers (the command's own code, the CLI's checks, the collector)."""
+    import importlib
+
     t0, c0 = time.perf_counter(), time.process_time()
+    groups = []
+    for label, modules in IMPORT_GROUPS:
+        a, ca = time.perf_counter(), time.process_time()
+        for m in modules:
+            importlib.import_module(m)
+        groups.append((label, time.perf_counter() - a, time.process_time() - ca))
     import fault_screen.cli
-    import fault_screen.api  # noqa: F401 - the model's modules, as `run` imports them
     t1, c1 = time.perf_counter(), time.process_time()
     from numba.core.dispatcher import Dispatcher
 
-    spans, loaded = [], set()
+    spans, loaded, parts = [], set(), []
     compile_ = Dispatcher.compile
 
     def timed(self, sig):
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         try:
             return compile_(self, sig)
         finally:
-            spans.append((start, time.perf_counter()))
+            spans.append((start, time.perf_counter(), cpu, time.process_time()))
             loaded.add(self.py_func)
 
     Dispatcher.compile = timed
+    undo = _timed_parts(RUN_PARTS, parts)
     with tempfile.TemporaryDirectory() as tmp:
         try:
             fault_screen.cli.main(["run", "--out", str(Path(tmp) / "r.h5"), "--quiet"],
                                   prog_name="fault-screen", standalone_mode=False)
         finally:
             Dispatcher.compile = compile_
+            undo()
     t2, c2 = time.perf_counter(), time.process_time()
     # a kernel that two threads call first is asked for twice, the second waiting for the
     # first's load: the time is that of the spans' union
-    loads, end = [], 0.0
-    for a, b in sorted(spans):
-        if b > end:
-            loads.append(b - max(a, end))
-            end = b
-    return dict(imports=t1 - t0, kernels=sum(loads), n_kernels=len(loaded),
-                first_kernel=loads[0] if loads else 0.0, rest=t2 - t1 - sum(loads), total=t2 - t0,
+    loads = [tuple(x) for x in _union([sp[:2] for sp in spans])]
+    # each part's own time: its calls' union less the kernel loads and later parts inside it;
+    # its own CPU time (the process's, every thread's): its calls' less that of the outermost
+    # kernel loads and later parts inside each call
+    order = list(dict.fromkeys(name for name, _, _ in RUN_PARTS))
+    own, own_cpu = {}, {}
+    for i, name in enumerate(order):
+        mine = _union([(a, b) for n, a, b, _, _ in parts if n == name])
+        later = [p[1:] for p in parts if p[0] in order[i + 1:]] + spans
+        inside = _union(loads + [(a, b) for a, b, _, _ in later])
+        own[name] = sum(b - a - _overlap(a, b, inside) for a, b in mine)
+        own_cpu[name] = sum(cb - ca - _outermost_cpu(a, b, later)
+                            for n, a, b, ca, cb in parts if n == name)
+    kernels = sum(b - a for a, b in loads)
+    kernels_cpu = _outermost_cpu(t1, t2, spans)
+    rest = t2 - t1
+    return dict(imports=t1 - t0, import_groups=groups, kernels=kernels, n_kernels=len(loaded),
+                first_kernel=(loads[0][1] - loads[0][0]) if loads else 0.0, parts=own,
+                parts_cpu=own_cpu, kernels_cpu=kernels_cpu,
+                other=rest - kernels - sum(own.values()), rest=rest - kernels, total=t2 - t0,
                 cpu_imports=c1 - c0, cpu=c2 - c0)
+
+
+def _outermost_cpu(a, b, items) -> float:
+    """The CPU time of the items (wall start, wall end, CPU start, CPU end) inside the wall
+    interval (a, b) that no other of them contains."""
+    inside = sorted((x for x in items if a <= x[0] and x[1] <= b), key=lambda x: (x[0], -x[1]))
+    total, end = 0.0, -float("inf")
+    for x in inside:
+        if x[1] <= end:
+            continue   # inside one counted already
+        total += x[3] - x[2]
+        end = x[1]
+    return total
+
+
+def interpreter_start(env) -> float:
+    """Wall time (s) of a fresh `python -c pass` (the interpreter's start and exit, site included)."""
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-c", "pass"], env=env, check=True)
+    return time.perf_counter() - t0
 
 
 def child(case: str, env=None, timeout=CASE_TIMEOUT) -> dict:
@@ -398,6 +518,10 @@ def _s(seconds):
     return f"{seconds:.2f} s"
 
 
+def _ms(seconds):
+    return f"{1e3 * seconds:.0f} ms"
+
+
 def _wc(r):
     """Wall and CPU time of a case (CPU: the process's own, user + system)."""
     return f"{_s(r['wall'])} (CPU {_s(r['cpu'])})"
@@ -455,6 +579,15 @@ def main():
             f"(CPU {_s(split['cpu_imports'])}), numba's cache loads "
             f"{_s(split['kernels'])} ({split['n_kernels']} kernels; the first, with numba's own set-up, "
             f"{_s(split['first_kernel'])}), scene, model, steps and result {_s(split['rest'])}")
+        starts = sorted(interpreter_start(env) for _ in range(5))
+        row("the same split, finer (imports in the order listed, each group without what an earlier "
+            "one imported; each part without the cache loads and the parts inside it; CPU: the process's, every thread's)", "-", "-",
+            f"interpreter start and exit (`python -c pass`, best of 5) {_ms(starts[0])}; imports: "
+            + ", ".join(f"{label} {_ms(t)} (CPU {_ms(c)})" for label, t, c in split["import_groups"])
+            + f"; numba's cache loads {_ms(split['kernels'])} (CPU {_ms(split['kernels_cpu'])}); "
+            + ", ".join(f"{name} {_ms(t)} (CPU {_ms(split['parts_cpu'][name])})"
+                        for name, t in split["parts"].items())
+            + f", other {_ms(split['other'])}")
         (with_pyc, teardown), (from_source, _) = cli_run_warm(env, True), cli_run_warm(env, False)
         row("warm `fault-screen run`, whole process (bundled scene, numba's cache in place; best and "
             "median of 5)", "4.1 s median", "<= 2 s",

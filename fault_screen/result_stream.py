@@ -29,8 +29,14 @@ import numpy as np
 
 from .outputs import unit
 
-#: records per stream buffered before they are written
+#: records per compressed stream (the profiles) buffered before they are written: one batch
+#: fills its chunks once
 BATCH = 64
+#: an uncompressed stream (the series rows, the screening: a few scalars a record) buffers up to
+#: this many records, at most LIGHT_BYTES of their data: a write costs a call per dataset
+#: whatever its length (the bundled run's 280 rows: 5 writes of each of 19 datasets -> 1)
+LIGHT_BATCH = 1024
+LIGHT_BYTES = 256 * 1024
 #: gzip level of the compressed streams (with HDF5's byte shuffle before it)
 GZIP_LEVEL = 1
 #: root attribute listing what close() wrote (removed again when the file is reopened)
@@ -48,9 +54,11 @@ class ResultWriter:
     ``streams``: stream name -> {dataset path: (dtype, shape of one record)}; ``fixed``:
     dataset path -> array written once (the fault geometry); ``attrs``: root attributes
     (``scene``, a first ``meta``). ``compress``: stream names whose datasets are byte-shuffled
-    and gzip-compressed (the profiles)."""
+    and gzip-compressed (the profiles). ``batch``: records buffered per stream before a write
+    (None: BATCH for a compressed stream, else as many as LIGHT_BATCH and LIGHT_BYTES allow)."""
 
-    def __init__(self, h5, path: Path, streams: dict, counts: dict | None = None, batch: int = BATCH):
+    def __init__(self, h5, path: Path, streams: dict, counts: dict | None = None,
+                 batch: int | None = None, compress=("profiles",)):
         self.h5 = h5
         self.path = Path(path)
         self.streams = {name: dict(spec) for name, spec in streams.items()}
@@ -58,7 +66,8 @@ class ResultWriter:
         if counts:
             self.counts_written.update(counts)
         self.buffers = {name: [] for name in self.streams}
-        self.batch = batch
+        self.batches = {name: batch if batch is not None else _batch(spec, name in compress)
+                        for name, spec in self.streams.items()}
         # each stream's datasets, looked up once: h5py's lookup by path cost more than writing
         # a batch of scalars (a third of the writes' time on the bundled scene)
         self._datasets = {}
@@ -66,7 +75,7 @@ class ResultWriter:
     # ------------------------------------------------------------------ creation
     @classmethod
     def create(cls, path, *, streams: dict, fixed: dict, attrs: dict, compress=("profiles",),
-               batch: int = BATCH) -> "ResultWriter":
+               batch: int | None = None) -> "ResultWriter":
         import h5py
 
         path = Path(path)
@@ -84,11 +93,11 @@ class ResultWriter:
         except BaseException:
             h5.close()
             raise
-        return cls(h5, path, streams, batch=batch)
+        return cls(h5, path, streams, batch=batch, compress=compress)
 
     @classmethod
     def reopen(cls, path, counts: dict, *, streams: dict, compress=("profiles",),
-               batch: int = BATCH) -> "ResultWriter":
+               batch: int | None = None) -> "ResultWriter":
         """The file ``path`` truncated to ``counts`` records per stream, open for appending.
         Streams missing from the file (``streams`` declares them) are created."""
         import h5py
@@ -123,13 +132,14 @@ class ResultWriter:
         except BaseException:
             h5.close()
             raise
-        return cls(h5, path, streams, counts={k: int(counts.get(k, 0)) for k in streams}, batch=batch)
+        return cls(h5, path, streams, counts={k: int(counts.get(k, 0)) for k in streams}, batch=batch,
+                   compress=compress)
 
     # ------------------------------------------------------------------ appending
     def append(self, stream: str, record: dict) -> None:
         """One record of ``stream`` (dataset path -> value); written with the next batch."""
         buf = self.buffers[stream]
-        if len(buf) >= self.batch:
+        if len(buf) >= self.batches[stream]:
             self._write(stream)
         buf.append(record)
 
@@ -192,6 +202,18 @@ class ResultWriter:
             self.h5.close()
         except Exception:   # noqa: BLE001 - closing a file in an error path
             pass
+
+
+def _record_bytes(spec: dict) -> int:
+    """Bytes of one record of a stream (``spec``: dataset path -> (dtype, shape of one record))."""
+    return sum(np.dtype(dtype).itemsize * int(np.prod(shape, dtype=np.int64)) for dtype, shape in spec.values())
+
+
+def _batch(spec: dict, compressed: bool) -> int:
+    """Records of a stream buffered before a write (see BATCH, LIGHT_BATCH)."""
+    if compressed:
+        return BATCH
+    return max(BATCH, min(LIGHT_BATCH, LIGHT_BYTES // max(_record_bytes(spec), 1)))
 
 
 def _create(h5, p: str, dtype, shape, gzip: bool) -> None:

@@ -212,3 +212,62 @@ def test_streamed_profiles_are_stored_compressed_and_unchanged(bundled_run, tmp_
             raw += v.nbytes
             stored += h5[p].id.get_storage_size()
     assert stored <= 0.65 * raw, stored / raw
+
+
+def _light_and_heavy_streams():
+    """A series stream of 19 scalars (152 bytes a record, as the runs' rows), a compressed
+    profile stream of 2 x 1000 doubles, and an uncompressed stream of 1000 doubles a record."""
+    rows = {f"/series/v{k}": ("<f8", ()) for k in range(19)}
+    profiles = {"/fault/a": ("<f8", (1000,)), "/fault/b": ("<f8", (1000,))}
+    wide = {"/wide/w": ("<f8", (1000,))}
+    return {"rows": rows, "profiles": profiles, "wide": wide}
+
+
+def test_each_stream_buffers_as_many_records_as_its_kind_allows(tmp_path):
+    """Records are written in batches: 64 for a compressed stream (its chunks filled once),
+    1024 for a stream of a few scalars (a write costs a call per dataset whatever its length),
+    and 64 for an uncompressed stream whose 1024 records would pass 256 kB."""
+    from fault_screen.result_stream import ResultWriter
+
+    streams = _light_and_heavy_streams()
+    writer = ResultWriter.create(tmp_path / "b.h5", streams=streams, fixed={}, attrs={})
+    assert writer.batches == {"rows": 1024, "profiles": 64, "wide": 64}
+    try:
+        for i in range(1025):
+            writer.append("rows", {p: float(i) for p in streams["rows"]})
+        for i in range(65):
+            writer.append("profiles", {p: np.full(1000, float(i)) for p in streams["profiles"]})
+            writer.append("wide", {p: np.full(1000, float(i)) for p in streams["wide"]})
+        # the 1025th row and the 65th profile wrote the full batch before them, no more
+        assert writer.counts_written == {"rows": 1024, "profiles": 64, "wide": 64}
+        assert writer.count("rows") == 1025 and writer.count("profiles") == 65
+    finally:
+        writer.close()
+    with h5py.File(tmp_path / "b.h5", "r") as h5:
+        assert np.array_equal(h5["series/v3"][...], np.arange(1025.0))
+        assert np.array_equal(h5["wide/w"][:, 7], np.arange(65.0))
+
+
+def test_batched_streams_read_back_bit_for_bit_across_flushes(tmp_path):
+    """2,500 rows and 130 profiles of random doubles, flushed part way (as a checkpoint or the
+    monitor does), read back equal to what was appended, array for array."""
+    from fault_screen.result_stream import ResultWriter
+
+    rng = np.random.default_rng(7)
+    streams = _light_and_heavy_streams()
+    want = {p: rng.standard_normal((2500, *shape)) for p, (_, shape) in streams["rows"].items()}
+    want.update({p: rng.standard_normal((130, *shape)) for s in ("profiles", "wide")
+                 for p, (_, shape) in streams[s].items()})
+    writer = ResultWriter.create(tmp_path / "r.h5", streams=streams, fixed={}, attrs={})
+    for i in range(2500):
+        writer.append("rows", {p: want[p][i] for p in streams["rows"]})
+        if i < 130:
+            for s in ("profiles", "wide"):
+                writer.append(s, {p: want[p][i] for p in streams[s]})
+        if i == 1500:
+            writer.flush()
+            assert writer.counts() == {"rows": 1501, "profiles": 130, "wide": 130}
+    writer.close()
+    with h5py.File(tmp_path / "r.h5", "r") as h5:
+        for p, v in want.items():
+            assert np.array_equal(h5[p][...], v), p
