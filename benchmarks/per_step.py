@@ -3,6 +3,7 @@
 
     python benchmarks/per_step.py                    # the SI scene and the paper-units scene
     python benchmarks/per_step.py --scenes paper --repeat 5
+    python benchmarks/per_step.py --scenes paper rustrel fine --why-only   # the reasons alone
 
 In one process per scene, after a first run that loads the kernels from numba's cache:
 
@@ -17,6 +18,10 @@ In one process per scene, after a first run that loads the kernels from numba's 
   other memory before each sweep: a sweep whose factor no longer sits in the cache reads it
   from memory, and the MB it takes to get there tell how much of a step's own traffic between
   two sweeps the cache holds beside the factor;
+- ``why``: per step, the reason of each solve with the condensed block's factors and of each
+  product with P (the calling solver method: a first solve, a refinement step, a GMRES
+  iteration, a check of a result against M, a Woodbury update, the residual's product of updates
+  without one), with the condensed solves, Newton iterations and factorisations of the block;
 - ``shared``: the same run inside ``shared_bulk.sharing()`` (a run after an equal one: the order,
   the symbolic analyses and the factors reused, bit for bit) against one outside it, interleaved,
   CPU seconds per run (median), and whether the final states are equal to the bit.
@@ -36,15 +41,27 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 SCENES = {"rustrel": ROOT / "configs" / "rustrel-2015-calibrated.toml",
-          "paper": ROOT / "configs" / "rustrel-2015-calibrated-paper-units.toml"}
+          "paper": ROOT / "configs" / "rustrel-2015-calibrated-paper-units.toml",
+          "fine": "fine-T0.7-dip30"}   # (the 30 deg T = 0.7 verification scene, elements halved)
+
+
+def _scene(path):
+    from fault_screen import Scene
+
+    if path == SCENES["fine"]:
+        sys.path.insert(0, str(ROOT / "benchmarks"))
+        from verification_cost import scaled_scene
+
+        return scaled_scene("fluid-driven-slip-T0.7-dip30", 0.5)
+    return Scene.from_toml(path)
 
 
 def _run(path):
     """One whole run: (process CPU s, the Simulation, the CPU s of each step)."""
-    from fault_screen import Scene, Simulation
+    from fault_screen import Simulation
 
     c0 = time.process_time()
-    sim = Simulation(Scene.from_toml(path))
+    sim = Simulation(_scene(path))
     marks = [time.process_time()]
     sim.advance(sim.scene.time.end, progress=lambda *_: marks.append(time.process_time()))
     sim.result()
@@ -67,6 +84,97 @@ class _Counted:
 
     def restore(self):
         setattr(self.module, self.name, self.original)
+
+
+#: the reason of a solve with the condensed factors, by the first solver method met going up the
+#: stack from it (``_iterate``'s first solve: before its refinement has an iterate ``x``)
+_SOLVE_REASONS = (("_arnoldi", "GMRES iteration"), ("_base_columns", "Woodbury columns"),
+                  ("_step_size_update", "step-size columns"), ("apply", "Woodbury solve"),
+                  ("_iterate", "refinement"), ("solve", "direct (M is the factorised one)"))
+#: the reason of a product with P, by the method calling ``_times`` (or ``condensation_times``)
+_PRODUCT_REASONS = (("_arnoldi", "GMRES iteration"), ("_gmres", "GMRES restart check"),
+                    ("_iterate", "check after refinement"), ("_low_rank", "Woodbury check"),
+                    ("condensed", "residual: updates without a product"))
+
+
+class _Reasons:
+    """Wraps ``lu_solve`` and ``condensation_times`` of the linear system's module and counts
+    their calls by reason (``_SOLVE_REASONS``, ``_PRODUCT_REASONS``); solves with a smaller LU
+    than the condensed block's (the Woodbury capacitances) are counted apart."""
+
+    def __init__(self, n_condensed):
+        from fault_screen import linear_system
+
+        self.module, self.n = linear_system, n_condensed
+        self.solves, self.products = {}, {}
+        self.originals = (linear_system.lu_solve, linear_system.condensation_times)
+        linear_system.lu_solve, linear_system.condensation_times = self._solve, self._product
+
+    @staticmethod
+    def _reason(table, what):
+        frame = sys._getframe(2)
+        while frame is not None:
+            name = frame.f_code.co_name
+            for method, reason in table:
+                if name == method:
+                    if method == "_iterate" and table is _SOLVE_REASONS and "x" not in frame.f_locals:
+                        return "first solve"
+                    return reason
+            frame = frame.f_back
+        return f"other {what}"
+
+    def _solve(self, factors, b, *args, **kwargs):
+        reason = (self._reason(_SOLVE_REASONS, "solve") if len(factors[0]) == self.n
+                  else "capacitance (small LU)")
+        columns = 1 if b.ndim == 1 else b.shape[1]
+        calls, cols = self.solves.get(reason, (0, 0))
+        self.solves[reason] = (calls + 1, cols + columns)
+        return self.originals[0](factors, b, *args, **kwargs)
+
+    def _product(self, P, symmetric, v):
+        reason = self._reason(_PRODUCT_REASONS, "product")
+        self.products[reason] = self.products.get(reason, 0) + 1
+        return self.originals[1](P, symmetric, v)
+
+    def restore(self):
+        self.module.lu_solve, self.module.condensation_times = self.originals
+
+
+def why_rows(name, path):
+    """Per step, why each condensed solve and product with P happens (``_Reasons``)."""
+    from fault_screen import linear_system
+
+    _, sim, _ = _run(path)   # (the kernels loaded; the block's size)
+    reasons = _Reasons(len(sim.solver.N))
+    solves = []
+    original = linear_system.CondensedSolver.solve
+
+    def counted(solver, b):
+        solves.append(1)
+        return original(solver, b)
+
+    linear_system.CondensedSolver.solve = counted
+    try:
+        cpu, sim, steps = _run(path)
+    finally:
+        reasons.restore()
+        linear_system.CondensedSolver.solve = original
+    n = len(steps)
+    dense = sim.solver.system._dense
+    result = sim.result()
+    newton = int(result.solver["iterations"].sum())
+    print(f"\n### {name}, why: {n} steps, {newton / n:.2f} Newton iterations, {len(solves) / n:.2f} "
+          f"condensed solves, {dense.factorizations / n:.2f} factorisations of the block a step "
+          f"(CPU {cpu:.2f} s with the counting)\n")
+    print("| solves with the condensed LU | calls a step | columns a step |\n|---|---|---|")
+    for reason, (calls, cols) in sorted(reasons.solves.items(), key=lambda kv: -kv[1][0]):
+        print(f"| {reason} | {calls / n:.2f} | {cols / n:.2f} |")
+    total = sum(c for r, (c, _) in reasons.solves.items() if not r.startswith("capacitance"))
+    print(f"| all but the capacitances | {total / n:.2f} | |")
+    print("\n| products with P | calls a step |\n|---|---|")
+    for reason, calls in sorted(reasons.products.items(), key=lambda kv: -kv[1]):
+        print(f"| {reason} | {calls / n:.2f} |")
+    print(f"| all | {sum(reasons.products.values()) / n:.2f} |")
 
 
 def _sweep_times(lu, traffic_mb, repeat):
@@ -152,9 +260,13 @@ def main(argv=None):
     p.add_argument("--traffic", type=float, nargs="+", default=[0, 4, 8, 16, 32],
                    help="MB of other memory passed over before each sweep (default 0 4 8 16 32)")
     p.add_argument("--sweep-repeat", type=int, default=40, help="sweeps per traffic row (default 40)")
+    p.add_argument("--why-only", action="store_true",
+                   help="only the reasons of the condensed solves and products (``why``)")
     a = p.parse_args(argv)
     for name in a.scenes:
-        scene_rows(name, a.repeat, a.traffic, a.sweep_repeat)
+        if not a.why_only:
+            scene_rows(name, a.repeat, a.traffic, a.sweep_repeat)
+        why_rows(name, SCENES[name])
 
 
 if __name__ == "__main__":

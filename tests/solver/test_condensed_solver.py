@@ -242,3 +242,36 @@ def test_low_rank_update_over_a_gappy_span_is_the_dense_solve_in_one_application
         assert np.linalg.norm(x - exact) <= 1e-12 * np.linalg.norm(exact)
         assert len(products) == 1 and dense.factorizations == 1
     assert dense.updates == 3 and not dense._have[20:40].all() and dense._have[40:47].all()
+
+
+def test_a_stalled_refinement_goes_on_by_gmres_with_sparse_products(blocks, monkeypatch):
+    """A spread change that refinement contracts slowly: its estimate of the residual starts
+    GMRES (no check with P: it misses by far), whose first cycle takes M z_j as v_j + D z_j;
+    the one product with the dense P is the final check, and the result is the dense solve's
+    to CONDENSED_RTOL (an M z_j missing its v_j, or D z_j, or a wrong sign of the estimate
+    leave a residual of order 1e-2 |b|, or the check fails and more products follow)."""
+    from fault_screen import linear_system
+
+    products = []
+    times = linear_system.condensation_times
+    monkeypatch.setattr(linear_system, "condensation_times",
+                        lambda *args: products.append(1) or times(*args))
+    rng = np.random.default_rng(5)
+    dense = CondensedSolver(blocks[1])
+    contact = _tangent(np.arange(10, 20), 50.0)
+    _set(dense, blocks, 1.0 / 1e-3, contact)
+    spread = (np.arange(N_MECH), np.arange(N_MECH), np.full(N_MECH, 0.3))
+    stiffer = tuple(np.concatenate([a, b]) for a, b in zip(contact, spread))
+    for inv_dt in (1.0 / 1e-3, 1.0 / 5.3e-3):   # (M0's step size, then the storage's update)
+        M = _set(dense, blocks, inv_dt, stiffer)
+        iterations, products[:] = dense.iterations, []
+        b = rng.standard_normal(len(M))
+        x = dense.solve(b)
+        exact = np.linalg.solve(M, b)
+        assert np.linalg.norm(M @ x - b) <= CONDENSED_RTOL * np.linalg.norm(b)
+        # (the residual's bound times M's condition number: 8 here)
+        assert (np.linalg.norm(x - exact)
+                <= np.linalg.cond(M) * CONDENSED_RTOL * np.linalg.norm(exact))
+        assert dense.factorizations == 1
+        assert dense.iterations - iterations >= 4   # (a refinement step and GMRES iterations)
+        assert len(products) == 1
