@@ -213,6 +213,27 @@ def test_arnoldi_columns_give_the_gmres_iterate(m):
         assert np.max(np.abs(x - exact)) < 1e-10 * np.max(np.abs(exact))
 
 
+def _front_solve(dense, blocks, contact, points, stiffness, inv_dt, rng):
+    """A slip front at ``points`` (``stiffness + p`` on each diagonal) on top of ``contact``,
+    solved: K must be the points, and the first application (one product with P: no
+    refinement hides an error) the dense solve of M to 1e-12 relative."""
+    moved = contact
+    for p in points:
+        moved = tuple(np.append(a, v) for a, v in zip(moved, (p, p, stiffness + p)))
+    M = _set(dense, blocks, inv_dt, moved)
+    K = dense._tangent_change()[1]
+    assert np.array_equal(K, np.unique(points)) and len(K) * LOW_RANK_FRACTION <= N
+    products = []
+    times = dense._times
+    dense._times = lambda v: products.append(1) or times(v)
+    b = rng.standard_normal(N)
+    x = dense.solve(b)
+    del dense._times
+    exact = np.linalg.solve(M, b)
+    assert np.linalg.norm(x - exact) <= 1e-12 * np.linalg.norm(exact)
+    assert len(products) == 1 and dense.factorizations == 1
+
+
 def test_low_rank_update_over_a_gappy_span_is_the_dense_solve_in_one_application(blocks):
     """The Woodbury solve reads M0^-1's columns over K's span (the columns between that are not
     in K: solved for an earlier K, or never) and makes the step size's correction with one solve
@@ -226,22 +247,38 @@ def test_low_rank_update_over_a_gappy_span_is_the_dense_solve_in_one_application
     _set(dense, blocks, 1.0 / 1e-3, contact)
     inv1 = 1.0 / 1.7e-3
     for points in ([11, 12, 13], [12, 40], [5, 12, 44, 45]):   # spans 11-14, 12-41, 5-46
-        moved = contact
-        for p in points:
-            moved = tuple(np.append(a, v) for a, v in zip(moved, (p, p, 30.0 + p)))
-        M = _set(dense, blocks, inv1, moved)
-        K = dense._tangent_change()[1]
-        assert np.array_equal(K, np.unique(points)) and len(K) * LOW_RANK_FRACTION <= N
-        products = []
-        times = dense._times
-        dense._times = lambda v: products.append(1) or times(v)
-        b = rng.standard_normal(N)
-        x = dense.solve(b)
-        del dense._times
-        exact = np.linalg.solve(M, b)
-        assert np.linalg.norm(x - exact) <= 1e-12 * np.linalg.norm(exact)
-        assert len(products) == 1 and dense.factorizations == 1
+        _front_solve(dense, blocks, contact, points, 30.0, inv1, rng)
     assert dense.updates == 3 and not dense._have[20:40].all() and dense._have[40:47].all()
+
+
+def test_a_slip_fronts_set_up_is_kept_while_k_and_the_step_size_are(blocks):
+    """K's set-up (Z_K less the step size's share, the shift columns) is made once for a K and a
+    step size: a Newton iteration whose front did not move (other tangent values at the same K)
+    reuses it; a front that grew past three missing pages of shift columns (made in one solve),
+    or the same K at another step size, makes it anew. Each first application is the dense
+    solve of its M to 1e-12 relative: a set-up kept across the step size (its share changes by
+    1e-4 of Z_K here) or a page's columns placed wrong misses it."""
+    rng = np.random.default_rng(5)
+    dense = CondensedSolver(blocks[1])
+    contact = _tangent(np.arange(10, 20), 50.0)
+    _set(dense, blocks, 1.0 / 1e-3, contact)
+
+    def front(points, stiffness, inv_dt):
+        _front_solve(dense, blocks, contact, points, stiffness, inv_dt, rng)
+        return dense._front
+
+    inv1 = 1.0 / 1.7e-3
+    first = front([12, 13], 30.0, inv1)
+    again = front([12, 13], 45.0, inv1)          # the same K and step size: kept
+    assert all(a is b for a, b in zip(first, again))
+    assert not dense._have1[16:].any()
+    grown = front([12, 13, 20, 40, 52], 30.0, inv1)   # three pages of shift columns at once
+    assert grown[3] is not first[3] and dense._have1[:64].all() and not dense._have1[64:].any()
+    other = front([12, 13, 20, 40, 52], 30.0, 1.0 / 2.3e-3)   # another step size: anew
+    assert other[3] is not grown[3]
+    share = np.abs(other[3] - grown[3]).max() / np.abs(grown[3]).max()
+    assert share > 1e-5    # (what a set-up kept across step sizes would have got wrong)
+    assert dense.updates == 4
 
 
 def test_a_stalled_refinement_goes_on_by_gmres_with_sparse_products(blocks, monkeypatch):
