@@ -70,6 +70,8 @@ KERNELS = (
      '(int64, int64[::1], float64[::1], int64[::1], float64[::1], float64[::1])'),
     ('fault_screen.solver', '_where_changed', 0.28,
      '(float64[::1], float64[::1], int64[::1])'),
+    ('fault_screen.solver', '_updated_through_columns', 0.30,
+     '(float64[::1], int64[::1], int64[::1], float64[::1], int64[::1], float64[::1])'),
     ('fault_screen.linear_system', '_tangent_change', 0.90,
      '(int64, uint64[::1], uint64[::1], int64[::1], float64[::1], float64[::1], '
      'float64[::1])'),

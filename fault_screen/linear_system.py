@@ -506,6 +506,12 @@ class CondensedSystem:
                              self.lu.backward(pending.swept, pending.fault))
         R[self._fixed] += self._L_fixed_B @ dxB
 
+    @property
+    def blas_threads_held(self) -> bool:
+        """Would ``blas_threads`` change nothing now (a large block, or held already)? A
+        caller that steps once checks this instead of entering the context at every step."""
+        return len(self.N) > SINGLE_THREAD_BLAS_UP_TO or self._blas_limited
+
     @contextlib.contextmanager
     def blas_threads(self):
         """Run BLAS on one thread while the condensed block is small: its dense products and LU

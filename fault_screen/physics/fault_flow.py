@@ -76,8 +76,7 @@ class FaultPressureOnWalls(Term):
 
 def _opening_coupling(disc):
     fp = disc.fault_points
-    return np.array([fault_flow.opening_coupling(fp.Np[g], fp.N[g], disc.fault.normal, fp.weight[g])
-                     for g in range(len(fp.s))])
+    return fault_flow.opening_coupling(fp.Np, fp.N, disc.fault.normal, fp.weight)
 
 
 class ConstantApertureConduction(Term):

@@ -120,6 +120,14 @@ def test_fault_storage_conduction_and_opening_coupling_of_a_linear_segment():
                 assert abs(G[a, 2 * j + c] - w * Np[a] * N[j] * normal[c]) <= 1e-16
     # summed over the nodes (a partition of unity) the coupling is w Np_a n_c
     assert np.max(np.abs(G.reshape(2, 4, 2).sum(axis=1) - w * Np[:, None] * normal)) <= 1e-16
+    # every fault point at once (a leading axis of points): each point's G to the bit
+    rng = np.random.default_rng(3)
+    Nps, Ns, ws = rng.uniform(size=(5, 2)), rng.uniform(size=(5, 4)), rng.uniform(size=5)
+    Gs = fault_flow.opening_coupling(Nps, Ns, normal, ws)
+    assert Gs.shape == (5, 2, 8)
+    for g in range(5):
+        assert np.array_equal(Gs[g], fault_flow.opening_coupling(Nps[g], Ns[g], normal, ws[g]))
+        assert abs(Gs[g, 1, 2 * 3 + 1] - ws[g] * Nps[g, 1] * Ns[g, 3] * normal[1]) <= 1e-16
 
 
 CODE = """
