@@ -697,8 +697,9 @@ class NewtonSolver:
                 # the reference magnitudes at the lagging bulk are an estimate (never below the
                 # last exact ones): once the fault converges by it, or has not halved its
                 # residual for STALLED_ITERATIONS iterations near the tolerance (round-off floor,
-                # a reference underestimated: STALLED_NEAR_TOLERANCE), or at the last iteration, the bulk is brought up to date with
-                # one backward sweep and the iterate is checked exactly, as if never deferred.
+                # a reference underestimated: STALLED_NEAR_TOLERANCE), or at the last iteration,
+                # the bulk is brought up to date with one backward sweep and the iterate is
+                # checked exactly, as if never deferred.
                 # The residual needs no new evaluation: its fault rows are exact already, the
                 # bulk rows are in balance and the nonlinear terms read only fault unknowns;
                 # only the reactions (rows of fixed unknowns) are recomputed.
