@@ -506,13 +506,6 @@ class CondensedSystem:
                              self.lu.backward(pending.swept, pending.fault))
         R[self._fixed] += self._L_fixed_B @ dxB
 
-    @property
-    def blas_threads_held(self) -> bool:
-        """Would ``blas_threads`` change nothing now (a large block, or held already)? A
-        caller that steps once checks this instead of entering the context at every step."""
-        return len(self.N) > SINGLE_THREAD_BLAS_UP_TO or self._blas_limited
-
-    @contextlib.contextmanager
     def blas_threads(self):
         """Run BLAS on one thread while the condensed block is small: its dense products and LU
         take a millisecond or less, where OpenBLAS's threads only add start-up and, on a busy
@@ -520,10 +513,16 @@ class CondensedSystem:
         caller that takes many steps holds this around all of them: limiting and restoring the
         threads at every step cost a BLAS thread spinning beside the run (CPU 1.8x the wall
         time on the T = 0.4 scene). Re-entrant, and safe from several threads (``_SingleThreadBlas``:
-        a large system stepping beside a small one then has one thread too)."""
+        a large system stepping beside a small one then has one thread too). Held already, or
+        for a large block, it is a null context: each step enters it, so that case costs no
+        generator."""
         if len(self.N) > SINGLE_THREAD_BLAS_UP_TO or self._blas_limited:
-            yield
-            return
+            return contextlib.nullcontext()
+        return self._one_blas_thread()
+
+    @contextlib.contextmanager
+    def _one_blas_thread(self):
+        """(``blas_threads``, not held yet)"""
         self._blas_limited = True
         try:
             with _SINGLE_THREAD_BLAS.held():

@@ -543,8 +543,6 @@ class NewtonSolver:
         on the fixed ones (an extrapolation).
 
         BLAS threads: see ``blas_threads``."""
-        if self.system.blas_threads_held:   # (the caller holds them: no context entered)
-            return self._step(x_n, history, dt, injection_value, damped, x0, combination)
         with self.blas_threads():
             return self._step(x_n, history, dt, injection_value, damped, x0, combination)
 
