@@ -206,7 +206,8 @@ class ResultWriter:
 
 def _record_bytes(spec: dict) -> int:
     """Bytes of one record of a stream (``spec``: dataset path -> (dtype, shape of one record))."""
-    return sum(np.dtype(dtype).itemsize * int(np.prod(shape, dtype=np.int64)) for dtype, shape in spec.values())
+    return sum(np.dtype(dtype).itemsize * int(np.prod(shape, dtype=np.int64))
+               for dtype, shape in spec.values())
 
 
 def _batch(spec: dict, compressed: bool) -> int:
