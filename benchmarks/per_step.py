@@ -37,6 +37,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from patching import Patches
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -72,18 +73,20 @@ class _Counted:
     """Wraps a module's function: calls and CPU seconds of each call."""
 
     def __init__(self, module, name):
-        self.module, self.name, self.original = module, name, getattr(module, name)
         self.times = []
-        setattr(module, name, self)
+        self._patches = Patches()
+        self._patches.replace(module, name, self._counting)
 
-    def __call__(self, *args, **kwargs):
-        c0 = time.process_time()
-        out = self.original(*args, **kwargs)
-        self.times.append(time.process_time() - c0)
-        return out
+    def _counting(self, original):
+        def counted(*args, **kwargs):
+            c0 = time.process_time()
+            out = original(*args, **kwargs)
+            self.times.append(time.process_time() - c0)
+            return out
+        return counted
 
     def restore(self):
-        setattr(self.module, self.name, self.original)
+        self._patches.restore()
 
 
 #: the reason of a solve with the condensed factors, by the first solver method met going up the
@@ -105,10 +108,12 @@ class _Reasons:
     def __init__(self, n_condensed):
         from fault_screen import linear_system
 
-        self.module, self.n = linear_system, n_condensed
+        self.n = n_condensed
         self.solves, self.products = {}, {}
-        self.originals = (linear_system.lu_solve, linear_system.condensation_times)
-        linear_system.lu_solve, linear_system.condensation_times = self._solve, self._product
+        self._patches = Patches()
+        self._lu_solve = self._patches.replace(linear_system, "lu_solve", lambda _: self._solve)
+        self._condensation_times = self._patches.replace(linear_system, "condensation_times",
+                                                         lambda _: self._product)
 
     @staticmethod
     def _reason(table, what):
@@ -129,15 +134,15 @@ class _Reasons:
         columns = 1 if b.ndim == 1 else b.shape[1]
         calls, cols = self.solves.get(reason, (0, 0))
         self.solves[reason] = (calls + 1, cols + columns)
-        return self.originals[0](factors, b, *args, **kwargs)
+        return self._lu_solve(factors, b, *args, **kwargs)
 
     def _product(self, P, symmetric, v):
         reason = self._reason(_PRODUCT_REASONS, "product")
         self.products[reason] = self.products.get(reason, 0) + 1
-        return self.originals[1](P, symmetric, v)
+        return self._condensation_times(P, symmetric, v)
 
     def restore(self):
-        self.module.lu_solve, self.module.condensation_times = self.originals
+        self._patches.restore()
 
 
 def why_rows(name, path):

@@ -71,6 +71,7 @@ ROOT = Path(__file__).resolve().parents[1]
 TREE = Path(os.environ.get("FAULT_SCREEN_TREE", ROOT))
 sys.path.insert(0, str(TREE))
 sys.path.insert(0, str(ROOT / "benchmarks"))
+from patching import Patches  # noqa: E402
 RUSTREL = ROOT / "configs" / "rustrel-2015-calibrated.toml"
 PAPER = ROOT / "configs" / "rustrel-2015-calibrated-paper-units.toml"
 SLIP_SCENES = ["fluid-driven-slip-T0.4-horizontal", "fluid-driven-slip-T0.4-dip30",
@@ -299,32 +300,25 @@ RUN_PARTS = [("scene load and validation", "fault_screen.cli.run", "load_scene")
               "ResultWriter._write")]
 
 
-def _timed_parts(parts, record):
-    """Wrap each of ``parts`` (RUN_PARTS) so that its calls append (name, start, end, cpu start,
-    cpu end) to ``record``; returns a function that unwraps them."""
+def _timed_parts(parts, record, patches):
+    """Wrap each of ``parts`` (RUN_PARTS) by ``patches`` so that its calls append (name, start,
+    end, cpu start, cpu end) to ``record``."""
     import functools
-    import importlib
 
-    undo = []
+    def timing(name):
+        def make(func):
+            @functools.wraps(func)
+            def wrapped(*args, **kw):
+                t, c = time.perf_counter(), time.process_time()
+                try:
+                    return func(*args, **kw)
+                finally:
+                    record.append((name, t, time.perf_counter(), c, time.process_time()))
+            return wrapped
+        return make
+
     for name, module, attr in parts:
-        owner = importlib.import_module(module)
-        *path, leaf = attr.split(".")
-        for a in path:
-            owner = getattr(owner, a)
-        raw = owner.__dict__[leaf] if isinstance(owner, type) else getattr(owner, leaf)
-        func = raw.__func__ if isinstance(raw, classmethod) else raw
-
-        def wrapped(*args, _name=name, _func=func, **kw):
-            t, c = time.perf_counter(), time.process_time()
-            try:
-                return _func(*args, **kw)
-            finally:
-                record.append((_name, t, time.perf_counter(), c, time.process_time()))
-
-        functools.update_wrapper(wrapped, func)
-        setattr(owner, leaf, classmethod(wrapped) if isinstance(raw, classmethod) else wrapped)
-        undo.append((owner, leaf, raw))
-    return lambda: [setattr(o, leaf, raw) for o, leaf, raw in undo]
+        patches.replace(module, attr, timing(name))
 
 
 def _union(spans):
@@ -361,25 +355,22 @@ def run_split() -> dict:
     from numba.core.dispatcher import Dispatcher
 
     spans, loaded, parts = [], set(), []
-    compile_ = Dispatcher.compile
 
-    def timed(self, sig):
-        start, cpu = time.perf_counter(), time.process_time()
-        try:
-            return compile_(self, sig)
-        finally:
-            spans.append((start, time.perf_counter(), cpu, time.process_time()))
-            loaded.add(self.py_func)
+    def timing(compile_):
+        def timed(self, sig):
+            start, cpu = time.perf_counter(), time.process_time()
+            try:
+                return compile_(self, sig)
+            finally:
+                spans.append((start, time.perf_counter(), cpu, time.process_time()))
+                loaded.add(self.py_func)
+        return timed
 
-    Dispatcher.compile = timed
-    undo = _timed_parts(RUN_PARTS, parts)
-    with tempfile.TemporaryDirectory() as tmp:
-        try:
-            fault_screen.cli.main(["run", "--out", str(Path(tmp) / "r.h5"), "--quiet"],
-                                  prog_name="fault-screen", standalone_mode=False)
-        finally:
-            Dispatcher.compile = compile_
-            undo()
+    with tempfile.TemporaryDirectory() as tmp, Patches() as patches:
+        patches.replace(Dispatcher, "compile", timing)
+        _timed_parts(RUN_PARTS, parts, patches)
+        fault_screen.cli.main(["run", "--out", str(Path(tmp) / "r.h5"), "--quiet"],
+                              prog_name="fault-screen", standalone_mode=False)
     t2, c2 = time.perf_counter(), time.process_time()
     # a kernel that two threads call first is asked for twice, the second waiting for the
     # first's load: the time is that of the spans' union

@@ -65,6 +65,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+from patching import Patches  # noqa: E402
 
 SCENES = ("rustrel-200x201", "fine-T0.7-dip30", "rustrel")
 
@@ -328,7 +329,7 @@ class _PhaseTimers:
         self.stack = []    # [phase, wall0, cpu0, children's wall, children's cpu]
         self.stage = None  # what the run is doing: "set-up", "steps", "result"
         self.timed = {}    # stage -> [wall, cpu] inside the phases
-        self.undo = []
+        self.patches = Patches()
 
     def wrap(self, fn, phase):
         import functools
@@ -359,21 +360,12 @@ class _PhaseTimers:
         return timed
 
     def __enter__(self):
-        import importlib
-
         for module, name, phase in PHASES:
-            owner = importlib.import_module(module)
-            *outer, attr = name.split(".")
-            for part in outer:
-                owner = getattr(owner, part)
-            original = owner.__dict__[attr]
-            setattr(owner, attr, self.wrap(original, phase))
-            self.undo.append((owner, attr, original))
+            self.patches.replace(module, name, lambda fn, _phase=phase: self.wrap(fn, _phase))
         return self
 
     def __exit__(self, *exc):
-        for owner, attr, original in reversed(self.undo):
-            setattr(owner, attr, original)
+        self.patches.restore()
 
 
 def phases(name):

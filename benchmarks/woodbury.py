@@ -17,12 +17,12 @@ the other processes too on a shared machine: say how busy it was.
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from patching import Patches  # noqa: E402
 from per_step import SCENES, _run  # noqa: E402
 
 
@@ -39,7 +39,7 @@ class _Parts:
         self.calls, self.seconds = {}, {}
         self.inside = False
         self.reused = 0
-        self._undo = []
+        self._patches = Patches()
         solver = linear_system.CondensedSolver
         for name in ("_low_rank", "_base_columns", "_front_columns", "_shift_columns", "_times"):
             self._wrap(solver, name, lambda *args, _name=name: _name
@@ -47,14 +47,15 @@ class _Parts:
         self._wrap(linear_system, "lu_solve", self._solve_part)
         self._wrap(scipy.linalg, "lu_factor", lambda M, *a, **k: "LU of the capacitance (|K| rows)"
                    if self.inside else None)
-        front = solver._front_columns
 
-        def counted(solver_self, K, *args):
-            kept = solver_self._front
-            self.reused += kept is not None and len(kept[0]) == len(K) and (kept[0] == K).all()
-            return front(solver_self, K, *args)
+        def counting(front):
+            def counted(solver_self, K, *args):
+                kept = solver_self._front
+                self.reused += kept is not None and len(kept[0]) == len(K) and (kept[0] == K).all()
+                return front(solver_self, K, *args)
+            return counted
 
-        self._replace(solver, "_front_columns", counted)
+        self._patches.replace(solver, "_front_columns", counting)
 
     def _solve_part(self, factors, b, *args):
         if not self.inside:
@@ -67,33 +68,29 @@ class _Parts:
             return "solve with the step size's LU" + what
         return "solve with the capacitance (|K| rows)"
 
-    def _replace(self, owner, name, function):
-        self._undo.append((owner, name, getattr(owner, name)))
-        setattr(owner, name, function)
-
     def _wrap(self, owner, name, part):
-        original = getattr(owner, name)
         is_low_rank = name == "_low_rank"
 
-        def timed(*args, **kwargs):
-            key = part(*args)
-            if is_low_rank:
-                self.inside = True
-            c0 = time.process_time()
-            try:
-                return original(*args, **kwargs)
-            finally:
+        def timing(original):
+            def timed(*args, **kwargs):
+                key = part(*args)
                 if is_low_rank:
-                    self.inside = False
-                if key is not None:
-                    self.calls[key] = self.calls.get(key, 0) + 1
-                    self.seconds[key] = self.seconds.get(key, 0.0) + time.process_time() - c0
+                    self.inside = True
+                c0 = time.process_time()
+                try:
+                    return original(*args, **kwargs)
+                finally:
+                    if is_low_rank:
+                        self.inside = False
+                    if key is not None:
+                        self.calls[key] = self.calls.get(key, 0) + 1
+                        self.seconds[key] = self.seconds.get(key, 0.0) + time.process_time() - c0
+            return timed
 
-        self._replace(owner, name, timed)
+        self._patches.replace(owner, name, timing)
 
     def restore(self):
-        for owner, name, original in reversed(self._undo):
-            setattr(owner, name, original)
+        self._patches.restore()
 
 
 #: parts inside other parts: the Woodbury solve itself, the shift columns (in K's set-up) and the
