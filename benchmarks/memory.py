@@ -13,7 +13,8 @@ place (run `fault-screen run` once first after a change of the kernels):
 - [cli] `fault-screen run` of the bundled paper-units scene, the whole command in-process
   (result streamed to a file, screening, summary), as a user starts it;
 - [fine] the 30 deg T = 0.7 scene at half its element size in-process (the performance table's
-  [fine] row, without its error against the exact solution).
+  [fine] row, without its error against the exact solution);
+- [refined] Rustrel on a 200 x 201 mesh in-process (not run unless asked: --cases refined).
 
 For each case the table gives:
 - the peak (max RSS) and where the run was when a sampling thread (every 0.5 ms) saw it;
@@ -42,7 +43,8 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-CASES = ["rustrel", "cli", "fine"]
+CASES = ["rustrel", "cli", "fine", "refined"]
+DEFAULT_CASES = ["rustrel", "cli", "fine"]
 
 
 # ------------------------------------------------------------------ measuring (in the child)
@@ -323,7 +325,7 @@ def run_case(case: str) -> dict:
         sys.path.insert(0, str(ROOT / "benchmarks"))
         from performance import _scene
 
-        scene = _scene("rustrel" if case == "rustrel" else "fine-T0.7-dip30")
+        scene = _scene({"rustrel": "rustrel", "fine": "fine-T0.7-dip30", "refined": "rustrel-200x201"}[case])
         sampler.label = "set-up"
         sim = stepper.Simulation(scene)
         sim.advance(scene.time.end)
@@ -346,6 +348,7 @@ def run_case(case: str) -> dict:
 def child(case: str, tree: Path, extra_env: dict) -> dict:
     env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
     env["PYTHONPATH"] = str(tree) + os.pathsep + env.get("PYTHONPATH", "")
+    env["FAULT_SCREEN_TREE"] = str(tree)   # (benchmarks/performance.py's scenes, imported here)
     env.update(extra_env)
     out = subprocess.run([sys.executable, __file__, "--case", case], capture_output=True, text=True,
                          cwd=ROOT, env=env, timeout=900)
@@ -384,7 +387,7 @@ def print_case(r: dict, runs: list[dict]) -> None:
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--cases", nargs="*", choices=CASES, default=CASES)
+    ap.add_argument("--cases", nargs="*", choices=CASES, default=DEFAULT_CASES)
     ap.add_argument("--tree", type=Path, default=ROOT, help="the checkout whose fault_screen runs")
     ap.add_argument("--repeat", type=int, default=1, help="runs of each case (the largest peak shown)")
     ap.add_argument("--one-blas-thread", action="store_true", help="OPENBLAS_NUM_THREADS=1")

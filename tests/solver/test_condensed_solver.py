@@ -3,6 +3,8 @@
 iteration on top of that) meets CONDENSED_RTOL against M itself (formed densely here) and
 numpy's solve, on a small block given like the Newton solver's: M(1/dt) = A + C/dt + H - P + T,
 C nonzero only in the flow rows, T a contact tangent on the mechanical rows (triplets)."""
+import sys
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -279,6 +281,45 @@ def test_a_slip_fronts_set_up_is_kept_while_k_and_the_step_size_are(blocks):
     share = np.abs(other[3] - grown[3]).max() / np.abs(grown[3]).max()
     assert share > 1e-5    # (what a set-up kept across step sizes would have got wrong)
     assert dense.updates == 4
+
+
+def _resident_pages(a):
+    """Which memory pages of ``a``'s buffer are resident (Linux mincore), from its first page."""
+    import ctypes
+    import mmap
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.mincore.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_char_p]
+    start = a.__array_interface__["data"][0]
+    assert start % mmap.PAGESIZE == 0
+    pages = -(-a.nbytes // mmap.PAGESIZE)
+    vec = ctypes.create_string_buffer(pages)
+    assert libc.mincore(ctypes.c_void_p(start), ctypes.c_size_t(a.nbytes), vec) == 0
+    return np.frombuffer(vec.raw, dtype=np.uint8) & 1 == 1, mmap.PAGESIZE
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="mincore as Linux has it")
+def test_the_kept_columns_take_memory_only_where_they_are_filled(blocks):
+    """The columns of M0^-1 kept for slip fronts (``_Z``, n x n) and their shares of a step-size
+    change (``_T``, |R| x n) are zero pages until a front reaches them (on the fine 30 deg scene
+    a few hundred columns of 2059 are ever solved): after a front at points 11-13 at a new step
+    size, the memory pages of ``_Z`` wholly in the columns never solved (16-79: the first
+    COLUMN_PAGE holds 11-13) are not resident, those of the columns solved are, and every column
+    not solved reads zero. (np.zeros from heap memory freed earlier would be resident whole.)"""
+    rng = np.random.default_rng(5)
+    dense = CondensedSolver(blocks[1])
+    contact = _tangent(np.arange(10, 20), 50.0)
+    _set(dense, blocks, 1.0 / 1e-3, contact)
+    _front_solve(dense, blocks, contact, [11, 12, 13], 30.0, 1.0 / 1.7e-3, rng)
+    Z, T = dense._Z, dense._T
+    # (first: reading a page never written maps the zero page, which mincore counts)
+    resident, page = _resident_pages(Z)
+    solved_pages = -(-16 * N * 8 // page)          # the pages holding columns 0-15
+    assert resident[:solved_pages].all()
+    assert not resident[solved_pages:].any(), np.flatnonzero(resident)
+    assert Z.flags.f_contiguous and T.flags.f_contiguous
+    assert np.flatnonzero(dense._have).tolist() == list(range(16))
+    assert not Z[:, 16:].any() and not T[:, 16:].any() and Z[:, 11:14].any() and T[:, 11:14].any()
 
 
 def test_a_stalled_refinement_goes_on_by_gmres_with_sparse_products(blocks, monkeypatch):
