@@ -755,6 +755,19 @@ def _zeros_filled_later(shape):
     return np.ndarray(shape, dtype=float, buffer=mmap.mmap(-1, size), order="F")
 
 
+def _solved_columns_copied(kept, have):
+    """A copy of the kept columns ``kept`` (Fortran order) for a fork: the columns ``have``
+    marks solved, run by run, into zeros filled later (``_zeros_filled_later``); the others are
+    zeros never written, which a whole copy would read and make resident (the fork of a run on
+    the fine 30 deg scene: 32 MB for 8 MB of columns solved)."""
+    twin = _zeros_filled_later(kept.shape)
+    solved = np.flatnonzero(have)
+    for run in np.split(solved, np.flatnonzero(np.diff(solved) != 1) + 1):
+        if len(run):
+            twin[:, run[0]:run[-1] + 1] = kept[:, run[0]:run[-1] + 1]
+    return twin
+
+
 @helper
 def _add_at_slots(out, slots, weight, vals):
     """The tangent's triplets scaled by their weight added at their slots, in order (those with
@@ -941,10 +954,14 @@ class CondensedSolver:
         own (it remembers the arrays it last matched)."""
         twin = copy.copy(self)
         twin._pattern = copy.copy(self._pattern)
-        for name in ("_Z", "_T", "_have", "_have1"):
+        for name, have in (("_Z", "_have"), ("_T", "_have1")):
             value = getattr(self, name, None)
             if value is not None:
-                setattr(twin, name, value.copy(order="K"))   # (Fortran order kept)
+                setattr(twin, name, _solved_columns_copied(value, getattr(self, have)))
+        for name in ("_have", "_have1"):
+            value = getattr(self, name, None)
+            if value is not None:
+                setattr(twin, name, value.copy())
         twin._front = None   # (views of this solver's columns)
         return twin
 
