@@ -379,8 +379,10 @@ def print_case(runs: list[dict]) -> None:
         print("peaks of the runs: " + ", ".join(f"{x['peak']:.0f}" for x in runs) + " MB")
     for x in runs:
         if x["compiled"]:
-            print(f"(a run with {x['peak']:.0f} MB compiled in its process, its peak includes that: "
-                  f"{', '.join(x['compiled'])}; run it again for a warm start)")
+            names = sorted(set(x["compiled"]) - {"impl"})   # (impl: numba's own, nested)
+            print(f"(a run with {x['peak']:.0f} MB compiled in its process ({len(x['compiled'])} "
+                  f"compilations: {', '.join(names[:6])}{', ...' if len(names) > 6 else ''}): "
+                  f"its peak includes them; run it again for a warm start)")
     print("\n| part | MB | RSS after it, MB |\n|---|---:|---:|")
     last = 0.0
     for label, rss in r["libraries"]:
