@@ -201,8 +201,9 @@ def malloc_free_mb() -> float:
     import ctypes
 
     class MallInfo2(ctypes.Structure):
-        _fields_ = [(n, ctypes.c_size_t) for n in ("arena", "ordblks", "smblks", "hblks", "hblkhd",
-                                                   "usmblks", "fsmblks", "uordblks", "fordblks", "keepcost")]
+        _fields_ = [(n, ctypes.c_size_t) for n in (
+            "arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks", "uordblks",
+            "fordblks", "keepcost")]
     try:
         f = ctypes.CDLL(None).mallinfo2
     except AttributeError:
@@ -265,7 +266,7 @@ def run_case(case: str) -> dict:
     from numba.core import event
     stage("numba (llvmlite's LLVM)")
 
-    compiled = []   # (a compilation in this process: its memory is in the peak, unlike a cache load)
+    compiled = []   # (a compilation in this process: its memory is in the peak, a load's is not)
 
     class Compiled(event.Listener):
         def on_start(self, ev):
@@ -337,7 +338,8 @@ def run_case(case: str) -> dict:
         sys.path.insert(0, str(ROOT / "benchmarks"))
         from performance import _scene
 
-        scene = _scene({"rustrel": "rustrel", "fine": "fine-T0.7-dip30", "refined": "rustrel-200x201"}[case])
+        scene = _scene({"rustrel": "rustrel", "fine": "fine-T0.7-dip30",
+                        "refined": "rustrel-200x201"}[case])
         sampler.label = "set-up"
         sim = stepper.Simulation(scene)
         sim.advance(scene.time.end)
@@ -403,14 +405,17 @@ def print_case(runs: list[dict]) -> None:
     print("\nlargest arrays (resident MB of MB):")
     for res, size, path in a["named"]:
         print(f"  {res:7.1f} of {size:6.1f}  {path}")
-    print("RSS by mapping at the end: " + "; ".join(f"{k} {v:.0f} MB" for k, v in r["smaps"].items()))
+    print("RSS by mapping at the end: "
+          + "; ".join(f"{k} {v:.0f} MB" for k, v in r["smaps"].items()))
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cases", nargs="*", choices=CASES, default=DEFAULT_CASES)
     ap.add_argument("--tree", type=Path, default=ROOT, help="the checkout whose fault_screen runs")
-    ap.add_argument("--repeat", type=int, default=1, help="runs of each case (the largest peak shown)")
+    ap.add_argument("--repeat", type=int, default=1,
+                    help="runs of each case (the table: the largest warm peak)")
     ap.add_argument("--one-blas-thread", action="store_true", help="OPENBLAS_NUM_THREADS=1")
     ap.add_argument("--case", help=argparse.SUPPRESS)
     args = ap.parse_args()
