@@ -3,6 +3,9 @@
 iteration on top of that) meets CONDENSED_RTOL against M itself (formed densely here) and
 numpy's solve, on a small block given like the Newton solver's: M(1/dt) = A + C/dt + H - P + T,
 C nonzero only in the flow rows, T a contact tangent on the mechanical rows (triplets)."""
+import mmap
+import sys
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -279,6 +282,50 @@ def test_a_slip_fronts_set_up_is_kept_while_k_and_the_step_size_are(blocks):
     share = np.abs(other[3] - grown[3]).max() / np.abs(grown[3]).max()
     assert share > 1e-5    # (what a set-up kept across step sizes would have got wrong)
     assert dense.updates == 4
+
+
+def _resident_pages(a):
+    """Which memory pages of ``a``'s buffer are resident (Linux mincore), from its first page."""
+    import ctypes
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.mincore.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_char_p]
+    start = a.__array_interface__["data"][0]
+    assert start % mmap.PAGESIZE == 0
+    pages = -(-a.nbytes // mmap.PAGESIZE)
+    vec = ctypes.create_string_buffer(pages)
+    assert libc.mincore(ctypes.c_void_p(start), ctypes.c_size_t(a.nbytes), vec) == 0
+    return np.frombuffer(vec.raw, dtype=np.uint8) & 1 == 1
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="mincore as Linux has it")
+def test_the_kept_columns_take_memory_only_where_they_are_filled(blocks):
+    """The columns of M0^-1 kept for slip fronts (``_Z``, n x n) and their shares of a step-size
+    change (``_T``, |R| x n) are zero pages until a front reaches them (on the fine 30 deg scene
+    a few hundred columns of 2059 are ever solved): after a front at points 11-13 at a new step
+    size, the memory pages of ``_Z`` wholly in the columns never solved (16-79: the first
+    COLUMN_PAGE holds 11-13) are not resident, those of the columns solved are, and every column
+    not solved reads zero. (np.zeros from heap memory freed earlier would be resident whole.)
+    A fork's copies are the same, bit for bit, and as resident."""
+    rng = np.random.default_rng(5)
+    dense = CondensedSolver(blocks[1])
+    contact = _tangent(np.arange(10, 20), 50.0)
+    _set(dense, blocks, 1.0 / 1e-3, contact)
+    _front_solve(dense, blocks, contact, [11, 12, 13], 30.0, 1.0 / 1.7e-3, rng)
+    Z, T = dense._Z, dense._T
+    twin = dense.fork()
+    # (first: reading a page never written maps the zero page, which mincore counts)
+    solved_pages = -(-16 * N * 8 // mmap.PAGESIZE)          # the pages holding columns 0-15
+    for kept in (Z, twin._Z):
+        resident = _resident_pages(kept)
+        assert resident[:solved_pages].all()
+        assert not resident[solved_pages:].any(), np.flatnonzero(resident)
+    assert twin._Z is not Z and twin._T is not T and twin._have is not dense._have
+    assert np.array_equal(twin._Z, Z) and np.array_equal(twin._T, T)
+    assert np.array_equal(twin._have, dense._have) and np.array_equal(twin._have1, dense._have1)
+    assert Z.flags.f_contiguous and T.flags.f_contiguous
+    assert np.flatnonzero(dense._have).tolist() == list(range(16))
+    assert not Z[:, 16:].any() and not T[:, 16:].any() and Z[:, 11:14].any() and T[:, 11:14].any()
 
 
 def test_a_stalled_refinement_goes_on_by_gmres_with_sparse_products(blocks, monkeypatch):
