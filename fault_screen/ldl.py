@@ -356,13 +356,15 @@ _LESS = np.array([-1.0, 1.0])
 
 
 @helper
-def _gemm_less(rows, columns, inner, a, a_at, lda, b, b_at, ldb, c, c_at, ldc):
-    """C -= A B in BLAS's column-major terms (where a row-major front is its transpose): C
-    ``rows`` x ``columns`` at ``c[c_at]``, A given by its transpose (``inner`` x ``rows``) at
-    ``a[a_at]``, B (``inner`` x ``columns``) at ``b[b_at]``; ``lda``, ``ldb``, ``ldc`` their
-    leading dimensions. B and C may be blocks of one array if they share no entry."""
-    _xxgemm(100, 84, 78, rows, columns, inner, _LESS[0:].ctypes, a[a_at:].ctypes, lda,
-            b[b_at:].ctypes, ldb, _LESS[1:].ctypes, c[c_at:].ctypes, ldc)   # ('d', 'T', 'N')
+def _gemm_less(a_transposed, rows, columns, inner, a, a_at, lda, b, b_at, ldb, c, c_at, ldc):
+    """C -= A B in BLAS's column-major terms (where a row-major array is its transpose): C
+    ``rows`` x ``columns`` at ``c[c_at]``, A (``rows`` x ``inner``) at ``a[a_at]``, or given by
+    its transpose (``inner`` x ``rows``) when ``a_transposed``, B (``inner`` x ``columns``) at
+    ``b[b_at]``; ``lda``, ``ldb``, ``ldc`` their leading dimensions. A, B and C may be blocks of
+    one array if C shares no entry with the others."""
+    _xxgemm(100, 84 if a_transposed else 78, 78, rows, columns, inner, _LESS[0:].ctypes,
+            a[a_at:].ctypes, lda, b[b_at:].ctypes, ldb, _LESS[1:].ctypes, c[c_at:].ctypes,
+            ldc)   # ('d', 'T' or 'N', 'N')
 
 
 @helper
@@ -384,7 +386,7 @@ def _pivot_block(front, m, o, w, diagonal, j0, column_d):
 
 
 @helper
-def _panel_by_blas(front, m, o, n, w, d, xt, dlrows, strip, product):
+def _panel_by_blas(front, m, o, n, w, d, xt, dlrows, strip):
     """The rows below a factorised pivot block and their update of the trailing block by matrix
     products (BLAS's dgemm), for a panel of a large front.
 
@@ -392,17 +394,19 @@ def _panel_by_blas(front, m, o, n, w, d, xt, dlrows, strip, product):
     rows and columns) factorised (``_pivot_block``), ``d`` its pivots. On return the block's
     first w columns below the pivot block hold L21 = F21 (D L11^T)^-1 (``_panel_rows``) and its
     trailing block (lower triangle) F22 - L21 D L21^T (``_panel_update``)."""
-    _panel_rows(front, m, o, w, d, 0, n - w, xt, dlrows, strip, product)
+    _panel_rows(front, m, o, w, d, 0, n - w, xt, dlrows, strip)
     _panel_update(front, m, o, w, dlrows, 0, n - w)
 
 
 @helper
-def _panel_rows(front, m, o, w, d, k_begin, k_end, xt, dlrows, strip, product):
+def _panel_rows(front, m, o, w, d, k_begin, k_end, xt, dlrows, strip):
     """Rows ``k_begin .. k_end - 1`` of L21 below a panel's factorised pivot block
     (``_panel_by_blas``), into the front and into ``dlrows`` = L21 D (row-major, w values a
     row, at their row). L21^T is solved in ``xt`` (w x u, u the rows): row c of it is
     (F21^T[c] - sum_{k<c} d_k L11[c, k] L21^T[k]) / d_c, each block of rows' sum over the earlier
-    rows one product, the rows within the block by axpys along contiguous rows."""
+    rows one product (dgemm into xt in place: in BLAS's column-major view xt is X^T, u x w, and
+    X^T[:, c0:c1] -= X^T[:, :c0] S^T, S the block's rows of L11 D in ``strip``), the rows within
+    the block by axpys along contiguous rows."""
     u = k_end - k_begin
     for k in range(u):   # xt = F21^T
         row = o + (w + k_begin + k) * m
@@ -413,17 +417,11 @@ def _panel_rows(front, m, o, w, d, k_begin, k_end, xt, dlrows, strip, product):
         c1 = min(c0 + SOLVE_BLOCK, w)
         h = c1 - c0
         if c0 > 0:
-            s = strip[:h * c0].reshape(h, c0)
-            for a in range(h):
+            for a in range(h):   # S[a, k] = d_k L11[c0 + a, k], row-major (S^T: c0 x h)
                 row = o + (c0 + a) * m
                 for k in range(c0):
-                    s[a, k] = d[k] * front[_unsigned(row + k)]
-            out = product[:h * u].reshape(h, u)
-            np.dot(s, xt[:c0 * u].reshape(c0, u), out)
-            for a in range(h):
-                at = (c0 + a) * u
-                for k in range(u):
-                    xt[_unsigned(at + k)] -= out[a, k]
+                    strip[_unsigned(a * c0 + k)] = d[k] * front[_unsigned(row + k)]
+            _gemm_less(False, u, h, c0, xt, 0, u, strip, 0, c0, xt, c0 * u, u)
         for c in range(c0, c1):
             at = c * u
             for k in range(c0, c):
@@ -457,7 +455,7 @@ def _panel_update(front, m, o, w, dlrows, i_begin, i_end):
     i0 = i_begin
     while i0 < i_end:
         i1 = min(i0 + UPDATE_BLOCK, i_end)
-        _gemm_less(i1, i1 - i0, w, front, o + w * m, m, dlrows, i0 * w, w, front,
+        _gemm_less(True, i1, i1 - i0, w, front, o + w * m, m, dlrows, i0 * w, w, front,
                    o + (w + i0) * m + w, m)
         i0 = i1
 
@@ -558,7 +556,6 @@ def _eliminate(sequence, indptr, indices, data, n_linear, first, width, row_at, 
     xt = np.empty(big_w * big_m)
     dlrows = np.empty(big_w * big_m)
     strip = np.empty(min(SOLVE_BLOCK, big_w) * big_w)
-    product = np.empty(SOLVE_BLOCK * big_m)
     stack_at = np.empty(len(sequence) + 1, dtype=np.int64)
     stack_at[0] = stack_base
     depth = 0
@@ -579,7 +576,7 @@ def _eliminate(sequence, indptr, indices, data, n_linear, first, width, row_at, 
                 o = c0 * m + c0
                 _pivot_block(front, m, o, b, diagonal, j0 + c0, column_d)
                 _panel_by_blas(front, m, o, m - c0, b, diagonal[j0 + c0:j0 + c0 + b], xt,
-                               dlrows, strip, product)
+                               dlrows, strip)
                 c0 += b
         else:
             _pivot_block(front, m, 0, w, diagonal, j0, column_d)
@@ -648,8 +645,7 @@ def _eliminate(sequence, indptr, indices, data, n_linear, first, width, row_at, 
 @kernel
 def _front_step(what, t, c0, b, begin, end, blocks, front, where, indptr, indices, data, first,
                 width, row_at, srows, child_ptr, child_list, relative, stack, update_at,
-                diagonal, column_d, xt, dlrows, strip, product, value_at, values,
-                condensed):
+                diagonal, column_d, xt, dlrows, strip, value_at, values, condensed):
     """One step of a front factorised outside ``_eliminate`` by panels whose rows below and
     update are shared between two threads (``_split_front``), supernode t (a root): ``what``
     0 assembles the front (``_assemble``); 1 factorises the pivot block of the panel of ``b``
@@ -669,7 +665,7 @@ def _front_step(what, t, c0, b, begin, end, blocks, front, where, indptr, indice
         _pivot_block(front, m, o, b, diagonal, j0 + c0, column_d)
     elif what == 2:
         _panel_rows(front, m, o, b, diagonal[j0 + c0:j0 + c0 + b], begin, end, xt, dlrows,
-                    strip, product)
+                    strip)
     elif what == 3:
         for k in range(len(blocks)):
             _panel_update(front, m, o, b, dlrows, blocks[k],
@@ -719,8 +715,7 @@ def _split_front(t, lower, symbolic, diagonal, values, stack, update_at, condens
     where = np.empty(symbolic.n_linear + n_N, dtype=np.int64)
     column_d = np.empty(max(w, 1))
     dlrows = np.empty(PANEL * m)
-    buffers = [(np.empty(PANEL * m), np.empty(SOLVE_BLOCK * PANEL), np.empty(SOLVE_BLOCK * m))
-               for _ in range(2)]
+    buffers = [(np.empty(PANEL * m), np.empty(SOLVE_BLOCK * PANEL)) for _ in range(2)]
     shared = (lower.indptr, lower.indices, lower.data, first, width, row_at, srows,
               symbolic.child_ptr, symbolic.child_list, relative, stack, update_at, diagonal,
               column_d)
@@ -728,9 +723,9 @@ def _split_front(t, lower, symbolic, diagonal, values, stack, update_at, condens
     no_blocks = np.zeros(0, dtype=np.int64)
 
     def step(what, c0=0, b=0, begin=0, end=0, half=0, blocks=no_blocks):
-        xt, strip, product = buffers[half]
+        xt, strip = buffers[half]
         _front_step(what, t, c0, b, begin, end, blocks, front, where, *shared, xt, dlrows, strip,
-                    product, symbolic.value_at, values, condensed)
+                    symbolic.value_at, values, condensed)
 
     panels = []
     c0 = 0

@@ -1,6 +1,7 @@
-"""The BLAS fronts' dgemm on blocks of a front in place (fault_screen/ldl.py: ``_gemm_less``,
-``_panel_update``) against numpy's dense products, and the fronts that the thresholds
-``ldl.BLAS_MIN_WIDTH`` / ``BLAS_MIN_ROWS`` send through it on real blocks against dense solves.
+"""The BLAS fronts' dgemm on blocks of a front and of its rows below in place
+(fault_screen/ldl.py: ``_gemm_less``, ``_panel_rows``, ``_panel_update``) against numpy's
+dense products, and the fronts that the thresholds ``ldl.BLAS_MIN_WIDTH`` / ``BLAS_MIN_ROWS``
+send through it on real blocks against dense solves.
 
 The update writes into a row-major front through BLAS's column-major view of it (leading
 dimension m, an offset for the panel): a wrong leading dimension, offset, transpose or block
@@ -23,22 +24,25 @@ def _rel(a, b):
     return np.max(np.abs(a - b)) / np.max(np.abs(b))
 
 
-def test_gemm_less_on_blocks_of_one_array():
-    """C -= A B with A given by its transpose, A, B and C disjoint blocks of one array with
-    leading dimensions larger than their rows (BLAS's column-major terms): C against numpy,
-    every other entry unchanged."""
+@pytest.mark.parametrize("a_transposed", [True, False])
+def test_gemm_less_on_blocks_of_one_array(a_transposed):
+    """C -= A B, A given as it is or by its transpose, A, B and C disjoint blocks of one array
+    with leading dimensions larger than their rows (BLAS's column-major terms): C against
+    numpy, every other entry unchanged."""
     rng = np.random.default_rng(3)
     ld, columns = 41, 60
     x = rng.standard_normal(ld * columns)
     view = x.reshape(columns, ld).T        # column-major ld x columns: view[i, j] = x[j ld + i]
     rows, cols, inner = 17, 23, 9
-    # A^T: inner x rows at view[0:inner, 2:2 + rows]; B: inner x cols at view[0:inner, 30:53];
-    # C: rows x cols at view[12:29, 30:53] (rows 12.. of the same columns as B: no entry shared)
-    a_t = view[0:inner, 2:2 + rows].copy()
+    # A: rows x inner at view[0:rows, 2:2 + inner], or A^T: inner x rows at
+    # view[0:inner, 2:2 + rows]; B: inner x cols at view[0:inner, 30:53]; C: rows x cols at
+    # view[12:29, 30:53] (rows 12.. of the same columns as B: no entry shared)
+    a = view[0:inner, 2:2 + rows].T.copy() if a_transposed else view[0:rows, 2:2 + inner].copy()
     b = view[0:inner, 30:30 + cols].copy()
-    expected = view[12:12 + rows, 30:30 + cols] - a_t.T @ b
+    expected = view[12:12 + rows, 30:30 + cols] - a @ b
     before = x.copy()
-    ldl._gemm_less(rows, cols, inner, x, 2 * ld, ld, x, 30 * ld, ld, x, 30 * ld + 12, ld)
+    ldl._gemm_less(a_transposed, rows, cols, inner, x, 2 * ld, ld, x, 30 * ld, ld, x,
+                   30 * ld + 12, ld)
     assert _rel(view[12:12 + rows, 30:30 + cols], expected) < TOL
     changed = np.zeros_like(view, dtype=bool)
     changed[12:12 + rows, 30:30 + cols] = True
@@ -88,8 +92,7 @@ def test_a_panel_of_a_front_in_place(c0, b):
     ldl._pivot_block(front, m, o, b, diagonal, 0, np.empty(b))
     xt, dlrows = np.empty(b * u), np.empty(b * u)
     strip = np.empty(ldl.SOLVE_BLOCK * b)
-    product = np.empty(ldl.SOLVE_BLOCK * u)
-    ldl._panel_rows(front, m, o, b, diagonal, 0, u, xt, dlrows, strip, product)
+    ldl._panel_rows(front, m, o, b, diagonal, 0, u, xt, dlrows, strip)
     ldl._panel_update(front, m, o, b, dlrows, 0, u)
 
     F = A[c0:, c0:]
