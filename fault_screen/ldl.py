@@ -361,10 +361,12 @@ def _gemm_less(a_transposed, rows, columns, inner, a, a_at, lda, b, b_at, ldb, c
     ``rows`` x ``columns`` at ``c[c_at]``, A (``rows`` x ``inner``) at ``a[a_at]``, or given by
     its transpose (``inner`` x ``rows``) when ``a_transposed``, B (``inner`` x ``columns``) at
     ``b[b_at]``; ``lda``, ``ldb``, ``ldc`` their leading dimensions. A, B and C may be blocks of
-    one array if C shares no entry with the others."""
-    _xxgemm(100, 84 if a_transposed else 78, 78, rows, columns, inner, _LESS[0:].ctypes,
-            a[a_at:].ctypes, lda, b[b_at:].ctypes, ldb, _LESS[1:].ctypes, c[c_at:].ctypes,
-            ldc)   # ('d', 'T' or 'N', 'N')
+    one array if C shares no entry with the others. An empty product is skipped (BLAS would
+    take its leading dimension of 0, e.g. a shared front's empty half of rows, as an error)."""
+    if rows > 0 and columns > 0 and inner > 0:
+        _xxgemm(100, 84 if a_transposed else 78, 78, rows, columns, inner, _LESS[0:].ctypes,
+                a[a_at:].ctypes, lda, b[b_at:].ctypes, ldb, _LESS[1:].ctypes, c[c_at:].ctypes,
+                ldc)   # ('d', 'T' or 'N', 'N')
 
 
 @helper

@@ -10,6 +10,7 @@ above their tolerances (1e-12 relative: round-off of sums of at most a few hundr
 or as entries changed that must not change (checked bit for bit)."""
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 from fault_screen import Scene, ldl
 from fault_screen.bordered_lu import BorderedLU
@@ -143,3 +144,26 @@ def test_the_fronts_at_the_default_thresholds_against_dense(poroelastic, dt):
         ldl.BLAS_MIN_WIDTH, ldl.BLAS_MIN_ROWS = saved
     assert _rel(lu.schur, loops.schur) < TOL and _rel(lu._D, loops._D) < TOL
     assert _rel(lu._L.arrays[-1], loops._L.arrays[-1]) < TOL
+
+
+def test_a_shared_front_with_an_empty_half_of_rows(monkeypatch):
+    """A dense front of 40 pivots (wider than ldl.SOLVE_BLOCK: its rows below take a product
+    per block) shared between two threads (``ldl._split_front``) with exactly ldl.SPLIT_ALIGN
+    rows below them: the cut leaves one thread no rows, so its products are empty (skipped:
+    BLAS takes their leading dimension of 0 as an error). Against numpy to 1e-11 and a
+    backward error below 1e-15 (``test_ldl._check_against_dense``), and equal bit for bit to
+    the factors in one thread."""
+    monkeypatch.setattr(ldl, "SPLIT_FRONT_ABOVE", 0.0)
+    monkeypatch.setattr(ldl, "THREADS_ABOVE", 0.0)   # (two threads)
+    nB = 40
+    n = nB + ldl.SPLIT_ALIGN
+    M = sp.csc_matrix(_quasi_definite(n, nB // 2, np.random.default_rng(n)))
+    analyses = ldl.SymbolicAnalyses()
+    BorderedLU(M, nB, analyses)   # (the first factorisation: the front is shared at the next)
+    assert analyses.of(ldl._lower(M, nB), nB).split_front == 0
+    two = BorderedLU(M, nB, analyses)
+    _check_against_dense(two, M, nB, 10)
+    monkeypatch.setattr(ldl, "THREADS_ABOVE", np.inf)
+    one = BorderedLU(M, nB, analyses)
+    assert np.array_equal(one.schur, two.schur) and np.array_equal(one._D, two._D)
+    assert all(np.array_equal(x, y) for x, y in zip(one._L.arrays, two._L.arrays))
