@@ -23,6 +23,7 @@ import threading
 
 import numpy as np
 import scipy.sparse as sp
+from numba import types
 
 from ._jit import helper, kernel
 
@@ -329,11 +330,11 @@ def _update_rows4(front, panel_t, m, w, i):
 
 
 #: a front goes through BLAS-3 (``_panel_by_blas``) when its supernode is at least this wide
-#: and it has at least this many rows below it (on paper-units Rustrel any limits from 8 wide
-#: and 16 rows to 32 wide and 128 rows took the same time to a few per cent: the fronts below
-#: them hold 10 % of the work; ``benchmarks/factorisation.py --fronts``)
-BLAS_MIN_WIDTH = 16
-BLAS_MIN_ROWS = 32
+#: and it has at least this many rows below it (on paper-units Rustrel, with the update by
+#: dgemm in place, 8 wide and 16 rows took 5 % less CPU than 16 and 32, limits from 4 to 12
+#: wide and 8 to 24 rows the same to a few per cent; ``benchmarks/factorisation.py --fronts``)
+BLAS_MIN_WIDTH = 8
+BLAS_MIN_ROWS = 16
 #: such a front's columns are eliminated a panel of at most this many at a time, each panel's
 #: rows below it and their update of all the later rows by BLAS (the pivot blocks by loops)
 PANEL = 96
@@ -341,6 +342,31 @@ PANEL = 96
 #: the rows of the trailing block updated together (``_panel_by_blas``)
 SOLVE_BLOCK = 16
 UPDATE_BLOCK = 128
+
+
+#: BLAS's dgemm through numba's own C helper for it (what numba's np.dot calls, on scipy's
+#: BLAS): an external symbol, so the kernels calling it stay cacheable, and unlike np.dot it
+#: takes leading dimensions, so that a product lands in a block of a front in place
+_f64_pointer = types.CPointer(types.float64)
+_xxgemm = types.ExternalFunction("numba_xxgemm", types.intc(
+    types.char, types.char, types.char, types.intp, types.intp, types.intp, _f64_pointer,
+    _f64_pointer, types.intp, _f64_pointer, types.intp, _f64_pointer, _f64_pointer, types.intp))
+#: dgemm's alpha and beta for C <- C - A B
+_LESS = np.array([-1.0, 1.0])
+
+
+@helper
+def _gemm_less(a_transposed, rows, columns, inner, a, a_at, lda, b, b_at, ldb, c, c_at, ldc):
+    """C -= A B in BLAS's column-major terms (where a row-major array is its transpose): C
+    ``rows`` x ``columns`` at ``c[c_at]``, A (``rows`` x ``inner``) at ``a[a_at]``, or given by
+    its transpose (``inner`` x ``rows``) when ``a_transposed``, B (``inner`` x ``columns``) at
+    ``b[b_at]``; ``lda``, ``ldb``, ``ldc`` their leading dimensions. A, B and C may be blocks of
+    one array if C shares no entry with the others. An empty product is skipped (BLAS would
+    take its leading dimension of 0, e.g. a shared front's empty half of rows, as an error)."""
+    if rows > 0 and columns > 0 and inner > 0:
+        _xxgemm(100, 84 if a_transposed else 78, 78, rows, columns, inner, _LESS[0:].ctypes,
+                a[a_at:].ctypes, lda, b[b_at:].ctypes, ldb, _LESS[1:].ctypes, c[c_at:].ctypes,
+                ldc)   # ('d', 'T' or 'N', 'N')
 
 
 @helper
@@ -362,25 +388,27 @@ def _pivot_block(front, m, o, w, diagonal, j0, column_d):
 
 
 @helper
-def _panel_by_blas(front, m, o, n, w, d, xt, lrows, dlrows, strip, product):
+def _panel_by_blas(front, m, o, n, w, d, xt, dlrows, strip):
     """The rows below a factorised pivot block and their update of the trailing block by matrix
-    products (np.dot on contiguous blocks: BLAS's dgemm), for a panel of a large front.
+    products (BLAS's dgemm), for a panel of a large front.
 
     The panel's block is n x n at ``front[o]`` (row stride m), its pivot block (the first w
     rows and columns) factorised (``_pivot_block``), ``d`` its pivots. On return the block's
     first w columns below the pivot block hold L21 = F21 (D L11^T)^-1 (``_panel_rows``) and its
     trailing block (lower triangle) F22 - L21 D L21^T (``_panel_update``)."""
-    _panel_rows(front, m, o, w, d, 0, n - w, xt, lrows, dlrows, strip, product)
-    _panel_update(front, m, o, w, lrows, dlrows, product, 0, n - w)
+    _panel_rows(front, m, o, w, d, 0, n - w, xt, dlrows, strip)
+    _panel_update(front, m, o, w, dlrows, 0, n - w)
 
 
 @helper
-def _panel_rows(front, m, o, w, d, k_begin, k_end, xt, lrows, dlrows, strip, product):
+def _panel_rows(front, m, o, w, d, k_begin, k_end, xt, dlrows, strip):
     """Rows ``k_begin .. k_end - 1`` of L21 below a panel's factorised pivot block
-    (``_panel_by_blas``), into the front and into ``lrows`` = L21 and ``dlrows`` = L21 D (row-major,
-    w values a row, at their row). L21^T is solved in ``xt`` (w x u, u the rows): row c of it is
+    (``_panel_by_blas``), into the front and into ``dlrows`` = L21 D (row-major, w values a
+    row, at their row). L21^T is solved in ``xt`` (w x u, u the rows): row c of it is
     (F21^T[c] - sum_{k<c} d_k L11[c, k] L21^T[k]) / d_c, each block of rows' sum over the earlier
-    rows one product, the rows within the block by axpys along contiguous rows."""
+    rows one product (dgemm into xt in place: in BLAS's column-major view xt is X^T, u x w, and
+    X^T[:, c0:c1] -= X^T[:, :c0] S^T, S the block's rows of L11 D in ``strip``), the rows within
+    the block by axpys along contiguous rows."""
     u = k_end - k_begin
     for k in range(u):   # xt = F21^T
         row = o + (w + k_begin + k) * m
@@ -391,17 +419,11 @@ def _panel_rows(front, m, o, w, d, k_begin, k_end, xt, lrows, dlrows, strip, pro
         c1 = min(c0 + SOLVE_BLOCK, w)
         h = c1 - c0
         if c0 > 0:
-            s = strip[:h * c0].reshape(h, c0)
-            for a in range(h):
+            for a in range(h):   # S[a, k] = d_k L11[c0 + a, k], row-major (S^T: c0 x h)
                 row = o + (c0 + a) * m
                 for k in range(c0):
-                    s[a, k] = d[k] * front[_unsigned(row + k)]
-            out = product[:h * u].reshape(h, u)
-            np.dot(s, xt[:c0 * u].reshape(c0, u), out)
-            for a in range(h):
-                at = (c0 + a) * u
-                for k in range(u):
-                    xt[_unsigned(at + k)] -= out[a, k]
+                    strip[_unsigned(a * c0 + k)] = d[k] * front[_unsigned(row + k)]
+            _gemm_less(False, u, h, c0, xt, 0, u, strip, 0, c0, xt, c0 * u, u)
         for c in range(c0, c1):
             at = c * u
             for k in range(c0, c):
@@ -413,32 +435,30 @@ def _panel_rows(front, m, o, w, d, k_begin, k_end, xt, lrows, dlrows, strip, pro
             for r in range(u):
                 xt[_unsigned(at + r)] /= pivot
         c0 = c1
-    for k in range(u):   # L21 (into the front and lrows) and L21 D, row-major
+    for k in range(u):   # L21 (into the front) and L21 D, row-major
         row = o + (w + k_begin + k) * m
         at = (k_begin + k) * w
         for c in range(w):
             x = xt[_unsigned(c * u + k)]
             front[_unsigned(row + c)] = x
-            lrows[_unsigned(at + c)] = x
             dlrows[_unsigned(at + c)] = d[c] * x
 
 
 @helper
-def _panel_update(front, m, o, w, lrows, dlrows, product, i_begin, i_end):
+def _panel_update(front, m, o, w, dlrows, i_begin, i_end):
     """Rows ``i_begin .. i_end - 1`` of a panel's trailing block (lower triangle) less
     L21 D L21^T, by blocks of UPDATE_BLOCK rows from ``i_begin``, each over the columns up to
-    its diagonal only (about half the full product's work), from ``lrows`` and ``dlrows``
-    (``_panel_rows``: every row up to ``i_end`` made)."""
+    its diagonal only (about half the full product's work), from L21 in the front and
+    ``dlrows`` (``_panel_rows``: every row up to ``i_end`` made), by dgemm on the front in
+    place (no product buffer, no pass subtracting it). In BLAS's column-major view the
+    row-major front is its transpose G (leading dimension m): L21^T is G[:w, w:], and rows
+    i0 .. i1 - 1 over columns 0 .. i1 - 1 of the trailing block are G[w:w + i1, w + i0:w + i1]
+    (the block's part above the front's diagonal is written too, and never read)."""
     i0 = i_begin
     while i0 < i_end:
         i1 = min(i0 + UPDATE_BLOCK, i_end)
-        h = i1 - i0
-        out = product[:h * i1].reshape(h, i1)
-        np.dot(lrows[i0 * w:i1 * w].reshape(h, w), dlrows[:i1 * w].reshape(i1, w).T, out)
-        for a in range(h):
-            row = o + (w + i0 + a) * m + w
-            for k in range(i0 + a + 1):
-                front[_unsigned(row + k)] -= out[a, k]
+        _gemm_less(True, i1, i1 - i0, w, front, o + w * m, m, dlrows, i0 * w, w, front,
+                   o + (w + i0) * m + w, m)
         i0 = i1
 
 
@@ -536,10 +556,8 @@ def _eliminate(sequence, indptr, indices, data, n_linear, first, width, row_at, 
     where = _filled(n_linear + n_N, -1)
     column_d = np.empty(widest)
     xt = np.empty(big_w * big_m)
-    lrows = np.empty(big_w * big_m)
     dlrows = np.empty(big_w * big_m)
     strip = np.empty(min(SOLVE_BLOCK, big_w) * big_w)
-    product = np.empty(max(SOLVE_BLOCK, UPDATE_BLOCK) * big_m)
     stack_at = np.empty(len(sequence) + 1, dtype=np.int64)
     stack_at[0] = stack_base
     depth = 0
@@ -560,7 +578,7 @@ def _eliminate(sequence, indptr, indices, data, n_linear, first, width, row_at, 
                 o = c0 * m + c0
                 _pivot_block(front, m, o, b, diagonal, j0 + c0, column_d)
                 _panel_by_blas(front, m, o, m - c0, b, diagonal[j0 + c0:j0 + c0 + b], xt,
-                               lrows, dlrows, strip, product)
+                               dlrows, strip)
                 c0 += b
         else:
             _pivot_block(front, m, 0, w, diagonal, j0, column_d)
@@ -629,8 +647,7 @@ def _eliminate(sequence, indptr, indices, data, n_linear, first, width, row_at, 
 @kernel
 def _front_step(what, t, c0, b, begin, end, blocks, front, where, indptr, indices, data, first,
                 width, row_at, srows, child_ptr, child_list, relative, stack, update_at,
-                diagonal, column_d, xt, lrows, dlrows, strip, product, value_at, values,
-                condensed):
+                diagonal, column_d, xt, dlrows, strip, value_at, values, condensed):
     """One step of a front factorised outside ``_eliminate`` by panels whose rows below and
     update are shared between two threads (``_split_front``), supernode t (a root): ``what``
     0 assembles the front (``_assemble``); 1 factorises the pivot block of the panel of ``b``
@@ -649,11 +666,11 @@ def _front_step(what, t, c0, b, begin, end, blocks, front, where, indptr, indice
     elif what == 1:
         _pivot_block(front, m, o, b, diagonal, j0 + c0, column_d)
     elif what == 2:
-        _panel_rows(front, m, o, b, diagonal[j0 + c0:j0 + c0 + b], begin, end, xt, lrows,
-                    dlrows, strip, product)
+        _panel_rows(front, m, o, b, diagonal[j0 + c0:j0 + c0 + b], begin, end, xt, dlrows,
+                    strip)
     elif what == 3:
         for k in range(len(blocks)):
-            _panel_update(front, m, o, b, lrows, dlrows, product, blocks[k],
+            _panel_update(front, m, o, b, dlrows, blocks[k],
                           min(blocks[k] + UPDATE_BLOCK, end))
     else:
         _pack_front(front, m, w, values, value_at[t])
@@ -699,9 +716,8 @@ def _split_front(t, lower, symbolic, diagonal, values, stack, update_at, condens
     front = np.empty(m * m)
     where = np.empty(symbolic.n_linear + n_N, dtype=np.int64)
     column_d = np.empty(max(w, 1))
-    lrows, dlrows = np.empty(PANEL * m), np.empty(PANEL * m)
-    buffers = [(np.empty(PANEL * m), np.empty(SOLVE_BLOCK * PANEL),
-                np.empty(max(SOLVE_BLOCK, UPDATE_BLOCK) * m)) for _ in range(2)]
+    dlrows = np.empty(PANEL * m)
+    buffers = [(np.empty(PANEL * m), np.empty(SOLVE_BLOCK * PANEL)) for _ in range(2)]
     shared = (lower.indptr, lower.indices, lower.data, first, width, row_at, srows,
               symbolic.child_ptr, symbolic.child_list, relative, stack, update_at, diagonal,
               column_d)
@@ -709,9 +725,9 @@ def _split_front(t, lower, symbolic, diagonal, values, stack, update_at, condens
     no_blocks = np.zeros(0, dtype=np.int64)
 
     def step(what, c0=0, b=0, begin=0, end=0, half=0, blocks=no_blocks):
-        xt, strip, product = buffers[half]
-        _front_step(what, t, c0, b, begin, end, blocks, front, where, *shared, xt, lrows, dlrows,
-                    strip, product, symbolic.value_at, values, condensed)
+        xt, strip = buffers[half]
+        _front_step(what, t, c0, b, begin, end, blocks, front, where, *shared, xt, dlrows, strip,
+                    symbolic.value_at, values, condensed)
 
     panels = []
     c0 = 0
