@@ -271,3 +271,43 @@ def test_batched_streams_read_back_bit_for_bit_across_flushes(tmp_path):
     with h5py.File(tmp_path / "r.h5", "r") as h5:
         for p, v in want.items():
             assert np.array_equal(h5[p][...], v), p
+
+
+def _written_file_bytes(path, streams, want, flush_every):
+    from fault_screen.result_stream import ResultWriter
+
+    writer = ResultWriter.create(path, streams=streams, fixed={}, attrs={})
+    try:
+        for i in range(len(want["/fault/a"])):
+            for s in ("profiles", "wide"):
+                writer.append(s, {p: want[p][i] for p in streams[s]})
+            writer.append("rows", {p: want[p][i] for p in streams["rows"]})
+            if i % flush_every == flush_every - 1:
+                writer.flush()
+        cache = writer.h5.id.get_access_plist().get_cache()[2]
+    finally:
+        writer.close()
+    return path.stat().st_size, cache
+
+
+def test_the_writers_chunk_cache_holds_the_chunk_being_filled_not_the_run(tmp_path, monkeypatch):
+    """HDF5 caches up to 1 MiB of chunks per dataset by default, which kept a long run's written
+    chunks (40-odd growing datasets) in memory. The writer's file has a CHUNK_CACHE_BYTES cache
+    (256 kB), every chunk it makes fits in it (a smaller cache fails here), and the file it
+    writes (profiles compressed, flushed every 10 records as the monitor does) has the same
+    bytes as with the default cache."""
+    from fault_screen import result_stream
+
+    rng = np.random.default_rng(3)
+    streams = _light_and_heavy_streams()
+    want = {p: rng.standard_normal((300, *shape)) for s in streams.values()
+            for p, (_, shape) in s.items()}
+    size, cache = _written_file_bytes(tmp_path / "c.h5", streams, want, 10)
+    assert cache == result_stream.CHUNK_CACHE_BYTES < 1024 * 1024
+    with h5py.File(tmp_path / "c.h5", "r") as h5:
+        for group in ("fault", "wide", "series"):
+            for ds in h5[group].values():
+                assert ds.dtype.itemsize * np.prod(ds.chunks) <= result_stream.CHUNK_CACHE_BYTES
+    monkeypatch.setattr(result_stream, "CHUNK_CACHE_BYTES", 1024 * 1024)
+    default_size, _ = _written_file_bytes(tmp_path / "d.h5", streams, want, 10)
+    assert size == default_size
