@@ -144,7 +144,6 @@ class CondensedSystem:
     _bulk_symmetric = False
     bulk_patterns = 0    # FixedBulk patterns made (one a run)
     _sum_NN = _sum_fixed = _sum_rows_N_fixed = None   # fixed patterns of L's other parts
-    _ahead = None        # the next step size's factors in the making (``factorise_ahead``)
 
     def __init__(self, A, C, Hf, time_weight, free, fixed, condensed, coordinates, mechanical):
         self.A, self.C, self.Hf = A, C, Hf
@@ -217,7 +216,6 @@ class CondensedSystem:
         own. Call it between steps."""
         twin = copy.copy(self)
         twin._blas_limited = False
-        twin._ahead = None   # (the factors made ahead are this run's guess)
         twin._dense = None if self._dense is None else self._dense.fork()
         return twin
 
@@ -247,8 +245,6 @@ class CondensedSystem:
         factorisation (kept in checkpoints, so that a restored run repeats the same round-off)."""
         if dt == self.dt:
             return
-        # factors made ahead for this step size, or none (made for another size: dropped)
-        ahead = self._take_ahead(dt)
         self._L = None   # (the last step size's L goes first)
         factorise = self.lu is None or not self.factors_any_dt
         # the Jacobian summed the general way: for the scaling and the order (first step) and an
@@ -311,9 +307,8 @@ class CondensedSystem:
                 self.lu = self._factorise_held(held, len(B))
                 if self.factors_any_dt:
                     self._analyses = None
-            else:   # the symmetric form in its fixed pattern (made ahead, or now)
-                self.lu = ahead if ahead is not None else self._factorise_symmetric(dt)
-                self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
+            else:   # the symmetric form in its fixed pattern
+                self.lu = self._factorise_symmetric(dt)
             self.factorizations += 1
             if self._row_factor is not None:   # (the Schur complement of the rows as they are)
                 self.lu.schur /= self._row_factor[len(B):, None]
@@ -384,6 +379,7 @@ class CondensedSystem:
         bulk = self.fixed_bulk()
         if self._analyses is None:
             self._analyses = _with_shared(lambda store, make: store.analyses, SymbolicAnalyses)
+        self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
         # every entry's value only where it is read: by SuperLU, a split bulk or as the key of
         # a shared bulk (the L D L^T reads the lower triangle and the condensed block alone)
         values = []
@@ -410,41 +406,6 @@ class CondensedSystem:
             lambda store, make: store.factors(
                 (bulk.indptr, bulk.indices, full(), np.asarray(bulk.shape)), nB, self._split, make),
             make)
-
-    def factorise_ahead(self, dt):
-        """Start the bulk's factors for step size ``dt`` (the next step's most likely size) in a
-        thread of their own, while the current step iterates on its factors: ``prepare(dt)``
-        then takes them (waiting for them if unfinished), any other size drops them. Only where
-        a step-size change refactorises (a poroelastic bulk, once its fixed pattern's first
-        factors exist), for a size other than the current one, outside ``shared_bulk.sharing()``
-        (whose store is the calling thread's). The thread computes what ``prepare`` would:
-        ``_factorise_symmetric(dt)``, the same calls on the same arrays, so the same bits."""
-        if (self.factors_any_dt or self.lu is None or dt == self.dt or self._ahead is not None
-                or self._order is None or shared_bulk.active() is not None):
-            return
-        self.fixed_bulk()   # (made here, so that the thread only reads what the run holds)
-        if self._analyses is None:
-            self._analyses = SymbolicAnalyses()
-        self._ahead = _Ahead(dt, self._factorise_symmetric)
-
-    def _take_ahead(self, dt):
-        """The factors made ahead for step size ``dt``, or None (none made, or made for another
-        size: dropped once their thread has ended). A failure in their thread is raised here
-        when they are taken, as ``prepare`` would have raised it."""
-        ahead, self._ahead = self._ahead, None
-        if ahead is None:
-            return None
-        if ahead.dt != dt:
-            ahead.discard()
-            return None
-        return ahead.factors()
-
-    def settle(self):
-        """Drop factors made ahead (their thread ended first): at the end of a run's steps, so
-        that no thread outlives them and no second set of factors is held between calls."""
-        ahead, self._ahead = self._ahead, None
-        if ahead is not None:
-            ahead.discard()
 
     def _bulk_order(self, Ls):
         """(the free unknowns in the factors' order, the split of B's factorisation): B in a
@@ -769,38 +730,6 @@ UNCHECKED_MARGIN = 2.0
 #: GMRES iterations allowed before the condensed block is factorised anew: an LU of n unknowns
 #: costs about as much as 12 iterations (each a product with M and a solve with the old factors)
 #: at n = 400, where fixed costs dominate, and about n/40 beyond
-class _Ahead:
-    """``make(dt)`` run in a thread of its own (``CondensedSystem.factorise_ahead``)."""
-
-    def __init__(self, dt, make):
-        self.dt = dt
-        self._out = []
-        self._failed = []
-
-        def body():
-            try:
-                self._out.append(make(dt))
-            except BaseException as error:   # (raised where the factors are taken)
-                self._failed.append(error)
-
-        self._thread = threading.Thread(target=body, name="fault_screen factors ahead",
-                                        daemon=True)
-        self._thread.start()
-
-    def factors(self):
-        """The factors, once made (waits); raises what making them raised."""
-        self._thread.join()
-        if self._failed:
-            raise self._failed[0]
-        return self._out.pop()
-
-    def discard(self):
-        """Wait for the thread to end and drop what it made or raised."""
-        self._thread.join()
-        self._out.clear()
-        self._failed.clear()
-
-
 def _condensed_max_iterations(n):
     return min(30, max(12, n // 40))
 

@@ -308,7 +308,6 @@ class NewtonSolver:
     _Cx_n = None       # (x_n, C x_n) of the current step
     _in_situ_floor = None        # (see _in_situ_reference)
     _state_products = ()         # (x, [A; Hf] x, C x) of the last accepted states, whole
-    _next_size = None            # the next step's expected size (``expect``)
 
     def __init__(self, disc: Discretisation):
         self.disc = disc
@@ -396,7 +395,6 @@ class NewtonSolver:
         the constant matrices and factors shared read-only). Call it between steps."""
         twin = copy.copy(self)
         twin.system = self.system.fork()
-        twin._next_size = None
         return twin
 
     def blas_threads(self):
@@ -445,20 +443,6 @@ class NewtonSolver:
             return rows, cols, vals
 
         self.system.prepare(dt, tangent)
-        if self._next_size is not None:   # (once: a retry of this step does not start it again)
-            self.system.factorise_ahead(self._next_size)
-            self._next_size = None
-
-    def expect(self, dt):
-        """The next step's most likely size (after this step, if it goes as planned): its bulk
-        factors are made beside this step's iterations (``CondensedSystem.factorise_ahead``)."""
-        self._next_size = dt
-
-    def settle(self):
-        """No factors in the making after this (``CondensedSystem.settle``): at the end of a
-        run's steps, however they ended."""
-        self._next_size = None
-        self.system.settle()
 
     def _AH_times(self, x):
         """[A x; Hf x], the two products of the convergence test (A and Hf are not held stacked

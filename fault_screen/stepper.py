@@ -157,10 +157,7 @@ class Simulation:
         value = self._injection_value(volume, pressure, t_next)
         wall0 = _time.perf_counter()
         with self.solver.blas_threads():  # held over all the steps (see there)
-            try:
-                taken = self._advance(t_next, value, align, max_steps, progress, observer, wall0)
-            finally:
-                self.solver.settle()   # (no factors made ahead outlive the steps)
+            taken = self._advance(t_next, value, align, max_steps, progress, observer, wall0)
         self.wall_time += _time.perf_counter() - wall0
         return taken
 
@@ -168,6 +165,8 @@ class Simulation:
         """The steps of ``advance``, ``value`` the injection value of a step (t0, t1), ``wall0``
         when the call began (for ``progress``)."""
         scene = self.scene
+        ts = scene.time
+        dt_max = ts.dt_max if ts.dt_max is not None else ts.dt
         injection = self.physics.injection
         nof = scene.injection.number_of_fractures
         contact = self.physics.contact
@@ -181,7 +180,6 @@ class Simulation:
             dt_try = min(self.dt, t_next - t)
             shortened = dt_try < self.dt
             cuts = 0
-            self._expect_next(t + dt_try, dt_try, shortened, t_next, align, taken, max_steps)
             while True:
                 t1 = t + dt_try
                 step_value = value(t, t1)
@@ -189,7 +187,6 @@ class Simulation:
                     out = self._step(dt_try, step_value)
                     break
                 except StepFailed as exc:
-                    self.solver.expect(None)   # (a halved step is followed by no planned size)
                     cuts += 1
                     if cuts > scene.solver.max_step_cuts:
                         raise SimulationError(f"step at t = {t:.6g} s failed after {cuts - 1} cuts "
@@ -227,40 +224,19 @@ class Simulation:
                 self.dt_failed = self.dt
                 self.dt = dt_try
             elif not shortened:
-                self.dt, self.dt_recover, self.recovery_hold = self._after_clean_step(dt_try)
+                self.dt = min(dt_try * ts.growth, dt_max)
+                if self.recovery_hold > 0:
+                    self.recovery_hold -= 1
+                elif self.dt_recover > self.dt:  # after cuts: back to the sequence's size, not stuck
+                    self.dt = min(dt_try * max(ts.growth, RECOVERY_GROWTH), self.dt_recover)
+                if self.dt >= self.dt_recover:
+                    self.dt_recover = 0.0
             if contact is not None:
                 limit = contact.law.max_step(slip_rate)
                 if limit < self.dt:
                     self.dt_recover = max(self.dt_recover, self.dt)  # grow back once it slows
                     self.dt = limit
         return taken
-
-    def _after_clean_step(self, dt_try):
-        """(dt, dt_recover, recovery_hold) after a step of size dt_try that needed no cut and
-        was not shortened: the sequence's growth up to dt_max, or back towards the size that
-        failed after cuts (see RECOVERY_GROWTH)."""
-        ts = self.scene.time
-        dt_max = ts.dt_max if ts.dt_max is not None else ts.dt
-        dt, recover, hold = min(dt_try * ts.growth, dt_max), self.dt_recover, self.recovery_hold
-        if hold > 0:
-            hold -= 1
-        elif recover > dt:  # after cuts: back to the sequence's size, not stuck
-            dt = min(dt_try * max(ts.growth, RECOVERY_GROWTH), recover)
-        if dt >= recover:
-            recover = 0.0
-        return dt, recover, hold
-
-    def _expect_next(self, t1, dt_try, shortened, t_next, align, taken, max_steps):
-        """Tell the solver the size of the step after this one (ending at t1) if this one goes
-        as planned (no cut, no slip-rate limit), when this call takes one: its factors are then
-        made beside this step (``NewtonSolver.expect``)."""
-        if (shortened or t1 >= t_next * (1 - 1e-12)
-                or (max_steps is not None and taken + 1 >= max_steps)):
-            return
-        dt = self._after_clean_step(dt_try)[0]
-        if align and t1 + dt > t_next * (1 + 1e-12):
-            return
-        self.solver.expect(min(dt, t_next - t1))
 
     def _check_instability(self, t, slip_rate):
         """Stop (``self.stopped``) once the peak slip rate exceeds ``solver.unstable_slip_rate``:

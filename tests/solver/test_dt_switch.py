@@ -134,10 +134,10 @@ def _growing(scene, end):
 def _factorise_the_general_way(self, dt):
     """``CondensedSystem._factorise_symmetric`` as it was: the matrix summed, scaled, permuted
     and row-scaled by sparse operations, checked for symmetry and its lower triangle taken at
-    every step size (the row factors are ``prepare``'s: this may run in the thread that makes
-    the next step size's factors ahead, beside a step solving with the current ones)."""
+    every step size."""
     if self._analyses is None:
         self._analyses = ldl.SymbolicAnalyses()
+    self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
     held = [_general_way(self, dt)]
     return bordered_lu.bordered_lu(held.pop, len(self.B), self._split, self._analyses)
 
