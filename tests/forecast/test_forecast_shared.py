@@ -94,8 +94,9 @@ def test_a_chunked_dask_run_equals_the_per_member_run(scene_dict, alone):
     for a in alone:
         _assert_same(a, runs[a.index])
     assert [runs[i].shared_factorizations for i in range(5)] == [0, 3, 3, 0, 0]
-    # the task's own thread: part of the worker process's CPU time, most of it
-    assert all(0.5 * r.cpu_s < r.thread_cpu_s <= r.cpu_s for r in runs.values())
+    # the task's own thread's CPU time is measured and is a part of the worker process's (how
+    # large a part depends on the machine's load: the worker's other threads, not a fact to test)
+    assert all(0.0 < r.thread_cpu_s <= r.cpu_s for r in runs.values())
     assert len({r.worker for r in runs.values()}) == 1 and runs[0].worker != alone[0].worker
 
 
