@@ -24,13 +24,17 @@ from .discretisation import estimate_size
 from .outputs import SCHEMA, automatic_profile_count, automatic_profile_due
 from .scene import Scene
 
-#: model wall time of a step (s) ~ STEP_SECONDS + STEP_SECONDS_PER_UNKNOWN x unknowns: fitted to
-#: the calibrated Rustrel scene at 50 x 51 (9,792 unknowns: the Basel replay's 111,708 steps
-#: at 6.4-7.5 ms a step) and at 200 x 201 (123,012 unknowns: ~45 ms a step), idle machine
-STEP_SECONDS = 4.0e-3
-STEP_SECONDS_PER_UNKNOWN = 3.3e-7
-#: start-up of a process (imports, cached kernels, the model), s
-START_SECONDS = 4.0
+#: wall time of a model step (s) ~ STEP_SECONDS + STEP_SECONDS_PER_UNKNOWN x unknowns, and of
+#: the start-up (imports, cached kernels, the model) START_SECONDS + START_SECONDS_PER_UNKNOWN
+#: x unknowns: fitted to the CPU time of `fault-screen run` of the calibrated Rustrel scene (its
+#: 280 steps of 5 s, and its first step alone for the start-up) at 20 x 21, 50 x 51, 100 x 101
+#: and 200 x 201 (2,646 to 123,012 unknowns: 0.9, 1.8, 7.3 and 27 ms a step; start-up 0.83 to
+#: 2.3 s) with numpy 2.4, numba 0.68 (`python benchmarks/long_operation.py --sizes
+#: 20,50,100,200` prints them); CPU time is what an idle machine's wall time is
+STEP_SECONDS = 0.4e-3
+STEP_SECONDS_PER_UNKNOWN = 2.2e-7
+START_SECONDS = 0.8
+START_SECONDS_PER_UNKNOWN = 1.2e-5
 #: bytes of a stored profile per raw byte (byte shuffle, then gzip level 1: result_stream), the
 #: most of those measured: 0.63 on the bundled Rustrel run, 0.62 on it at 200 x 201, 0.56 on
 #: the Basel 2006 replay with every profile kept, 0.40 on a steady day on a 4 x 5 mesh (quiet
@@ -189,7 +193,7 @@ def estimate_run(scene: Scene, *, plot: bool = False, log_samples: int = 0) -> R
     file_bytes = (8.0 * _SERIES * SERIES_CHUNK_ROWS * chunks + LOG_SAMPLE_BYTES * log_samples
                   + _profile_bytes(scene, profiles))
     memory = model_memory + (PLOT_MEMORY if plot else 0.0)
-    wall = START_SECONDS + steps * _step_seconds(unknowns)
+    wall = START_SECONDS + START_SECONDS_PER_UNKNOWN * unknowns + steps * _step_seconds(unknowns)
     return RunEstimate(steps=steps, profiles=profiles, unknowns=unknowns, file_bytes=file_bytes,
                        memory_bytes=memory, wall_seconds=wall)
 
@@ -211,4 +215,4 @@ def _size(n: float) -> str:
 def _duration(s: float) -> str:
     if s >= 3600:
         return f"{s / 3600:.3g} h"
-    return f"{s / 60:.2g} min" if s >= 120 else f"{s:.0f} s"
+    return f"{s / 60:.2g} min" if s >= 120 else f"{s:.2g} s" if s < 10 else f"{s:.0f} s"
