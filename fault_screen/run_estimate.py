@@ -13,7 +13,8 @@ unknowns). The models and their accuracy against measured runs are in the docs
   samples;
 * memory: the model's (``estimate_size``), plus the figures' when ``--plot`` is given (the
   results are streamed and read back in bounded pieces, so the run's length does not count);
-* wall time: a fixed cost per step plus one per unknown, on an idle machine.
+* wall time: the start-up, a cost per step growing with the unknowns and one per profile
+  kept, on an idle machine.
 """
 from __future__ import annotations
 
@@ -24,15 +25,19 @@ from .discretisation import estimate_size
 from .outputs import SCHEMA, automatic_profile_count, automatic_profile_due
 from .scene import Scene
 
-#: wall time of a model step (s) ~ STEP_SECONDS + STEP_SECONDS_PER_UNKNOWN x unknowns, and of
-#: the start-up (imports, cached kernels, the model) START_SECONDS + START_SECONDS_PER_UNKNOWN
-#: x unknowns: fitted to the CPU time of `fault-screen run` of the calibrated Rustrel scene (its
-#: 280 steps of 5 s, and its first step alone for the start-up) at 20 x 21, 50 x 51, 100 x 101
-#: and 200 x 201 (2,646 to 123,012 unknowns: 0.9, 1.8, 7.3 and 27 ms a step; start-up 0.83 to
-#: 2.3 s) with numpy 2.4, numba 0.68 (`python benchmarks/long_operation.py --sizes
-#: 20,50,100,200` prints them); CPU time is what an idle machine's wall time is
-STEP_SECONDS = 0.4e-3
-STEP_SECONDS_PER_UNKNOWN = 2.2e-7
+#: wall time of a model step (s) ~ STEP_SECONDS + STEP_SECONDS_PER_UNKNOWN_LOG x N log2 N (N
+#: unknowns: the factor's work), of each profile kept PROFILE_SECONDS_PER_POINT x fault points
+#: (gathered, shuffled, compressed), and of the start-up (imports, cached kernels, the model)
+#: START_SECONDS + START_SECONDS_PER_UNKNOWN x N. Fitted to CPU time (what an idle machine's
+#: wall time is) with numpy 2.4, numba 0.68: `fault-screen run` of the calibrated Rustrel scene
+#: (280 steps of 5 s, every profile kept; its first step alone for the start-up) at 20 x 21,
+#: 50 x 51, 100 x 101 and 200 x 201 (N = 2,646 to 123,012: 0.9, 1.8, 7.3 and 27 ms a step,
+#: start-up 0.83 to 2.3 s: `python benchmarks/long_operation.py --sizes 20,50,100,200`), the
+#: step within 0.9-1.25x of each; the profile's share from the 3-day steady replay at 50 x 51
+#: (51,840 steps, 2,198 profiles, 76 s: 1.44 ms a step and 0.39 ms a profile of 200 points)
+STEP_SECONDS = 0.34e-3
+STEP_SECONDS_PER_UNKNOWN_LOG = 1.09e-8
+PROFILE_SECONDS_PER_POINT = 2.0e-6
 START_SECONDS = 0.8
 START_SECONDS_PER_UNKNOWN = 1.2e-5
 #: bytes of a stored profile per raw byte (byte shuffle, then gzip level 1: result_stream), the
@@ -151,7 +156,7 @@ def estimate_monitor(scene: Scene) -> MonitorEstimate:
 
 
 def _step_seconds(unknowns: int) -> float:
-    return STEP_SECONDS + STEP_SECONDS_PER_UNKNOWN * unknowns
+    return STEP_SECONDS + STEP_SECONDS_PER_UNKNOWN_LOG * unknowns * math.log2(max(unknowns, 2))
 
 
 def _profile_bytes(scene: Scene, profiles: int) -> float:
@@ -193,7 +198,8 @@ def estimate_run(scene: Scene, *, plot: bool = False, log_samples: int = 0) -> R
     file_bytes = (8.0 * _SERIES * SERIES_CHUNK_ROWS * chunks + LOG_SAMPLE_BYTES * log_samples
                   + _profile_bytes(scene, profiles))
     memory = model_memory + (PLOT_MEMORY if plot else 0.0)
-    wall = START_SECONDS + START_SECONDS_PER_UNKNOWN * unknowns + steps * _step_seconds(unknowns)
+    wall = (START_SECONDS + START_SECONDS_PER_UNKNOWN * unknowns + steps * _step_seconds(unknowns)
+            + profiles * PROFILE_SECONDS_PER_POINT * fault_points(scene))
     return RunEstimate(steps=steps, profiles=profiles, unknowns=unknowns, file_bytes=file_bytes,
                        memory_bytes=memory, wall_seconds=wall)
 
