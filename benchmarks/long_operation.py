@@ -236,7 +236,7 @@ def cases_main(names: list, page: str | None, basel: Path = BASEL) -> None:
                   f"{fmt(e.get('size'), '.1f'):>7} {r['profiles']:>8} "
                   f"{r['present']:>2}/{r['days']:<2}", flush=True)
             md.append(f"| {name} | {r['rows'] - 1:,} ({fmt(e.get('steps'), ',')}) | "
-                      f"{r['wall']:.0f} | {r['cpu']:.0f} ({fmt(e.get('wall'), '.0f')}) | "
+                      f"{_seconds(r['wall'])} | {_seconds(r['cpu'])} ({_seconds(e.get('wall'))}) | "
                       f"{r['rss']:.0f} ({fmt(e.get('rss'), '.0f')}) | {ratio:.2f} | "
                       f"{r['size']:.1f} ({fmt(e.get('size'), '.1f')}) | {r['profiles']:,} | "
                       f"{r['present']} of {r['days']} |")
@@ -275,6 +275,11 @@ def sizes_main(sizes: list) -> None:
                   f"{full['cpu']:>7.1f} {e.wall_seconds:>6.1f} {one['cpu']:>9.2f} "
                   f"{1e3 * per_step:>7.1f} {1e3 * e_step:>6.1f} {full['rss']:>13.0f} "
                   f"{e.memory_bytes / 2**20:>6.0f}", flush=True)
+
+
+def _seconds(s: float | None) -> str:
+    """Seconds to the tenth below 10 s (a short run's estimate is to be read), else whole."""
+    return "-" if s is None else f"{s:.1f}" if s < 10 else f"{s:.0f}"
 
 
 def _write_docs(page: str, md: list, load0: float) -> None:
