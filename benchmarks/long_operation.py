@@ -17,8 +17,13 @@ automatic profile rule and the bounded reads are what is measured:
   below from its start, steps growing from 5 s by 1.2 to 10 min.
 
 Each row also gives the estimate printed at the start of the run (steps, file, memory, wall
-time: :mod:`fault_screen.run_estimate`) beside what was measured. ``--write-docs`` writes the
-table to ``docs/performance/long-operations.md``.
+time: :mod:`fault_screen.run_estimate`) beside what was measured; the estimated wall time (an
+idle machine's) beside the CPU time of the child. ``--write-docs`` writes the table to
+``docs/performance/long-operations.md``.
+
+``--sizes 20,50,100,200`` prints the data the estimates of memory and wall time are fitted to:
+``fault-screen run`` of the scene on nx x (nx + 1) meshes, to its end and for its first step
+alone (the start-up), CPU time and peak memory beside the estimate.
 
 ``--durations`` runs the older sweep instead: for each duration, a synthetic disposal-like
 injection log at one sample every 5 s (steady rates with a few changes: 5, 8, 3 and 6 L/min in
@@ -109,8 +114,10 @@ CASES = ("rustrel", "rustrel-plot", "steady-3d", "monitor-30d", "basel")
 
 
 def run_child(cmd: list, ok=(0,)) -> dict:
-    """Wall time (s), peak resident memory (MB, ``ru_maxrss`` of the child alone) and standard
-    output of ``cmd`` run in its own process (its output into files, so no pipe can fill)."""
+    """Wall time (s), CPU time (s, user and system, of the child alone: on a shared machine the
+    figure closest to an idle machine's wall time), peak resident memory (MB, ``ru_maxrss`` of
+    the child alone) and standard output of ``cmd`` run in its own process (its output into
+    files, so no pipe can fill)."""
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
     with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
         wall0 = time.perf_counter()
@@ -123,7 +130,8 @@ def run_child(cmd: list, ok=(0,)) -> dict:
         stdout, stderr = out.read().decode(), err.read().decode()
     if code not in ok:
         raise SystemExit(f"{' '.join(map(str, cmd))} failed ({code}):\n{stderr[-3000:]}")
-    return dict(wall=wall, rss=usage.ru_maxrss / 1024.0, stdout=stdout)
+    return dict(wall=wall, cpu=usage.ru_utime + usage.ru_stime, rss=usage.ru_maxrss / 1024.0,
+                stdout=stdout)
 
 
 def steady_log(path: Path, days: float, rate_l_min: float = 5.0, sample: float = 60.0) -> int:
@@ -159,7 +167,19 @@ def estimate_for(scene_path: Path, log: Path | None, plot: bool) -> dict:
         plan = plan_replay(scene, read_injection_log(log), None)
         scene, samples = plan.scene, len(plan.log_arrays["time"])
     e = estimate_run(scene, plot=plot, log_samples=samples)
-    return dict(steps=e.steps, size=e.file_bytes / 1e6, rss=e.memory_bytes / 1e6, wall=e.wall_seconds)
+    # memory in the unit of ru_maxrss / 1024 (2**20 bytes), as measured
+    return dict(steps=e.steps, size=e.file_bytes / 1e6, rss=e.memory_bytes / 2**20,
+                wall=e.wall_seconds)
+
+
+def monitor_estimate(scene_path: Path) -> dict:
+    """What the monitor prints at its start that a row can stand beside: its peak memory (its
+    other figures are per day of operation, at the first day's steps and profiles)."""
+    sys.path.insert(0, str(ROOT))
+    from fault_screen import Scene
+    from fault_screen.run_estimate import estimate_monitor
+
+    return dict(rss=estimate_monitor(Scene.from_toml(scene_path)).memory_bytes / 2**20)
 
 
 def case(name: str, tmp: Path, basel: Path = BASEL) -> dict:
@@ -185,8 +205,7 @@ def case(name: str, tmp: Path, basel: Path = BASEL) -> dict:
                "--idle-exit", "1", "--poll", "0.1", "--checkpoint-every", "500", "--quiet"]
     else:
         raise SystemExit(f"unknown case {name}; one of {', '.join(CASES)}")
-    est = estimate_for(scene, log if name != "monitor-30d" else None, plot) \
-        if name != "monitor-30d" else None
+    est = estimate_for(scene, log, plot) if name != "monitor-30d" else monitor_estimate(scene)
     r = run_child(cmd, ok=(0, 4))
     return dict(name=name, est=est, **r, **file_facts(out))
 
@@ -194,14 +213,16 @@ def case(name: str, tmp: Path, basel: Path = BASEL) -> dict:
 def cases_main(names: list, page: str | None, basel: Path = BASEL) -> None:
     """Run the cases ``names``; ``page``: the docs/performance page to write (None: print only)."""
     load0 = os.getloadavg()[0]
-    head = (f"{'case':>13} {'steps':>8} {'est.':>8} {'wall (s)':>9} {'est.':>7} {'peak RSS (MB)':>13} "
-            f"{'est.':>6} {'x rustrel':>9} {'file (MB)':>9} {'est.':>7} {'profiles':>8} {'days':>5}")
+    head = (f"{'case':>13} {'steps':>8} {'est.':>8} {'wall (s)':>9} {'CPU (s)':>8} {'est.':>7} "
+            f"{'peak RSS (MB)':>13} {'est.':>6} {'x rustrel':>9} {'file (MB)':>9} {'est.':>7} "
+            f"{'profiles':>8} {'days':>5}")
     print(f"load {load0:.2f} (1-min average), {os.cpu_count()} cores")
     print(head)
     rows, ref = [], None
-    md = ["| case | steps (estimate) | wall time s (estimate) | peak memory MB (estimate) | "
-          "x rustrel run | result file MB (estimate) | profiles | days with rows |",
-          "|---|---|---|---|---|---|---|---|"]
+    md = ["| case | steps (estimate) | wall time s | CPU time s (estimate) | "
+          "peak memory MB (estimate) | x rustrel run | result file MB (estimate) | profiles | "
+          "days with rows |",
+          "|---|---|---|---|---|---|---|---|---|"]
     with tempfile.TemporaryDirectory() as tmp:
         for name in names:
             r = case(name, Path(tmp), basel)
@@ -210,16 +231,55 @@ def cases_main(names: list, page: str | None, basel: Path = BASEL) -> None:
             e = r["est"] or {}
             fmt = lambda v, f: format(v, f) if v is not None else "-"  # noqa: E731
             print(f"{name:>13} {r['rows'] - 1:>8} {fmt(e.get('steps'), '>8'):>8} {r['wall']:>9.1f} "
-                  f"{fmt(e.get('wall'), '.0f'):>7} {r['rss']:>13.0f} {fmt(e.get('rss'), '.0f'):>6} "
-                  f"{ratio:>9.2f} {r['size']:>9.1f} {fmt(e.get('size'), '.1f'):>7} {r['profiles']:>8} "
+                  f"{r['cpu']:>8.1f} {fmt(e.get('wall'), '.0f'):>7} {r['rss']:>13.0f} "
+                  f"{fmt(e.get('rss'), '.0f'):>6} {ratio:>9.2f} {r['size']:>9.1f} "
+                  f"{fmt(e.get('size'), '.1f'):>7} {r['profiles']:>8} "
                   f"{r['present']:>2}/{r['days']:<2}", flush=True)
-            md.append(f"| {name} | {r['rows'] - 1:,} ({fmt(e.get('steps'), ',')}) | {r['wall']:.0f} "
-                      f"({fmt(e.get('wall'), '.0f')}) | {r['rss']:.0f} ({fmt(e.get('rss'), '.0f')}) | "
-                      f"{ratio:.2f} | {r['size']:.1f} ({fmt(e.get('size'), '.1f')}) | {r['profiles']:,} | "
+            md.append(f"| {name} | {r['rows'] - 1:,} ({fmt(e.get('steps'), ',')}) | "
+                      f"{_seconds(r['wall'])} | {_seconds(r['cpu'])} ({_seconds(e.get('wall'))}) | "
+                      f"{r['rss']:.0f} ({fmt(e.get('rss'), '.0f')}) | {ratio:.2f} | "
+                      f"{r['size']:.1f} ({fmt(e.get('size'), '.1f')}) | {r['profiles']:,} | "
                       f"{r['present']} of {r['days']} |")
             rows.append(r)
             if page:                # after every case: a long series leaves the rows it has
                 _write_docs(page, md, load0)
+
+
+def sizes_main(sizes: list) -> None:
+    """The data the estimates are fitted to: ``fault-screen run`` of the bundled scene on
+    nx x (nx + 1) meshes, to its end and for one step (the start-up: imports, kernels, the
+    model), each in its own process: CPU time (start-up and per step), peak memory, beside
+    the estimate of :func:`fault_screen.run_estimate.estimate_run`."""
+    sys.path.insert(0, str(ROOT))
+    from fault_screen import Scene
+    from fault_screen.run_estimate import estimate_run
+
+    base = Scene.from_toml(SCENE)
+    print(f"load {os.getloadavg()[0]:.2f} (1-min average), {os.cpu_count()} cores; CPU: user + "
+          "system time of the child")
+    print(f"{'mesh':>9} {'unknowns':>8} {'steps':>5} {'wall (s)':>8} {'CPU (s)':>7} {'est.':>6} "
+          f"{'start CPU':>9} {'ms/step':>7} {'est.':>6} {'peak RSS (MB)':>13} {'est.':>6}")
+    with tempfile.TemporaryDirectory() as tmp:
+        for nx in sizes:
+            scene = base.replace(mesh=dataclasses.replace(base.mesh, nx=nx, ny=nx + 1))
+            path = Path(tmp) / f"{nx}.toml"
+            path.write_text(scene.to_toml())
+            e = estimate_run(scene)
+            run = [*CLI, "run", path, "--out", Path(tmp) / f"{nx}.h5", "--quiet"]
+            full = run_child(run, ok=(0, 4))
+            one = run_child([*run, "--set", f"time.end={scene.time.dt:g}"], ok=(0, 4))
+            per_step = (full["cpu"] - one["cpu"]) / max(e.steps - 1, 1)
+            e_step = (e.wall_seconds - estimate_run(scene.replace(time=dataclasses.replace(
+                scene.time, end=scene.time.dt))).wall_seconds) / max(e.steps - 1, 1)
+            print(f"{nx:>4} x {nx + 1:<3} {e.unknowns:>8} {e.steps:>5} {full['wall']:>8.1f} "
+                  f"{full['cpu']:>7.1f} {e.wall_seconds:>6.1f} {one['cpu']:>9.2f} "
+                  f"{1e3 * per_step:>7.1f} {1e3 * e_step:>6.1f} {full['rss']:>13.0f} "
+                  f"{e.memory_bytes / 2**20:>6.0f}", flush=True)
+
+
+def _seconds(s: float | None) -> str:
+    """Seconds to the tenth below 10 s (a short run's estimate is to be read), else whole."""
+    return "-" if s is None else f"{s:.1f}" if s < 10 else f"{s:.0f}"
 
 
 def _write_docs(page: str, md: list, load0: float) -> None:
@@ -235,7 +295,11 @@ def _write_docs(page: str, md: list, load0: float) -> None:
              "(6.46 days); `monitor-30d`: `fault-screen monitor` following 30 days of a "
              "disposal-like log from its start, steps growing from 5 s by 1.2 to 10 min. In "
              "brackets: the estimate the run prints at its start (`scene check` prints the "
-             "same). Targets: peak memory at most 1.5 x the `rustrel` run; result file at most "
+             "same); the wall time it estimates is an idle machine's, so it stands beside the "
+             "CPU time of the process (user and system), which the other processes on a shared "
+             "machine change far less than the wall time. Memory: peak resident set "
+             "(`ru_maxrss`), MB of 2^20 bytes as in the other tables; the monitor estimates "
+             "per day of operation, so only its memory stands in its row. Targets: peak memory at most 1.5 x the `rustrel` run; result file at most "
              "50 MB (3 days) and 100 MB (Basel); every day of the run in the series.")
     write(page, "Long operations at default settings", intro, md, load0)
 
@@ -248,9 +312,14 @@ def main(argv=None):
                     help="write the table to docs/performance/<--page>.md")
     ap.add_argument("--page", default="long-operations", help="the page --write-docs writes")
     ap.add_argument("--durations", default=None, help="the older sweep: e.g. 1h,1d,3d,30d")
+    ap.add_argument("--sizes", default=None,
+                    help="the estimates' data instead: e.g. 20,50,100,200 (meshes nx x (nx + 1))")
     ap.add_argument("--nx", type=int, default=20, help="elements across the mesh")
     ap.add_argument("--dt-max", type=float, default=60.0, help="largest model step (s)")
     args = ap.parse_args(argv)
+    if args.sizes is not None:
+        sizes_main([int(n) for n in args.sizes.split(",")])
+        return
     if args.durations is None:
         cases_main(args.cases.split(","), args.page if args.write_docs else None, args.basel)
         return

@@ -478,11 +478,14 @@ def discretise(scene: Scene) -> Discretisation:
 
 # ---- the model's size before it is built ------------------------------------------------------
 #: Memory of a run ~ BASE_MEMORY + BYTES_PER_UNKNOWN_LOG * N log2 N bytes (N unknowns; the
-#: sparse factor's fill grows like N log N).  Fitted to the peak resident memory of one step of
-#: the Rustrel scene on uniform meshes: 244 MB at 20 x 21, 507 MB at 100 x 101 (N = 31k), 1.62 GB
-#: at 200 x 201 (N = 122k); the fit is within 10 % at both larger sizes.
-BYTES_PER_UNKNOWN_LOG = 650.0
-BASE_MEMORY = 250e6
+#: sparse factor's fill grows like N log N).  Fitted (least squares) to the peak resident memory
+#: of `fault-screen run` of the calibrated Rustrel scene (1400 s) on nx x (nx + 1) meshes with
+#: numpy 2.4, scipy 1.17, numba 0.68: 216 MB at 20 x 21 (N = 2.6k), 243 MB at 50 x 51, 331 MB at
+#: 100 x 101 (N = 33k), 615 MB at 200 x 201 (N = 123k) (`python benchmarks/long_operation.py
+#: --sizes 20,50,100,200`); within 5 % at all four.  Most of a small run's memory is the
+#: imported libraries and the cached kernels, not the model.
+BYTES_PER_UNKNOWN_LOG = 190.0
+BASE_MEMORY = 220e6
 #: node lines per axis up to which the estimate builds the mesh's lines (1-D arrays, 8 bytes a
 #: line) rather than bounding their number
 LINES_BUILT = 200_000

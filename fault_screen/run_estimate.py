@@ -12,8 +12,11 @@ unknowns). The models and their accuracy against measured runs are in the docs
   automatic rule (:func:`fault_screen.outputs.automatic_profile_count`) keeps, the log's
   samples;
 * memory: the model's (``estimate_size``), plus the figures' when ``--plot`` is given (the
-  results are streamed and read back in bounded pieces, so the run's length does not count);
-* wall time: a fixed cost per step plus one per unknown, on an idle machine.
+  results are streamed and read back in bounded pieces, so the run's length does not count,
+  but for HDF5's cache of the result's chunks: up to 1 MiB a dataset, ~40 MB after ~130,000
+  steps, not counted here);
+* wall time: the start-up, a cost per step growing with the unknowns and one per profile
+  kept, on an idle machine.
 """
 from __future__ import annotations
 
@@ -24,13 +27,21 @@ from .discretisation import estimate_size
 from .outputs import SCHEMA, automatic_profile_count, automatic_profile_due
 from .scene import Scene
 
-#: model wall time of a step (s) ~ STEP_SECONDS + STEP_SECONDS_PER_UNKNOWN x unknowns: fitted to
-#: the calibrated Rustrel scene at 50 x 51 (9,792 unknowns: the Basel replay's 111,708 steps
-#: at 6.4-7.5 ms a step) and at 200 x 201 (123,012 unknowns: ~45 ms a step), idle machine
-STEP_SECONDS = 4.0e-3
-STEP_SECONDS_PER_UNKNOWN = 3.3e-7
-#: start-up of a process (imports, cached kernels, the model), s
-START_SECONDS = 4.0
+#: wall time of a model step (s) ~ STEP_SECONDS + STEP_SECONDS_PER_UNKNOWN_LOG x N log2 N (N
+#: unknowns: the factor's work), of each profile kept PROFILE_SECONDS_PER_POINT x fault points
+#: (gathered, shuffled, compressed), and of the start-up (imports, cached kernels, the model)
+#: START_SECONDS + START_SECONDS_PER_UNKNOWN x N. Fitted to CPU time (what an idle machine's
+#: wall time is) with numpy 2.4, numba 0.68: `fault-screen run` of the calibrated Rustrel scene
+#: (280 steps of 5 s, every profile kept; its first step alone for the start-up) at 20 x 21,
+#: 50 x 51, 100 x 101 and 200 x 201 (N = 2,646 to 123,012: 0.9, 1.8, 7.3 and 27 ms a step,
+#: start-up 0.83 to 2.3 s: `python benchmarks/long_operation.py --sizes 20,50,100,200`), the
+#: step within 0.9-1.25x of each; the profile's share from the 3-day steady replay at 50 x 51
+#: (51,840 steps, 2,198 profiles, 76 s: 1.44 ms a step and 0.39 ms a profile of 200 points)
+STEP_SECONDS = 0.34e-3
+STEP_SECONDS_PER_UNKNOWN_LOG = 1.09e-8
+PROFILE_SECONDS_PER_POINT = 2.0e-6
+START_SECONDS = 0.8
+START_SECONDS_PER_UNKNOWN = 1.2e-5
 #: bytes of a stored profile per raw byte (byte shuffle, then gzip level 1: result_stream), the
 #: most of those measured: 0.63 on the bundled Rustrel run, 0.62 on it at 200 x 201, 0.56 on
 #: the Basel 2006 replay with every profile kept, 0.40 on a steady day on a 4 x 5 mesh (quiet
@@ -41,6 +52,9 @@ PROFILE_COMPRESSION = 0.63
 SERIES_CHUNK_ROWS = 4096
 #: memory the figures add (matplotlib and a figure being drawn), bytes
 PLOT_MEMORY = 80e6
+#: CPU time the figures add (matplotlib's import, three figures drawn from bounded reads), s:
+#: 1.5 s measured on the bundled run (2.9 s with --plot, 1.4 s without)
+PLOT_SECONDS = 1.5
 #: when the advice says how to thin or coarsen
 LARGE_FILE = 1e9
 LONG_RUN = 3600.0
@@ -147,7 +161,7 @@ def estimate_monitor(scene: Scene) -> MonitorEstimate:
 
 
 def _step_seconds(unknowns: int) -> float:
-    return STEP_SECONDS + STEP_SECONDS_PER_UNKNOWN * unknowns
+    return STEP_SECONDS + STEP_SECONDS_PER_UNKNOWN_LOG * unknowns * math.log2(max(unknowns, 2))
 
 
 def _profile_bytes(scene: Scene, profiles: int) -> float:
@@ -189,7 +203,9 @@ def estimate_run(scene: Scene, *, plot: bool = False, log_samples: int = 0) -> R
     file_bytes = (8.0 * _SERIES * SERIES_CHUNK_ROWS * chunks + LOG_SAMPLE_BYTES * log_samples
                   + _profile_bytes(scene, profiles))
     memory = model_memory + (PLOT_MEMORY if plot else 0.0)
-    wall = START_SECONDS + steps * _step_seconds(unknowns)
+    wall = (START_SECONDS + START_SECONDS_PER_UNKNOWN * unknowns + steps * _step_seconds(unknowns)
+            + profiles * PROFILE_SECONDS_PER_POINT * fault_points(scene)
+            + (PLOT_SECONDS if plot else 0.0))
     return RunEstimate(steps=steps, profiles=profiles, unknowns=unknowns, file_bytes=file_bytes,
                        memory_bytes=memory, wall_seconds=wall)
 
@@ -211,4 +227,4 @@ def _size(n: float) -> str:
 def _duration(s: float) -> str:
     if s >= 3600:
         return f"{s / 3600:.3g} h"
-    return f"{s / 60:.2g} min" if s >= 120 else f"{s:.0f} s"
+    return f"{s / 60:.2g} min" if s >= 120 else f"{s:.2g} s" if s < 10 else f"{s:.0f} s"

@@ -139,8 +139,10 @@ def test_monitor_prints_its_estimate_per_day_at_start(tiny_scene, tmp_path, monk
 def test_monitor_estimate_advises_when_a_day_is_large():
     """The bundled scene at its 5-s steps: 17,280 steps and 1,807 profiles a day (the automatic
     rule), 22.5 MB, no advice; every profile kept: 178 MB a day and the advice to thin them;
-    steps growing by 1.2 to 600 s: 27 growing steps (3,415 s) and 139 of 600 s, 166; a
-    400 x 401 mesh: over 4 GB of model and the advice to coarsen it."""
+    steps growing by 1.2 to 600 s: 27 growing steps (3,415 s) and 139 of 600 s, 166; an
+    800 x 801 mesh (1.9 million unknowns): over 4 GB of model and the advice to coarsen it,
+    and not a 400 x 401 one (486,012 unknowns: the memory measured at 200 x 201, 615 MB,
+    grows to about 2 GB)."""
     import dataclasses
     from pathlib import Path
 
@@ -157,8 +159,11 @@ def test_monitor_estimate_advises_when_a_day_is_large():
     growing = estimate_monitor(scene.replace(time=dataclasses.replace(scene.time, growth=1.2,
                                                                       dt_max=600.0)))
     assert growing.steps_per_day == 166 and len(growing.lines()) == 1
-    big = estimate_monitor(scene.replace(mesh=dataclasses.replace(scene.mesh, nx=400, ny=401)))
+    big = estimate_monitor(scene.replace(mesh=dataclasses.replace(scene.mesh, nx=800, ny=801)))
     assert big.memory_bytes > 4e9 and "coarsen the mesh" in big.lines()[-1]
+    middle = estimate_monitor(scene.replace(mesh=dataclasses.replace(scene.mesh, nx=400, ny=401)))
+    assert 1.5e9 < middle.memory_bytes < 2.5e9
+    assert not any("coarsen the mesh" in line for line in middle.lines())
 
 
 def test_monitor_file_growth_per_day_against_a_replayed_day(tmp_path):
