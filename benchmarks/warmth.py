@@ -14,7 +14,8 @@ from __future__ import annotations
 def watch() -> list[str]:
     """Start recording numba's compilations in this process; returns the list that fills with
     each compiled function's ``module.qualname`` (numba's own overloads, compiled inside a
-    kernel's compilation, included: ``...<locals>.impl``)."""
+    kernel's compilation, included: ``...<locals>.impl``; an attempt that failed, e.g. a stale
+    compile_ahead.KERNELS entry's types, left out)."""
     from numba.core import event
 
     compiled: list[str] = []
@@ -24,6 +25,8 @@ def watch() -> list[str]:
             pass
 
         def on_end(self, ev):
+            if ev.is_failed:   # (types the kernel does not take: nothing was compiled)
+                return
             f = ev.data["dispatcher"].py_func
             compiled.append(f"{f.__module__}.{f.__qualname__}")
     event.register("numba:compile", _Compiled())
