@@ -25,7 +25,9 @@ def watch() -> list[str]:
             pass
 
         def on_end(self, ev):
-            if ev.is_failed:   # (types the kernel does not take: nothing was compiled)
+            # an attempt that raised (types the kernel does not take): nothing was compiled
+            # (numba 0.68's Event.is_failed is inverted: it is True when nothing was raised)
+            if getattr(ev, "_exc_details", None) is not None:
                 return
             f = ev.data["dispatcher"].py_func
             compiled.append(f"{f.__module__}.{f.__qualname__}")

@@ -10,7 +10,13 @@ import textwrap
 from conftest import ROOT
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
+import numba  # noqa: E402
 import warmth  # noqa: E402
+
+
+@numba.njit
+def halved(x):
+    return 0.5 * x
 
 #: a process that watches, then calls a cached kernel of its own module (in tmp_path)
 _PROCESS = textwrap.dedent("""
@@ -73,3 +79,16 @@ def test_a_run_that_compiled_is_discarded_and_a_second_that_compiled_too_is_flag
     run, calls = runs(["fault_screen.ldl._eliminate"], ["fault_screen.ldl._eliminate"])
     r, note = warmth.measure_warm(run, "fine")
     assert calls == ["fine", "fine"] and "NOT WARM" in note
+
+
+def test_an_attempt_with_types_the_kernel_does_not_take_is_not_a_compilation():
+    """A stale compile_ahead.KERNELS entry (types the kernel no longer takes) fires numba's
+    compile event without compiling anything: not recorded; a real compilation after it is."""
+    import pytest
+
+    compiled = warmth.watch()
+    with pytest.raises(Exception):   # noqa: B017 (numba's typing error)
+        halved.compile("(float64, float64)")
+    assert compiled == []
+    halved(1.0)
+    assert warmth.kernels(compiled) == [f"{__name__}.halved"]
