@@ -11,6 +11,13 @@ the issue measured before the work on it; "measured" is this run. The machine's 
 load average) is printed before and after: on a shared machine every wall time grows with it,
 so compare rows of one run, and rerun when the load was high.
 
+"Warm" means measured in a process that compiled no kernel itself: every measured process
+watches numba's compile events (benchmarks/warmth.py). A warm row's case is run once first and
+that run discarded when it compiled (a scene whose signatures no earlier run cached, a cache
+made stale by a checkout: 20-95 MB more peak and seconds of CPU); a compile in a process that is
+kept is named under the table, and the cold `fault-screen run` names the kernels it compiled in
+its own process (those fault_screen.compile_ahead's children did not).
+
 Rows (keys for --skip in brackets):
 - [replay] the calibrated Rustrel scene (280 steps of 5 s), warm: a new process with numba's
   cache in place, Simulation built, run and its Result made; median wall per step from the
@@ -71,6 +78,7 @@ ROOT = Path(__file__).resolve().parents[1]
 TREE = Path(os.environ.get("FAULT_SCREEN_TREE", ROOT))
 sys.path.insert(0, str(TREE))
 sys.path.insert(0, str(ROOT / "benchmarks"))
+import warmth  # noqa: E402
 from patching import Patches  # noqa: E402
 RUSTREL = ROOT / "configs" / "rustrel-2015-calibrated.toml"
 PAPER = ROOT / "configs" / "rustrel-2015-calibrated-paper-units.toml"
@@ -106,6 +114,14 @@ def _scene(case: str):
 
 
 def run_case(case: str) -> dict:
+    """A case in this process, with what numba compiled in it (``compiled``: [] when warm)."""
+    compiled = warmth.watch()
+    out = _run_case(case)
+    out["compiled"] = compiled
+    return out
+
+
+def _run_case(case: str) -> dict:
     import numpy as np
 
     from fault_screen import Simulation
@@ -353,6 +369,7 @@ def run_split() -> dict:
     import fault_screen.cli
     t1, c1 = time.perf_counter(), time.process_time()
     from numba.core.dispatcher import Dispatcher
+    compiled = warmth.watch()   # (after the imports it times; numba is imported by then)
 
     spans, loaded, parts = [], set(), []
 
@@ -394,7 +411,7 @@ def run_split() -> dict:
                 first_kernel=(loads[0][1] - loads[0][0]) if loads else 0.0, parts=own,
                 parts_cpu=own_cpu, kernels_cpu=kernels_cpu,
                 other=rest - kernels - sum(own.values()), rest=rest - kernels, total=t2 - t0,
-                cpu_imports=c1 - c0, cpu=c2 - c0)
+                cpu_imports=c1 - c0, cpu=c2 - c0, compiled=compiled)
 
 
 def _outermost_cpu(a, b, items) -> float:
@@ -428,12 +445,15 @@ def child(case: str, env=None, timeout=CASE_TIMEOUT) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def cli_run(env, children: bool = False):
-    """Wall time (s) and peak memory (MB) of `fault-screen run` of the bundled scene; with
-    ``children``, also the largest peak memory (MB) and the CPU time (s) of its child processes
-    (at a cold start: those of fault_screen.compile_ahead)."""
+def cli_run(env) -> dict:
+    """`fault-screen run` of the bundled scene in a new process: its wall time (s), peak memory
+    (MB), what numba compiled in it (``compiled``) and its child processes' largest peak memory
+    (MB) and CPU time (s) (at a cold start: those of fault_screen.compile_ahead)."""
     with tempfile.TemporaryDirectory() as tmp:
-        code = ("import atexit, resource, sys; atexit.register(lambda: print('MAXRSS', resource.getrusage("
+        code = (f"import sys; sys.path.insert(0, {str(ROOT / 'benchmarks')!r}); import warmth; "
+                "compiled = warmth.watch(); import atexit, json, resource; "
+                "atexit.register(lambda: print('COMPILED', json.dumps(compiled), file=sys.stderr)); "
+                "atexit.register(lambda: print('MAXRSS', resource.getrusage("
                 "resource.RUSAGE_SELF).ru_maxrss, *(lambda c: (c.ru_maxrss, c.ru_utime + c.ru_stime))("
                 "resource.getrusage(resource.RUSAGE_CHILDREN)), file=sys.stderr)); "
                 "from fault_screen.cli import main; sys.argv[0] = 'fault-screen'; main()")
@@ -443,10 +463,11 @@ def cli_run(env, children: bool = False):
         wall = time.perf_counter() - t0
     if out.returncode != 0:
         raise RuntimeError(out.stderr)
-    rss = [line.split()[1:] for line in out.stderr.splitlines() if line.startswith("MAXRSS")][-1]
-    if children:
-        return wall, float(rss[0]) / 1024.0, float(rss[1]) / 1024.0, float(rss[2])
-    return wall, float(rss[0]) / 1024.0
+    last = {line.split(maxsplit=1)[0]: line.split(maxsplit=1)[1] for line in out.stderr.splitlines()
+            if line.startswith(("MAXRSS", "COMPILED"))}
+    rss = last["MAXRSS"].split()
+    return dict(wall=wall, peak_mb=float(rss[0]) / 1024.0, children_mb=float(rss[1]) / 1024.0,
+                children_cpu=float(rss[2]), compiled=json.loads(last["COMPILED"]))
 
 
 #: the child's first lines when it is to start as from a tree without fault_screen's bytecode
@@ -461,16 +482,19 @@ _SOURCE_ONLY = ("import importlib.machinery as m, os, sys\n"
                 "m.SourceFileLoader.path_stats = _no_bytecode\n")
 
 
-def cli_run_warm(env, bytecode: bool, repeat: int = 5) -> tuple[list[float], float]:
+def cli_run_warm(env, bytecode: bool, repeat: int = 5) -> tuple[list[float], float, list]:
     """Wall times (s) of ``repeat`` warm `fault-screen run` processes of the bundled scene
     (numba's cache in place), sorted: with fault_screen's bytecode read from its .pyc files as
     a user's installed package has them, or (``bytecode=False``) compiled from the sources in
-    every process; and the median wall time (s) from the command's end (``main()`` leaving) to
-    the process's (the interpreter's teardown)."""
+    every process; the median wall time (s) from the command's end (``main()`` leaving) to
+    the process's (the interpreter's teardown); and what numba compiled in the processes (a
+    cache miss: [] when they were warm)."""
     code = ("" if bytecode else _SOURCE_ONLY.format(tree=str(TREE))) + \
-        ("import sys, time\nfrom fault_screen.cli import main\nsys.argv[0] = 'fault-screen'\n"
-         "try:\n    main()\nfinally:\n    print('COMMAND-END', time.time(), file=sys.stderr)\n")
-    walls, ends = [], []
+        (f"import sys, time, json\nsys.path.insert(0, {str(ROOT / 'benchmarks')!r})\nimport warmth\n"
+         "compiled = warmth.watch()\nfrom fault_screen.cli import main\nsys.argv[0] = 'fault-screen'\n"
+         "try:\n    main()\nfinally:\n    print('COMMAND-END', time.time(), json.dumps(compiled), "
+         "file=sys.stderr)\n")
+    walls, ends, compiled = [], [], []
     for _ in range(repeat):
         with tempfile.TemporaryDirectory() as tmp:
             t0 = time.perf_counter()
@@ -479,8 +503,10 @@ def cli_run_warm(env, bytecode: bool, repeat: int = 5) -> tuple[list[float], flo
                                  check=True)
             end = time.time()
             walls.append(time.perf_counter() - t0)
-        ends.append(end - float([x for x in out.stderr.splitlines() if x.startswith("COMMAND-END")][-1].split()[1]))
-    return sorted(walls), sorted(ends)[len(ends) // 2]
+        _, at, names = [x for x in out.stderr.splitlines() if x.startswith("COMMAND-END")][-1].split(maxsplit=2)
+        ends.append(end - float(at))
+        compiled += json.loads(names)
+    return sorted(walls), sorted(ends)[len(ends) // 2], compiled
 
 
 def cli_help(env) -> float:
@@ -540,30 +566,61 @@ def main():
     load0 = os.getloadavg()[0]
     started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     env = _env()
-    child("rustrel", env)  # numba's cache in place for the warm rows
+    notes = []   # what compiled in a measured process (printed under the table)
+
+    def warm(case, case_env=env):
+        """A case's child run measured warm (a run that compiled discarded, run again)."""
+        r, note = warmth.measure_warm(lambda c: child(c, case_env), case)
+        if note:
+            notes.append(f"{case}: {note}")
+            print(f"    ({case}: {note})", file=sys.stderr, flush=True)
+        return r
+
+    def checked(case, r):
+        """``r`` as measured, its compilations (if any) noted: its row is then not warm."""
+        if r.get("compiled"):
+            notes.append(f"{case}: NOT WARM: {warmth.describe(r['compiled'])}")
+        return r
+
     if "replay" not in args.skip:
-        r = min((child("rustrel", env) for _ in range(3)), key=lambda r: r["wall"])
+        warm("rustrel")   # numba's cache in place for the warm rows (the first run discarded)
+        runs = [checked("rustrel", child("rustrel", env)) for _ in range(3)]
+        r = min(runs, key=lambda r: r["wall"])
         row("calibrated Rustrel replay, warm, 1 process", "2.9 s", "<= 1.0 s",
             f"{_wc(r)} ({r['dofs']} unknowns, {r['steps']} steps, {r['newton']} Newton)")
         row("median wall per step, Rustrel", "~10 ms", "<= 3 ms", f"{r['step_ms']:.1f} ms")
-        r2 = min((child("rustrel-second", env) for _ in range(3)), key=lambda r: r["wall"])
+        r2 = min((checked("rustrel-second", child("rustrel-second", env)) for _ in range(3)),
+                 key=lambda r: r["wall"])
         row("calibrated Rustrel replay, the second run in one process (kernels loaded)", "-",
             "<= 1.0 s", f"{_wc(r2)}; median wall per step {r2['step_ms']:.1f} ms")
-        row("peak memory of the process, Rustrel (compilation included)", "264 MB", "<= 300 MB",
-            f"{r['peak_mb']:.0f} MB warm")
+        warm_mb = "-".join(sorted({f"{x['peak_mb']:.0f}" for x in runs}, key=float))
+        warm_what = "warm (3 runs, no kernel compiled in their process)" if not any(
+            x["compiled"] for x in runs) else "NOT WARM (kernels compiled in the process: see below)"
+        row("peak memory of the process, Rustrel (cold: compilation included; warm: none)", "264 MB",
+            "<= 300 MB", f"{warm_mb} MB {warm_what}")
     if "cold" not in args.skip:
         with tempfile.TemporaryDirectory() as cache:
-            cold, cold_mb, ahead_mb, ahead_cpu = cli_run(_env(NUMBA_CACHE_DIR=cache), children=True)
-            later = sorted(cli_run(_env(NUMBA_CACHE_DIR=cache))[0] for _ in range(3))
+            first = cli_run(_env(NUMBA_CACHE_DIR=cache))
+            later = [cli_run(_env(NUMBA_CACHE_DIR=cache)) for _ in range(3)]
+        for x in later:
+            checked("`fault-screen run` after the cold one", x)
+        own = warmth.kernels(first["compiled"])
+        walls = sorted(x["wall"] for x in later)
         row("cold: first `fault-screen run` in a fresh process (JIT included)", "~10 s",
             "<= 10 s; <= 3 s from the second process on",
-            f"{_s(cold)} (kernels compiled ahead by child processes, one per core: CPU "
-            f"{_s(ahead_cpu)}, peak memory {ahead_mb:.0f} MB each at most); later processes "
-            f"{_s(later[0])} (best of 3; slowest {_s(later[-1])})")
+            f"{_s(first['wall'])} (kernels compiled ahead by child processes, one per core: CPU "
+            f"{_s(first['children_cpu'])}, peak memory {first['children_mb']:.0f} MB each at most; "
+            f"compiled in the run's own process: {len(own)} kernels"
+            f"{' (' + ', '.join(k.removeprefix('fault_screen.') for k in own) + ')' if own else ''}); "
+            f"later processes {_s(walls[0])} (best of 3; slowest {_s(walls[-1])})")
         if "replay" not in args.skip:
             at = next(i for i, w in enumerate(rows) if w[0].startswith("peak memory of the process"))
-            rows[at] = rows[at][:3] + (f"{cold_mb:.0f} MB cold (`fault-screen run`); {r['peak_mb']:.0f} MB warm",)
-        split = min((child("split", env) for _ in range(3)), key=lambda r: r["total"])
+            later_mb = "-".join(sorted({f"{x['peak_mb']:.0f}" for x in later}, key=float))
+            rows[at] = rows[at][:3] + (
+                f"{first['peak_mb']:.0f} MB cold (`fault-screen run`, {len(own)} kernels compiled in "
+                f"its process); {later_mb} MB the next 3 `fault-screen run` (warm); {rows[at][3]}",)
+        split = min([warm("split")] + [checked("split", child("split", env)) for _ in range(2)],
+                    key=lambda r: r["total"])
         row("where a warm `fault-screen run` spends its time (in one process, best of 3)", "~1.1 s imports, "
             "~0.8 s 24 kernels, ~2 s the rest", "<= 2 s in all",
             f"{_s(split['total'])} (CPU {_s(split['cpu'])}): imports {_s(split['imports'])} "
@@ -579,7 +636,8 @@ def main():
             + ", ".join(f"{name} {_ms(t)} (CPU {_ms(split['parts_cpu'][name])})"
                         for name, t in split["parts"].items())
             + f", other {_ms(split['other'])}")
-        (with_pyc, teardown), (from_source, _) = cli_run_warm(env, True), cli_run_warm(env, False)
+        (with_pyc, teardown, c1), (from_source, _, c2) = cli_run_warm(env, True), cli_run_warm(env, False)
+        checked("warm `fault-screen run`", dict(compiled=c1 + c2))
         row("warm `fault-screen run`, whole process (bundled scene, numba's cache in place; best and "
             "median of 5)", "4.1 s median", "<= 2 s",
             f"{_s(with_pyc[0])}, median {_s(with_pyc[2])} with fault_screen's bytecode (.pyc) as an "
@@ -607,11 +665,11 @@ def main():
         # (CPU / wall) what the scheduler gave the run
         for label, case_env in (("default BLAS threads", env),
                                 ("OPENBLAS_NUM_THREADS=1", _env(OPENBLAS_NUM_THREADS="1"))):
-            alone = child("rustrel", case_env)
+            alone = warm("rustrel", case_env)
             hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
             try:
                 time.sleep(0.5)
-                b = child("rustrel", case_env)
+                b = checked("rustrel (busy)", child("rustrel", case_env))
                 load_busy = os.getloadavg()[0]
             finally:
                 for h in hogs:
@@ -625,7 +683,7 @@ def main():
                 f"get 0.67)")
     if "slip" not in args.skip:
         for name in SLIP_SCENES:
-            s = child(name, env)
+            s = warm(name)
             short = name.replace("fluid-driven-slip-", "")
             if "timeout" in s:
                 row(f"fluid-driven slip {short}, bundled resolution", "7-45 s", "<= 5 s, same accuracy",
@@ -634,19 +692,20 @@ def main():
             row(f"fluid-driven slip {short}, bundled resolution", "7-45 s", "<= 5 s, same accuracy",
                 f"{_wc(s)}, slip L2 error {100 * s['error']:.2f} % ({s['dofs']} unknowns)")
     if "refined" not in args.skip:
-        s = child("rustrel-200x201", env)
+        s = warm("rustrel-200x201")
         row("Rustrel at 4x refinement (200 x 201)", "-", "<= 20 s, <= 1 GB",
             f"> {s['timeout']} s (stopped)" if "timeout" in s else
             f"{_wc(s)}, {s['peak_mb']:.0f} MB ({s['dofs']} unknowns)")
     if "fine" not in args.skip:
-        s = child("fine-T0.7-dip30", env)
+        s = warm("fine-T0.7-dip30")
         row("fine inclined fault (30 deg T = 0.7, half element size)", "151 s, 1.4 GB", "<= 30 s, <= 500 MB",
             f"> {s['timeout']} s (stopped)" if "timeout" in s else
             f"{_wc(s)}, {s['peak_mb']:.0f} MB ({s['dofs']} unknowns), slip L2 error {100 * s['error']:.2f} %")
     if "stepsize" not in args.skip:
-        plain = child("paper", env)
-        runs = [child("paper-growing", env) for _ in range(GROWING_RUNS)]
-        iterations = child("paper-growing-iterations", env)
+        plain = warm("paper")
+        runs = [warm("paper-growing")] + [checked("paper-growing", child("paper-growing", env))
+                                          for _ in range(GROWING_RUNS - 1)]
+        iterations = checked("paper-growing-iterations", child("paper-growing-iterations", env))
         what = "step-size change, paper-units Rustrel (growth 1.2, dt_max 600 s, 3 h shut-in)"
         if any("timeout" in g for g in runs):
             row(what, "80x; 31 s", "<= 3x; <= 2x the 1400-s run",
@@ -687,13 +746,16 @@ def main():
     table = ["| what | issue 15 measured | target | measured |", "|---|---|---|---|"]
     table += [f"| {what} | {now} | {target} | {measured} |" for what, now, target, measured in rows]
     print("\n".join(table))
+    warm_note = ("Warm rows: numba's compilations watched in every measured process; "
+                 + ("; ".join(notes) if notes else "none compiled a kernel") + ".")
+    print("\n" + warm_note)
     if not args.no_doc:
         from doc_tables import write
 
         write("performance", "Run costs",
               "Each case runs in its own process (peak memory is that process's max RSS). "
               "\"issue 15 measured\" is what the performance issue measured before the work on it. "
-              "Rows left out with `--skip`: " + (", ".join(args.skip) or "none") + ".",
+              "Rows left out with `--skip`: " + (", ".join(args.skip) or "none") + ". " + warm_note,
               table, load0)
 
 

@@ -519,9 +519,10 @@ def _to_condensed(front, m, w, r0, relative, flat, n_N):
 
 
 @kernel
-def _eliminate(sequence, indptr, indices, data, n_linear, first, width, row_at, srows,
+def _eliminate(sequence, indptr, indices, data, first, width, row_at, srows,
                tparent, child_ptr, child_list, stacked, relative, value_at, values, diagonal,
-               condensed, stack, stack_base, update_at, blas_width, blas_rows):
+               condensed, stack, stack_base, update_at, blas_width, blas_rows, front, panel_t,
+               where, column_d, xt, dlrows, strip, stack_at):
     """The multifrontal LDL^T of the supernodes ``sequence`` (ascending postorder positions:
     whole subtrees, or the top of the tree once they are done: see ``LDLSymbolic.parts``), their
     fronts in buffers of their own, so that two calls on disjoint subtrees may run at once.
@@ -538,27 +539,11 @@ def _eliminate(sequence, indptr, indices, data, n_linear, first, width, row_at, 
     others read where another call left them). A front whose supernode is at least
     ``blas_width`` wide with at least ``blas_rows`` rows below it takes its rows below and its
     update by BLAS, a
-    panel of columns at a time (``_panel_by_blas``), the others by the loops here."""
+    panel of columns at a time (``_panel_by_blas``), the others by the loops here. Its work
+    arrays, ``front`` .. ``stack_at``, are ``_front_buffers``' (made by the caller: this
+    kernel allocates nothing)."""
     n_N = condensed.shape[0]
     flat = condensed.reshape(-1)
-    largest_front = 0
-    widest = 1      # a running maximum: np.max would compile numba's reduction for this alone
-    big_w = big_m = 1   # the BLAS path's buffers, sized for its largest front
-    for at_s in range(len(sequence)):
-        t = sequence[at_s]
-        m = row_at[t + 1] - row_at[t]
-        largest_front = max(largest_front, m)
-        widest = max(widest, width[t])
-        if width[t] >= blas_width and m - width[t] >= blas_rows:
-            big_w, big_m = PANEL, max(big_m, m)
-    front = np.empty(largest_front * largest_front)
-    panel_t = np.empty(largest_front * widest)
-    where = _filled(n_linear + n_N, -1)
-    column_d = np.empty(widest)
-    xt = np.empty(big_w * big_m)
-    dlrows = np.empty(big_w * big_m)
-    strip = np.empty(min(SOLVE_BLOCK, big_w) * big_w)
-    stack_at = np.empty(len(sequence) + 1, dtype=np.int64)
     stack_at[0] = stack_base
     depth = 0
     for at_s in range(len(sequence)):
@@ -642,6 +627,27 @@ def _eliminate(sequence, indptr, indices, data, n_linear, first, width, row_at, 
             update_at[t] = base
             depth += 1
             stack_at[depth] = base + u * u
+
+
+def _front_buffers(sequence, symbolic, n_N, blas_width, blas_rows) -> tuple:
+    """``_eliminate``'s work arrays for ``sequence``: (front, panel_t, where, column_d, xt,
+    dlrows, strip, stack_at), each sized for the largest of its fronts (xt, dlrows, strip for
+    the largest through BLAS). Made here, in the calling thread, for both threads' parts: a
+    buffer the second thread allocated itself would be freed into that thread's own malloc
+    arena, which keeps it resident (~9 MB of the fine scene's peak) where the calling thread's
+    heap reuses it."""
+    width, row_at = symbolic.tree[1], symbolic.tree[2]
+    m = row_at[sequence + 1] - row_at[sequence]
+    w = width[sequence]
+    largest_front = int(m.max(initial=0))
+    widest = int(w.max(initial=1))
+    blas = (w >= blas_width) & (m - w >= blas_rows)
+    big_w, big_m = (PANEL, int(m[blas].max(initial=1))) if blas.any() else (1, 1)
+    return (np.empty(largest_front * largest_front), np.empty(largest_front * widest),
+            np.full(symbolic.n_linear + n_N, -1, dtype=np.int64), np.empty(widest),
+            np.empty(big_w * big_m), np.empty(big_w * big_m),
+            np.empty(min(SOLVE_BLOCK, big_w) * big_w),
+            np.empty(len(sequence) + 1, dtype=np.int64))
 
 
 @kernel
@@ -848,18 +854,22 @@ def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=No
     sequences, bases = symbolic.parts, symbolic.part_bases
     # the roots' updates: of the first part and the top (after it), and of the second part
     first_part, second_part = np.zeros((n_N, n_N)), np.zeros((n_N, n_N))
-    common = (lower.indptr, lower.indices, lower.data, n_linear, first, width, row_at, srows,
+    common = (lower.indptr, lower.indices, lower.data, first, width, row_at, srows,
               tparent, symbolic.child_ptr, symbolic.child_list, symbolic.stacked, relative,
               symbolic.value_at, values, diagonal)
 
-    def run(part, condensed):
-        _eliminate(sequences[part], *common, condensed, stack, bases[part], update_at,
-                   blas_width, blas_rows)
+    def run(part, condensed, sequence=None, buffers=None):
+        sequence = sequences[part] if sequence is None else sequence
+        _eliminate(sequence, *common, condensed, stack, bases[part], update_at, blas_width,
+                   blas_rows, *(buffers or _front_buffers(sequence, symbolic, n_N, blas_width,
+                                                          blas_rows)))
 
     if threads is None:
         threads = 2 if symbolic.multiply_adds > THREADS_ABOVE else 1
     if threads >= 2 and len(sequences[0]) and len(sequences[1]):
-        join = _in_background(run, 1, second_part)
+        # (the second part's buffers made here, not in its thread: see _front_buffers)
+        join = _in_background(run, 1, second_part, None,
+                              _front_buffers(sequences[1], symbolic, n_N, blas_width, blas_rows))
         try:
             run(0, first_part)
         except BaseException:
@@ -870,8 +880,7 @@ def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=No
         run(0, first_part)
         run(1, second_part)
     if share_front and symbolic.split_front >= 0:   # (the top's last supernode)
-        _eliminate(sequences[2][:-1], *common, first_part, stack, bases[2], update_at,
-                   blas_width, blas_rows)
+        run(2, first_part, sequences[2][:-1])
         _split_front(symbolic.split_front, lower, symbolic, diagonal, values, stack, update_at,
                      first_part, threads)
     else:
