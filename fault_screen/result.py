@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from .outputs import unit
+from .result_stream import CHUNK_CACHE_BYTES
 from .scene import Scene
 
 
@@ -41,15 +42,18 @@ def atomic_hdf5(path):
 
 
 def _open_for_reading(path):
-    """h5py.File for reading; a file a writer holds open in SWMR mode is opened as its reader."""
+    """h5py.File for reading; a file a writer holds open in SWMR mode is opened as its reader.
+    Its chunk cache is the writer's (CHUNK_CACHE_BYTES a dataset): the bounded reads take each
+    chunk once, and HDF5's default of 1 MiB a dataset kept what they had read (`fault-screen
+    plot` of the Basel 2006 result: 171 -> 145 MB, the same time)."""
     import h5py
 
     try:
-        return h5py.File(path, "r")
+        return h5py.File(path, "r", rdcc_nbytes=CHUNK_CACHE_BYTES)
     except OSError as exc:
         if "already open for write" not in str(exc):
             raise
-        return h5py.File(path, "r", libver="latest", swmr=True)
+        return h5py.File(path, "r", libver="latest", swmr=True, rdcc_nbytes=CHUNK_CACHE_BYTES)
 
 
 @dataclass

@@ -311,3 +311,23 @@ def test_the_writers_chunk_cache_holds_the_chunk_being_filled_not_the_run(tmp_pa
     monkeypatch.setattr(result_stream, "CHUNK_CACHE_BYTES", 1024 * 1024)
     default_size, _ = _written_file_bytes(tmp_path / "d.h5", streams, want, 10)
     assert size == default_size
+
+
+def test_a_result_is_read_with_the_writers_chunk_cache(tmp_path):
+    """Results are read (summary, figures, `fault-screen plot`) with the writer's chunk cache,
+    not HDF5's 1 MiB a dataset, whether the writer has closed the file or still holds it."""
+    from fault_screen import result_stream
+    from fault_screen.result import _open_for_reading
+    from fault_screen.result_stream import ResultWriter
+
+    streams = _light_and_heavy_streams()
+    writer = ResultWriter.create(tmp_path / "r.h5", streams=streams, fixed={}, attrs={})
+    writer.append("rows", {p: 1.0 for p in streams["rows"]})
+    writer.flush()
+    try:   # (the writer holds it: opened as a SWMR reader)
+        with _open_for_reading(tmp_path / "r.h5") as h5:
+            assert h5.id.get_access_plist().get_cache()[2] == result_stream.CHUNK_CACHE_BYTES
+    finally:
+        writer.close()
+    with _open_for_reading(tmp_path / "r.h5") as h5:
+        assert h5.id.get_access_plist().get_cache()[2] == result_stream.CHUNK_CACHE_BYTES
