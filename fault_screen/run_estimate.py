@@ -12,9 +12,8 @@ unknowns). The models and their accuracy against measured runs are in the docs
   automatic rule (:func:`fault_screen.outputs.automatic_profile_count`) keeps, the log's
   samples;
 * memory: the model's (``estimate_size``), plus the figures' when ``--plot`` is given (the
-  results are streamed and read back in bounded pieces, so the run's length does not count,
-  but for HDF5's cache of the result's chunks: up to 1 MiB a dataset, ~40 MB after ~130,000
-  steps, not counted here);
+  results are streamed and read back in bounded pieces, with HDF5's chunk cache limited to
+  ``result_stream.CHUNK_CACHE_BYTES`` a dataset, so the run's length does not count);
 * wall time: the start-up, a cost per step growing with the unknowns and one per profile
   kept, on an idle machine.
 """
