@@ -46,6 +46,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 import warmth  # noqa: E402 (numba imported only when it starts watching)
+from patching import Patches  # noqa: E402
 CASES = ["rustrel", "cli", "fine", "refined"]
 DEFAULT_CASES = ["rustrel", "cli", "fine"]
 
@@ -235,17 +236,18 @@ def smaps_mb() -> dict:
     return out
 
 
-def _wrap(owner, name, sampler, label):
-    """Label the sampler with ``label`` while owner.name runs."""
-    f = getattr(owner, name)
-
-    def wrapped(*args, **kwargs):
-        before, sampler.label = sampler.label, label
-        try:
-            return f(*args, **kwargs)
-        finally:
-            sampler.label = before
-    setattr(owner, name, wrapped)
+def _labelling(sampler, label):
+    """A wrapper (for ``Patches.replace``) labelling the sampler with ``label`` while the
+    function runs."""
+    def make(f):
+        def wrapped(*args, **kwargs):
+            before, sampler.label = sampler.label, label
+            try:
+                return f(*args, **kwargs)
+            finally:
+                sampler.label = before
+        return wrapped
+    return make
 
 
 def run_case(case: str) -> dict:
@@ -295,16 +297,19 @@ def run_case(case: str) -> dict:
 
     # the run, labelled by phase; the Simulation kept for the arrays' walk
     sims = []
-    init = stepper.Simulation.__init__
 
-    def keep(self, *args, **kwargs):
-        sims.append(self)
-        init(self, *args, **kwargs)
-    stepper.Simulation.__init__ = keep
-    _wrap(stepper, "discretise", sampler, "discretisation")
-    _wrap(solver, "assemble_constant", sampler, "assembly")
-    _wrap(linear_system, "bordered_lu", sampler, "bulk factorisation")
-    _wrap(linear_system.CondensedSolver, "_factorise", sampler, "condensed block's LU")
+    def keeping(init):
+        def keep(self, *args, **kwargs):
+            sims.append(self)
+            init(self, *args, **kwargs)
+        return keep
+    patches = Patches()   # (left in place: the process ends with the case)
+    patches.replace(stepper.Simulation, "__init__", keeping)
+    patches.replace(stepper, "discretise", _labelling(sampler, "discretisation"))
+    patches.replace(solver, "assemble_constant", _labelling(sampler, "assembly"))
+    patches.replace(linear_system, "bordered_lu", _labelling(sampler, "bulk factorisation"))
+    patches.replace(linear_system.CondensedSolver, "_factorise",
+                    _labelling(sampler, "condensed block's LU"))
     walks = {"rss": 0.0}
 
     def walk_if_highest(step, *_):
