@@ -955,13 +955,12 @@ class CondensedSolver:
         twin = copy.copy(self)
         twin._pattern = copy.copy(self._pattern)
         for name, have in (("_Z", "_have"), ("_T", "_have1")):
+            solved = getattr(self, have, None)
+            if solved is not None:
+                setattr(twin, have, solved.copy())
             value = getattr(self, name, None)
             if value is not None:
-                setattr(twin, name, _solved_columns_copied(value, getattr(self, have)))
-        for name in ("_have", "_have1"):
-            value = getattr(self, name, None)
-            if value is not None:
-                setattr(twin, name, value.copy())
+                setattr(twin, name, _solved_columns_copied(value, solved))
         twin._front = None   # (views of this solver's columns)
         return twin
 
