@@ -56,7 +56,10 @@ Rows (keys for --skip in brackets):
   printed beside the pooled one, in wall and in CPU time, with the changed step's parts
   (re-preparation, numeric factorisation, condensed LU, Newton iterations), and the Newton
   iterations of the changed steps solved again from the same states at their own size and at
-  the previous step's (``growing_iterations``).
+  the previous step's (``growing_iterations``). Like for like: the same ratio over the changed
+  and unchanged steps that took the unchanged steps' usual number of Newton iterations; and, when
+  some changed steps kept the factors (no numeric factorisation in them), those and the ones that
+  refactorised apart.
 - [tests] `python -m pytest -q` (the README's test command), wall time.
 """
 from __future__ import annotations
@@ -270,7 +273,15 @@ def growing_summary(runs: list[dict]) -> dict:
         its_changed.append(its[changed])
         its_unchanged.append(its[~changed])
     ch, un = np.concatenate(pooled_changed), np.concatenate(pooled_unchanged)
-    med = lambda x: 1e3 * float(np.median(x))   # noqa: E731 (ms)
+    its_ch, its_un = np.concatenate(its_changed), np.concatenate(its_unchanged)
+    med = lambda x: 1e3 * float(np.median(x)) if len(x) else float("nan")   # noqa: E731 (ms)
+    # like for like: the changed and unchanged steps that took the unchanged steps' most common
+    # number of Newton iterations (the changed ones are the busier phase's, see the row)
+    counts = np.bincount(its_un.astype(int))
+    usual = int(np.argmax(counts))
+    # a changed step whose size kept the factors (no numeric factorisation in it) and one that
+    # refactorised
+    refactorised = ch[:, 6] > 0.0
     return dict(
         n_runs=len(runs), n_changed=len(ch), n_unchanged=len(un),
         changed_ms=med(ch[:, 1]), unchanged_ms=med(un[:, 1]),
@@ -282,6 +293,11 @@ def growing_summary(runs: list[dict]) -> dict:
         condensed_lu_cpu_ms=med(ch[:, 8]),
         newton_changed=float(np.mean(np.concatenate(its_changed))),
         newton_unchanged=float(np.mean(np.concatenate(its_unchanged))),
+        usual_iterations=usual,
+        like_changed_ms=med(ch[its_ch == usual, 1]), like_unchanged_ms=med(un[its_un == usual, 1]),
+        n_like_changed=int(np.sum(its_ch == usual)), n_like_unchanged=int(np.sum(its_un == usual)),
+        n_refactorised=int(np.sum(refactorised)), refactorised_ms=med(ch[refactorised, 1]),
+        kept_ms=med(ch[~refactorised, 1]),
         wall=float(np.median([r["wall"] for r in runs])))
 
 
@@ -717,11 +733,20 @@ def main():
                      f"{sum(iterations['own'])} iterations at their size, "
                      f"{sum(iterations['previous'])} at the previous step's")
             spread = lambda r: f"{min(r):.1f}-{max(r):.1f}x"   # noqa: E731
+            kept = ("" if g["n_refactorised"] == g["n_changed"] else
+                    f"; {g['n_changed'] - g['n_refactorised']} changed steps kept the factors: "
+                    f"{g['kept_ms']:.1f} ms = {g['kept_ms'] / g['unchanged_ms']:.1f}x, the "
+                    f"{g['n_refactorised']} that refactorised {g['refactorised_ms']:.0f} ms = "
+                    f"{g['refactorised_ms'] / g['unchanged_ms']:.1f}x")
+            like = (f"; like for like ({g['usual_iterations']} Newton iterations each, "
+                    f"{g['n_like_changed']} changed and {g['n_like_unchanged']} unchanged steps) "
+                    f"{g['like_changed_ms']:.1f} against {g['like_unchanged_ms']:.1f} ms = "
+                    f"{g['like_changed_ms'] / g['like_unchanged_ms']:.1f}x")
             row(what, "80x; 31 s", "<= 3x; <= 2x the 1400-s run",
                 f"first step after a change {g['changed_ms']:.0f} ms (median of {g['n_changed']}, "
                 f"{g['n_runs']} runs pooled) = {g['changed_ms'] / g['unchanged_ms']:.1f}x a step at "
                 f"unchanged size ({g['unchanged_ms']:.0f} ms, median of {g['n_unchanged']}); each "
-                f"run's ratio {spread(g['ratios'])}; in CPU time {g['changed_cpu_ms']:.0f} against "
+                f"run's ratio {spread(g['ratios'])}{kept}{like}; in CPU time {g['changed_cpu_ms']:.0f} against "
                 f"{g['unchanged_cpu_ms']:.0f} ms = {g['changed_cpu_ms'] / g['unchanged_cpu_ms']:.1f}x "
                 f"(runs {spread(g['cpu_ratios'])}); the changed step's CPU (medians): "
                 f"re-preparation {g['prepare_cpu_ms']:.0f} ms (numeric factorisation "
