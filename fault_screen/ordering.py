@@ -130,9 +130,9 @@ def _fault_into_separator(part, ids, fault_coupling, sym):
     if most <= 0:
         return part
     on_fault = fault_coupling[ids] >= FAULT_COUPLED * most
-    in_separator = np.zeros(sym.shape[0])
-    in_separator[ids[part == 2]] = 1.0
-    beside = ((sym @ in_separator)[ids] > 0.0) & (part != 2)
+    neighbour = np.zeros(sym.shape[0], dtype=bool)   # (of a separator unknown, by the pattern)
+    neighbour[sym[ids[part == 2]].indices] = True
+    beside = neighbour[ids] & (part != 2)
     if (np.count_nonzero(on_fault & ((part == 2) | beside))
             < ALONG_THE_CUT * np.count_nonzero(on_fault)):
         return part
