@@ -31,8 +31,9 @@ interleaved R times in this one process (least of each): its CPU time in one thr
 (``ldl.THREADS_ABOVE`` raised), and the wall and CPU time in two threads as the solver runs it
 (a refactorisation: the symbolic analysis made before), and the entries of its factors
 (``ldl.factorise``'s L entries; a split bulk's ``SplitBorderedLU.nnz``). A bulk that the solver factorises in
-parts (``bordered_lu.SplitBorderedLU``, 200 x 201) is timed so, whole (its parts one after the
-other). On a shared machine compare rows of one run.
+parts (``bordered_lu.SplitBorderedLU``, 200 x 201) is timed so (its parts one after the other),
+and on the first two orders also as one L D L^T of the whole bulk (``(whole ..., not split)``),
+as a smaller bulk is. On a shared machine compare rows of one run.
 """
 from __future__ import annotations
 
@@ -163,26 +164,27 @@ def count_table(key, S, nB, made):
 
 
 def time_table(S, nB, made, repeat):
-    """The numeric factorisation's times on the first two orders, interleaved (see --time)."""
+    """The numeric factorisation's times on each order, interleaved (see --time)."""
     from fault_screen import ldl
     from fault_screen.bordered_lu import SPLIT_ABOVE, bordered_lu
 
-    names = list(made)
     runs, entries = {}, {}
-    for name in names:
-        inner, split = made[name]
+    for k, (name, (inner, split)) in enumerate(made.items()):
         M = _permuted(S, nB, inner)
-        analyses = ldl.SymbolicAnalyses()
+        lower, condensed = ldl._lower(M, nB), M[nB:, nB:].toarray()
+        whole = (lambda lower=lower, condensed=condensed, analyses=ldl.SymbolicAnalyses():
+                 ldl.factorise_lower(lower, condensed.copy(), nB, analyses)[3])
         if split is not None and nB > SPLIT_ABOVE:
-            run = (lambda M=M, split=split, analyses=analyses:
-                   bordered_lu(M, nB, split, analyses).nnz)
+            runs[name] = (lambda M=M, split=split, analyses=ldl.SymbolicAnalyses():
+                          bordered_lu(M, nB, split, analyses).nnz)
+            if k < 2:
+                runs[f"{name} (whole L D L^T, not split)"] = whole
         else:
-            lower, condensed = ldl._lower(M, nB), M[nB:, nB:].toarray()
-            run = (lambda lower=lower, condensed=condensed, analyses=analyses:
-                   ldl.factorise_lower(lower, condensed.copy(), nB, analyses)[3])
+            runs[name] = whole
+    names = list(runs)
+    for name, run in runs.items():
         run()   # (the symbolic analysis, then a refactorisation: the shared front's kernel)
         entries[name] = run()
-        runs[name] = run
     best = {(name, how): np.inf for name in names for how in ("1 CPU", "2 wall", "2 CPU")}
     threads_above = ldl.THREADS_ABOVE
     for _ in range(repeat):
