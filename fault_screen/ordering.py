@@ -18,10 +18,20 @@ import scipy.sparse as sp
 #: 2.7-4.4 % fewer non-zeros in L + U than 32 (Rustrel 200 x 201: 34.6M -> 33.0M; the fine
 #: 30 deg scene: 22.0M -> 21.4M), 4 no more than 8
 LEAF_SIZE = 8
+#: a bulk unknown coupled to at least this fraction of the most that any couples to is on the
+#: fault's cut elements (``fault_coupling``): on Rustrel the two node lines inside the cut
+#: element row couple to 14-24 of the 392 fault unknowns, the lines either side (the leak-off
+#: of the fault's pressure) to 1-3
+FAULT_COUPLED = 0.5
+#: the first separator takes in the fault's unknowns beside it when at least this fraction of
+#: them lie in it or beside it (the fault runs along the first cut): otherwise the fault crosses
+#: the cut, and widening the top separator costs more than it saves (the fine 30 deg scene)
+ALONG_THE_CUT = 0.5
 
 
 def nested_dissection(pattern: sp.spmatrix, xy: np.ndarray, leaf: int = LEAF_SIZE,
-                      return_split: bool = False, return_quarters: bool = False):
+                      return_split: bool = False, return_quarters: bool = False,
+                      fault_coupling: np.ndarray | None = None):
     """Permutation (new position -> old index) of the unknowns of a square sparse matrix whose
     unknown i sits at ``xy[i]`` (m). Only the pattern of ``pattern + pattern^T`` is used.
 
@@ -38,7 +48,14 @@ def nested_dissection(pattern: sp.spmatrix, xy: np.ndarray, leaf: int = LEAF_SIZ
     as [its lower side without the separator, its upper side, the separator], each part keeping
     the order it had; the parts larger than ``leaf`` are cut in turn. All the sets of one level
     of cuts are cut together, in place in the permutation (a few array operations per level
-    instead of per set; the same permutation)."""
+    instead of per set; the same permutation).
+
+    ``fault_coupling``: how many condensed (fault) unknowns each unknown couples to; they are
+    never eliminated, so every front whose subtree holds such an unknown carries their rows up
+    to the root. Where the fault runs along the first cut (``_fault_into_separator``), its
+    unknowns beside the first separator join it: the halves below then carry few fault rows
+    (paper-units Rustrel: the LDL^T's multiply-adds 123 M -> 93 M, see
+    ``benchmarks/ordering_study.py``)."""
     n = pattern.shape[0]
     sym = (abs(pattern) + abs(pattern.T)).tocsr()
     sym.sum_duplicates()
@@ -83,6 +100,8 @@ def nested_dissection(pattern: sp.spmatrix, xy: np.ndarray, leaf: int = LEAF_SIZ
         upper_of[ids[upper]] = -1
         part = np.where(lower, 0, 1)                           # 0 lower, 1 upper, 2 separator
         part[low_at[touches]] = 2
+        if level == 0 and cut.any() and fault_coupling is not None:
+            part = _fault_into_separator(part, ids, fault_coupling, sym)
         if level == 0 and cut.any():
             split = tuple(int(np.count_nonzero(part == k)) for k in range(3))
         perm[at] = ids[np.argsort(in_set * 3 + part, kind="stable")]
@@ -100,6 +119,24 @@ def nested_dissection(pattern: sp.spmatrix, xy: np.ndarray, leaf: int = LEAF_SIZ
         level += 1
     out = (perm,) + ((split,) if return_split else ()) + ((quarters,) if return_quarters else ())
     return out if len(out) > 1 else perm
+
+
+def _fault_into_separator(part, ids, fault_coupling, sym):
+    """``part`` (0 lower, 1 upper, 2 separator, of the unknowns ``ids`` of the first cut) with
+    the fault's unknowns (FAULT_COUPLED) beside the separator moved into it, when the fault runs
+    along the cut (ALONG_THE_CUT). A separator that takes in unknowns of either side still
+    parts the rest (the sides lose unknowns, they gain no coupling)."""
+    most = fault_coupling.max(initial=0)
+    if most <= 0:
+        return part
+    on_fault = fault_coupling[ids] >= FAULT_COUPLED * most
+    neighbour = np.zeros(sym.shape[0], dtype=bool)   # (of a separator unknown, by the pattern)
+    neighbour[sym[ids[part == 2]].indices] = True
+    beside = neighbour[ids] & (part != 2)
+    if (np.count_nonzero(on_fault & ((part == 2) | beside))
+            < ALONG_THE_CUT * np.count_nonzero(on_fault)):
+        return part
+    return np.where(on_fault & beside, 2, part)
 
 
 def _node_lines(xy):
