@@ -113,11 +113,14 @@ class SharedBulk:
         self.made = 0
         self.shared = 0
 
-    def order(self, pattern, coordinates, make):
+    def order(self, pattern, coordinates, make, fault_coupling=None):
         """``make()`` (the bulk's order and split), or what it gave for the same ``pattern``
-        (sparse) and ``coordinates``."""
+        (sparse), ``coordinates`` and ``fault_coupling`` (the fault unknowns each bulk unknown
+        couples to, which the order reads: two faults in one mesh share B's pattern)."""
         pattern = pattern.tocsr()
-        key = _Kept.key((pattern.indptr, pattern.indices, np.asarray(pattern.shape), coordinates))
+        coupling = () if fault_coupling is None else (np.asarray(fault_coupling),)
+        key = _Kept.key((pattern.indptr, pattern.indices, np.asarray(pattern.shape), coordinates,
+                         *coupling))
         with self._lock:
             made = self._orders.find(key)
             if made is None:

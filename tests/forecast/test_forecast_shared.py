@@ -230,3 +230,25 @@ def test_the_store_shares_exactly_when_the_bytes_are_equal(a, b):
     kept = _Kept()
     kept.add(_Kept.key([a]), "a")
     assert (kept.find(_Kept.key([b])) == "a") == (a.shape == b.shape and a.tobytes() == b.tobytes())
+
+
+def test_an_order_is_shared_only_for_the_same_fault_coupling():
+    """The bulk's order reads which unknowns couple to the fault (ordering.nested_dissection's
+    ``fault_coupling``): two faults in one mesh share B's pattern and coordinates but not their
+    order."""
+    import scipy.sparse as sp
+
+    store, made = SharedBulk(), []
+    pattern = sp.random(30, 30, density=0.2, random_state=1, format="csr") + sp.eye(30)
+    coordinates = np.arange(60.0).reshape(30, 2)
+    near, far = np.zeros(30, dtype=np.int64), np.zeros(30, dtype=np.int64)
+    near[:5], far[-5:] = 8, 8
+
+    def make(tag):
+        return lambda: made.append(tag) or tag
+
+    assert store.order(pattern, coordinates, make("near"), near) == "near"
+    assert store.order(pattern, coordinates, make("again"), near.copy()) == "near"
+    assert store.order(pattern, coordinates, make("far"), far) == "far"
+    assert store.order(pattern, coordinates, make("none")) == "none"
+    assert made == ["near", "far", "none"]
