@@ -163,6 +163,9 @@ class CondensedSystem:
         self.factorizations = 0
         self._L = None                 # the linear Jacobian (``L``), when made
         self.dt = None
+        self.theta = time_weight       # the time weight of the current step (``prepare``)
+        self._factored_dt = None       # the step size of the bulk's factors (at ``time_weight``)
+        self._P_factored = None        # P at that step size (a rung's steps scale its rows)
         # the step size enters only the storage (C) and the theta-weighted conduction (Hf): when
         # neither touches a linear unknown, the factors serve every step size and only the N block
         # of the Schur complement changes with it
@@ -234,7 +237,55 @@ class CondensedSystem:
                                for M in (self.A, self.C, self.Hf)]
         return self._blocks_NN
 
-    def prepare(self, dt, nonlinear_tangent):
+    @functools.cached_property
+    def keeps_factors_at_theta_dt(self) -> bool:
+        """Do the bulk's factors depend on the step only through theta dt? So when the factors
+        are of the symmetric form (rock pore pressure: flow rows times -dt) and, on the free
+        unknowns, A has no flow rows and C and Hf no mechanical ones: the flow rows are then
+        -C - theta dt Hf, the mechanical ones A (the theta ladder, ``prepare``'s ``rung``)."""
+        if self.factors_any_dt:
+            return False
+        free = np.zeros(self.n_dofs, dtype=bool)
+        free[self.free] = True
+        for M, wrong_rows in ((self.A, ~self._mechanical), (self.C, self._mechanical),
+                              (self.Hf, self._mechanical)):
+            M = M.tocsr()
+            rows = np.repeat(np.arange(self.n_dofs), np.diff(M.indptr))
+            if np.any((M.data != 0.0) & free[rows] & free[M.indices] & wrong_rows[rows]):
+                return False
+        return True
+
+    def prepare(self, dt, nonlinear_tangent, theta=None, rung=None):
+        """The linear part for step size ``dt`` and time weight ``theta`` (default the scene's):
+        ``rung``, a step of the theta ladder (``keeps_factors_at_theta_dt``): the step size at
+        which the bulk is factorised, at the scene's weight, with theta dt = time_weight rung.
+        The factors of that size serve (factorised now if they are not at hand: a restored run
+        makes the same ones); only P's flow rows (P = L_NB B^-1 L_BN of rows as they are, whose
+        flow rows scale as 1/dt at a fixed theta dt), the row factors and the sparse sums change
+        (``_rung_step``). Without ``rung`` (or at dt = rung) see ``_prepare_factorised``."""
+        if theta is None or rung is None or rung == dt:
+            return self._prepare_factorised(dt, nonlinear_tangent)
+        if dt == self.dt and theta == self.theta:
+            return
+        if self.lu is None or self._factored_dt != rung:
+            self._prepare_factorised(rung, nonlinear_tangent)
+        self._rung_step(dt, theta)
+
+    def _rung_step(self, dt, theta):
+        """The linear system of a step inside the rung of the factors (``prepare``)."""
+        self._L = None
+        ratio = self._factored_dt / dt
+        flow_N = ~self._mechanical[self.N]
+        if flow_N.any():   # (a new array: forks share the factorisation's)
+            self.P = self._P_factored * np.where(flow_N, ratio, 1.0)[:, None]
+            self.P_symmetric = False
+        self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
+        self._LNN_entries = self._linear_entries(dt, theta)
+        self._L_fixed_B = self._sum_fixed.matrix(dt, theta)
+        self._L_rows_N_fixed = self._sum_rows_N_fixed.matrix(dt, theta)
+        self.dt, self.theta = dt, theta
+
+    def _prepare_factorised(self, dt, nonlinear_tangent):
         """The Jacobian's linear part for step size ``dt``, its factors and Schur complement.
 
         The scaling is fixed at the first step (and kept in checkpoints), from the diagonal of
@@ -243,7 +294,7 @@ class CondensedSystem:
         pore pressure), the factors of the first step serve all: for a new dt only the N block
         changes, S = L_NN(dt) - P with the condensation P = L_NB B^-1 L_BN of the first
         factorisation (kept in checkpoints, so that a restored run repeats the same round-off)."""
-        if dt == self.dt:
+        if dt == self.dt and self.theta == self.time_weight:
             return
         self._L = None   # (the last step size's L goes first)
         factorise = self.lu is None or not self.factors_any_dt
@@ -324,6 +375,7 @@ class CondensedSystem:
                 np.copyto(self.P, self._restored_P)
                 self._restored_P = None
             self.P_symmetric = condensation_symmetrised(self.P)
+            self._factored_dt, self._P_factored = dt, self.P
         if self._blocks_fixed is None:  # rows of the fixed unknowns on the linear ones, in order
             self._blocks_fixed = [M[self._fixed].tocsc()[:, self.linear_order()].tocsr()
                                   for M in (self.A, self.C, self.Hf)]
@@ -333,7 +385,7 @@ class CondensedSystem:
             self._blocks_rows_N_fixed = [M[self._rows_N_fixed] for M in (self.A, self.C, self.Hf)]
         self._L_rows_N_fixed = self._fixed_sum("_sum_rows_N_fixed",
                                                self._blocks_rows_N_fixed).matrix(dt)
-        self.dt = dt
+        self.dt, self.theta = dt, self.time_weight
 
     def _fixed_sum(self, name, blocks):
         """The ``FixedSum`` of these blocks, made at the first step and kept as ``name``."""
@@ -434,17 +486,17 @@ class CondensedSystem:
         the step size is: a residual with the bulk's answer deferred never reads it (every step
         of the bundled scenes), so it is not held beside A (17 MB on the fine 30 deg scene)."""
         if self._L is None:
-            self._L = self._linear_jacobian(self.dt)
+            self._L = self._linear_jacobian(self.dt, self.theta)
         return self._L
 
-    def _linear_jacobian(self, dt):
-        """A + C / dt + theta Hf (CSR, unscaled)."""
-        return self._combine((self.A, self.C, self.Hf), dt).tocsr()
+    def _linear_jacobian(self, dt, theta=None):
+        """A + C / dt + theta Hf (CSR, unscaled; theta default the scene's)."""
+        return self._combine((self.A, self.C, self.Hf), dt, theta).tocsr()
 
-    def _combine(self, blocks, dt):
+    def _combine(self, blocks, dt, theta=None):
         """A + C / dt + theta Hf from the same block of each."""
         A, C, Hf = blocks
-        return A + C * (1.0 / dt) + Hf * self.time_weight
+        return A + C * (1.0 / dt) + Hf * (self.time_weight if theta is None else theta)
 
     def linear_order(self):
         """The linear unknowns in the factors' order."""
@@ -545,7 +597,7 @@ class CondensedSystem:
                 tangent, dt0 = self._restored_condensed
                 self._restored_condensed = None
                 if self.factors_any_dt or dt0 == self.dt:
-                    self._dense.set(self.P, self._linear_entries(dt0), tangent, dt0,
+                    self._dense.set(self.P, self._linear_entries(dt0, self.theta), tangent, dt0,
                                     base=self.factorizations, symmetric=self.P_symmetric)
         tangent = (rows, cols, vals)
         # the Schur complements of one condensation (factorisation of the bulk) differ only in
@@ -554,9 +606,10 @@ class CondensedSystem:
                         symmetric=self.P_symmetric)
         return self._dense
 
-    def _linear_entries(self, dt):
-        """L_NN's entries at step size dt (scaled; rows, columns, values)."""
-        return self._fixed_sum("_sum_NN", self._blocks_NN).entries(dt)
+    def _linear_entries(self, dt, theta=None):
+        """L_NN's entries at step size dt (scaled; rows, columns, values; theta default the
+        scene's)."""
+        return self._fixed_sum("_sum_NN", self._blocks_NN).entries(dt, theta)
 
 
 #: the condensation P = L_NB B^-1 L_BN is taken as symmetric, and made exactly so, when no entry
