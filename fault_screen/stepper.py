@@ -184,9 +184,8 @@ class Simulation:
             while True:
                 t1 = t + dt_try
                 step_value = value(t, t1)
-                weight = self._time_weight(dt_try)
                 try:
-                    out = self._step(dt_try, step_value, weight)
+                    out = self._step(dt_try, step_value)
                     break
                 except StepFailed as exc:
                     cuts += 1
@@ -194,8 +193,7 @@ class Simulation:
                         raise SimulationError(f"step at t = {t:.6g} s failed after {cuts - 1} cuts "
                                               f"(dt = {dt_try:.3g} s): {exc}") from exc
                     dt_try *= 0.5
-            if weight:
-                self.rung = weight["rung"]
+            self.rung = self._time_weight(dt_try).get("rung", 0.0)   # (the accepted step's)
             th = self.solver.time_weight   # (the step's: ``NewtonSolver.step``)
             q_model = (injection.model_fault_rate(self.disc, out.x, self.x, step_value, dt_try, th)
                        if injection is not None else 0.0)
@@ -276,11 +274,11 @@ class Simulation:
                 return dict(time_weight=theta, rung=self.rung)
         return dict(time_weight=ts.theta, rung=dt)
 
-    def _step(self, dt, step_value, weight=None):
+    def _step(self, dt, step_value):
         """One step of size dt: full Newton; if that fails a damped Newton (line search); if
-        that fails the load continuation; then the caller halves the step. ``weight``: the
+        that fails the load continuation; then the caller halves the step. Each solve at the
         step's time weight (``_time_weight``)."""
-        weight = weight or {}
+        weight = self._time_weight(dt)
         if self.damped_ahead > 0:  # a recent step needed damping: its neighbours likely will
             self.damped_ahead -= 1
         else:
