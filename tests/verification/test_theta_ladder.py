@@ -74,7 +74,7 @@ def test_steps_inside_a_rung_reuse_the_factors(paper_units):
     """Paper-units Rustrel with growing steps (growth 1.2 from 5 s to 60 s): with theta_min = 2/3
     a rung holds three steps (1, 1.2, 1.44 of its first), so the bulk is factorised at every third
     new size; every step's theta is in [2/3, 1] and theta dt is its rung's."""
-    scene = _with_time(paper_units.scene, growth=1.2, dt_max=60.0, end=300.0)
+    scene = _with_time(paper_units.scene, growth=1.2, dt_max=60.0, end=300.0, theta_min=None)
     plain = Simulation(scene)
     plain.advance(scene.time.end)
     ladder = Simulation(_with_time(scene, theta_min=2 / 3))
