@@ -552,7 +552,13 @@ class NewtonSolver:
         the scene's theta. The weight is the solver's ``time_weight`` until the next step.
 
         BLAS threads: see ``blas_threads``."""
-        self.time_weight = self.disc.scene.time.theta if time_weight is None else time_weight
+        theta = self.disc.scene.time.theta
+        if (time_weight is None) != (rung is None) or (
+                rung is not None and abs(time_weight * dt - theta * rung) > 1e-12 * theta * rung):
+            # (the factors of the rung serve only a step of its theta dt)
+            raise ValueError(f"a step of the theta ladder needs time_weight * dt = theta * rung "
+                             f"(theta = {theta}); got time_weight {time_weight}, dt {dt}, rung {rung}")
+        self.time_weight = theta if time_weight is None else time_weight
         with self.blas_threads():
             return self._step(x_n, history, dt, injection_value, damped, x0, combination, rung)
 

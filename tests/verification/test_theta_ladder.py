@@ -115,6 +115,16 @@ def test_a_step_inside_a_rung_is_the_step_at_its_own_theta(paper_units):
     assert checked == 4
 
 
+def test_a_weight_off_its_rung_is_refused(paper_units):
+    """The rung's factors serve only theta dt = theta0 dt0: a weight without a rung, or off it, is
+    refused before anything is solved (a wrong weight would take the wrong factors)."""
+    sim = paper_units
+    value = sim._injection_value(None, None, sim.scene.time.end)(sim.time, sim.time + 6.0)
+    for weight in (dict(time_weight=5.0 / 6.0), dict(time_weight=0.8, rung=5.0)):
+        with pytest.raises(ValueError, match="theta ladder"):
+            sim.solver.step(sim.x, sim.history, 6.0, value, **weight)
+
+
 # ------------------------------------------------------------------ Terzaghi: accuracy, stiffness
 TAUS = [0.01, 0.05, 0.2, 0.5, 1.0]
 
