@@ -166,6 +166,11 @@ class CondensedSystem:
         self.theta = time_weight       # the time weight of the current step (``prepare``)
         self._factored_dt = None       # the step size of the bulk's factors (at ``time_weight``)
         self._P_factored = None        # P at that step size (a rung's steps scale its rows)
+        self._P_factored_symmetric = False
+        self._LNN_factored = None      # L_NN's entries at that step size
+        # in a rung's later step (``_rung_step``), per condensed unknown: dt / dt0 in the flow
+        # rows, 1 in the mechanical ones (D); else None
+        self._rung_rows = None
         # the step size enters only the storage (C) and the theta-weighted conduction (Hf): when
         # neither touches a linear unknown, the factors serve every step size and only the N block
         # of the Schur complement changes with it
@@ -262,7 +267,8 @@ class CondensedSystem:
         The factors of that size serve (factorised now if they are not at hand: a restored run
         makes the same ones); only P's flow rows (P = L_NB B^-1 L_BN of rows as they are, whose
         flow rows scale as 1/dt at a fixed theta dt), the row factors and the sparse sums change
-        (``_rung_step``). Without ``rung`` (or at dt = rung) see ``_prepare_factorised``."""
+        (``_rung_step``); the condensed block keeps its factors too (``condensed``). Without
+        ``rung`` (or at dt = rung) see ``_prepare_factorised``."""
         if theta is None or rung is None or rung == dt:
             return self._prepare_factorised(dt, nonlinear_tangent)
         if dt == self.dt and theta == self.theta:
@@ -279,8 +285,8 @@ class CondensedSystem:
         if flow_N.any():   # (a new array: forks share the factorisation's)
             self.P = self._P_factored * np.where(flow_N, ratio, 1.0)[:, None]
             self.P_symmetric = False
+        self._rung_rows = np.where(flow_N, dt / self._factored_dt, 1.0)
         self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
-        self._LNN_entries = self._linear_entries(dt, theta)
         self._L_fixed_B = self._sum_fixed.matrix(dt, theta)
         self._L_rows_N_fixed = self._sum_rows_N_fixed.matrix(dt, theta)
         self.dt, self.theta = dt, theta
@@ -376,6 +382,8 @@ class CondensedSystem:
                 self._restored_P = None
             self.P_symmetric = condensation_symmetrised(self.P)
             self._factored_dt, self._P_factored = dt, self.P
+            self._P_factored_symmetric, self._LNN_factored = self.P_symmetric, self._LNN_entries
+        self._rung_rows = None
         if self._blocks_fixed is None:  # rows of the fixed unknowns on the linear ones, in order
             self._blocks_fixed = [M[self._fixed].tocsc()[:, self.linear_order()].tocsr()
                                   for M in (self.A, self.C, self.Hf)]
@@ -527,13 +535,16 @@ class CondensedSystem:
             nB = len(linear)
             swept, g = self.lu.forward(_negated_at(sR, unsigned_indices(linear), f), f[nB:] * rN)
             g /= f[nB:]
-        dxN = dense.solve(g) if len(N) else g
+        D = self._rung_rows   # (a rung's block is D M: see ``condensed``)
+        dxN = (dense.solve(g) if D is None else dense.solve(D * g)) if len(N) else g
         out[N] = dxN
         if defer:
             # P dxN, when the condensed solve's check made it: the residual with the bulk's
             # answer pending then sums the products (``PendingBulk``) instead of a pass over P
-            return out, dxN, Deferred(swept, None if swept is None else rN - g,
-                                      dense.condensation_product(dxN) if len(N) else None)
+            product = dense.condensation_product(dxN) if len(N) else None
+            if product is not None and D is not None:   # (the dense solver's P is D P)
+                product = product / D
+            return out, dxN, Deferred(swept, None if swept is None else rN - g, product)
         out[linear] = self.lu.backward(swept, dxN)
         return out, None, None
 
@@ -596,15 +607,34 @@ class CondensedSystem:
                 # another step size the next block is factorised anyway)
                 tangent, dt0 = self._restored_condensed
                 self._restored_condensed = None
-                if self.factors_any_dt or dt0 == self.dt:
-                    self._dense.set(self.P, self._linear_entries(dt0, self.theta), tangent, dt0,
-                                    base=self.factorizations, symmetric=self.P_symmetric)
-        tangent = (rows, cols, vals)
-        # the Schur complements of one condensation (factorisation of the bulk) differ only in
-        # the storage term, which the dense solver is told of when it serves every step size
-        self._dense.set(self.P, self._LNN_entries, tangent, self.dt, base=self.factorizations,
-                        symmetric=self.P_symmetric)
+                if self.factors_any_dt or dt0 == self._factored_dt or dt0 == self.dt:
+                    P, symmetric = self._condensation_of(dt0)
+                    self._dense.set(P, self._linear_entries(dt0), tangent, dt0,
+                                    base=self.factorizations, symmetric=symmetric)
+        D = self._rung_rows
+        if D is None:
+            tangent = (rows, cols, vals)
+            # the Schur complements of one condensation (factorisation of the bulk) differ only
+            # in the storage term, which the dense solver is told of when it serves every step size
+            self._dense.set(self.P, self._LNN_entries, tangent, self.dt, base=self.factorizations,
+                            symmetric=self.P_symmetric)
+        else:
+            # a rung's later step: its block M in the rows of the factors' step, D M = -P0 +
+            # L_NN(dt0) + D T (D: dt / dt0 on the flow rows; theta dt is dt0's), whose linear
+            # part is the block of the rung's first step: its factors serve, and the tangent's
+            # change is taken from theirs (``CondensedSolver``)
+            at = self.n_index[rows]
+            tangent = (rows, cols, vals * np.where(at >= 0, D[at], 1.0))
+            self._dense.set(self._P_factored, self._LNN_factored, tangent, self._factored_dt,
+                            base=self.factorizations, symmetric=self._P_factored_symmetric)
         return self._dense
+
+    def _condensation_of(self, dt):
+        """(P, symmetric) the dense solver was given at step size dt, the current or the
+        factors' (``condensed``)."""
+        if dt == self._factored_dt and self._P_factored is not None:
+            return self._P_factored, self._P_factored_symmetric
+        return self.P, self.P_symmetric
 
     def _linear_entries(self, dt, theta=None):
         """L_NN's entries at step size dt (scaled; rows, columns, values; theta default the
