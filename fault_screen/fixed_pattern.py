@@ -118,21 +118,22 @@ class FixedSum:
             v[at] = XT.data
             self._values.append(v)
 
-    def values(self, dt):
+    def values(self, dt, theta=None):
+        """The values at step size dt and time weight theta (default the one made with)."""
         a, c, h = self._values
         out = a + c * (1.0 / dt)
-        out += h * self._time_weight
+        out += h * (self._time_weight if theta is None else theta)
         return out
 
-    def matrix(self, dt):
+    def matrix(self, dt, theta=None):
         """A + C / dt + theta Hf as CSR (the fixed pattern's arrays shared)."""
         M = sp.csr_matrix(self.shape)
-        M.indptr, M.indices, M.data = self.indptr, self.indices, self.values(dt)
+        M.indptr, M.indices, M.data = self.indptr, self.indices, self.values(dt, theta)
         return M
 
-    def entries(self, dt):
+    def entries(self, dt, theta=None):
         """(rows, columns, values) in row-major order."""
-        return self.rows, self.indices.astype(np.int64), self.values(dt)
+        return self.rows, self.indices.astype(np.int64), self.values(dt, theta)
 
 
 class FixedBulk:
@@ -216,13 +217,15 @@ class FixedBulk:
             return np.ones(self.shape[0])
         return np.where(self._flow, -dt, 1.0)
 
-    def values(self, dt):
-        """The CSC values of the block at step size dt (rows times the row factor)."""
+    def values(self, dt, theta=None):
+        """The CSC values of the block at step size dt (rows times the row factor) and time
+        weight theta (default the one made with)."""
         out = np.empty(len(self.indices))
         a, c, h = self._data
         at_a, at_c, at_h = self._at
         _scaled_values(self.indptr, self.indices, at_a, at_c, at_h, a, c, h, self._scale,
-                       self._row_factor(dt), 1.0 / dt, self._time_weight, out)
+                       self._row_factor(dt), 1.0 / dt,
+                       self._time_weight if theta is None else theta, out)
         return out
 
     def _read_blocks(self):

@@ -163,6 +163,14 @@ class CondensedSystem:
         self.factorizations = 0
         self._L = None                 # the linear Jacobian (``L``), when made
         self.dt = None
+        self.theta = time_weight       # the time weight of the current step (``prepare``)
+        self._factored_dt = None       # the step size of the bulk's factors (at ``time_weight``)
+        self._P_factored = None        # P at that step size (a rung's steps scale its rows)
+        self._P_factored_symmetric = False
+        self._LNN_factored = None      # L_NN's entries at that step size
+        # in a rung's later step (``_rung_step``), per condensed unknown: dt / dt0 in the flow
+        # rows, 1 in the mechanical ones (D); else None
+        self._rung_rows = None
         # the step size enters only the storage (C) and the theta-weighted conduction (Hf): when
         # neither touches a linear unknown, the factors serve every step size and only the N block
         # of the Schur complement changes with it
@@ -234,7 +242,56 @@ class CondensedSystem:
                                for M in (self.A, self.C, self.Hf)]
         return self._blocks_NN
 
-    def prepare(self, dt, nonlinear_tangent):
+    @functools.cached_property
+    def keeps_factors_at_theta_dt(self) -> bool:
+        """Do the bulk's factors depend on the step only through theta dt? So when the factors
+        are of the symmetric form (rock pore pressure: flow rows times -dt) and, on the free
+        unknowns, A has no flow rows and C and Hf no mechanical ones: the flow rows are then
+        -C - theta dt Hf, the mechanical ones A (the theta ladder, ``prepare``'s ``rung``)."""
+        if self.factors_any_dt:
+            return False
+        free = np.zeros(self.n_dofs, dtype=bool)
+        free[self.free] = True
+        for M, wrong_rows in ((self.A, ~self._mechanical), (self.C, self._mechanical),
+                              (self.Hf, self._mechanical)):
+            M = M.tocsr()
+            rows = np.repeat(np.arange(self.n_dofs), np.diff(M.indptr))
+            if np.any((M.data != 0.0) & free[rows] & free[M.indices] & wrong_rows[rows]):
+                return False
+        return True
+
+    def prepare(self, dt, nonlinear_tangent, theta=None, rung=None):
+        """The linear part for step size ``dt`` and time weight ``theta`` (default the scene's):
+        ``rung``, a step of the theta ladder (``keeps_factors_at_theta_dt``): the step size at
+        which the bulk is factorised, at the scene's weight, with theta dt = time_weight rung.
+        The factors of that size serve (factorised now if they are not at hand: a restored run
+        makes the same ones); only P's flow rows (P = L_NB B^-1 L_BN of rows as they are, whose
+        flow rows scale as 1/dt at a fixed theta dt), the row factors and the sparse sums change
+        (``_rung_step``); the condensed block keeps its factors too (``condensed``). Without
+        ``rung`` (or at dt = rung) see ``_prepare_factorised``."""
+        if theta is None or rung is None or rung == dt:
+            return self._prepare_factorised(dt, nonlinear_tangent)
+        if dt == self.dt and theta == self.theta:
+            return
+        if self.lu is None or self._factored_dt != rung:
+            self._prepare_factorised(rung, nonlinear_tangent)
+        self._rung_step(dt, theta)
+
+    def _rung_step(self, dt, theta):
+        """The linear system of a step inside the rung of the factors (``prepare``)."""
+        self._L = None
+        ratio = self._factored_dt / dt
+        flow_N = ~self._mechanical[self.N]
+        if flow_N.any():   # (a new array: forks share the factorisation's)
+            self.P = self._P_factored * np.where(flow_N, ratio, 1.0)[:, None]
+            self.P_symmetric = False
+        self._rung_rows = np.where(flow_N, dt / self._factored_dt, 1.0)
+        self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
+        self._L_fixed_B = self._sum_fixed.matrix(dt, theta)
+        self._L_rows_N_fixed = self._sum_rows_N_fixed.matrix(dt, theta)
+        self.dt, self.theta = dt, theta
+
+    def _prepare_factorised(self, dt, nonlinear_tangent):
         """The Jacobian's linear part for step size ``dt``, its factors and Schur complement.
 
         The scaling is fixed at the first step (and kept in checkpoints), from the diagonal of
@@ -243,7 +300,7 @@ class CondensedSystem:
         pore pressure), the factors of the first step serve all: for a new dt only the N block
         changes, S = L_NN(dt) - P with the condensation P = L_NB B^-1 L_BN of the first
         factorisation (kept in checkpoints, so that a restored run repeats the same round-off)."""
-        if dt == self.dt:
+        if dt == self.dt and self.theta == self.time_weight:
             return
         self._L = None   # (the last step size's L goes first)
         factorise = self.lu is None or not self.factors_any_dt
@@ -324,6 +381,9 @@ class CondensedSystem:
                 np.copyto(self.P, self._restored_P)
                 self._restored_P = None
             self.P_symmetric = condensation_symmetrised(self.P)
+            self._factored_dt, self._P_factored = dt, self.P
+            self._P_factored_symmetric, self._LNN_factored = self.P_symmetric, self._LNN_entries
+        self._rung_rows = None
         if self._blocks_fixed is None:  # rows of the fixed unknowns on the linear ones, in order
             self._blocks_fixed = [M[self._fixed].tocsc()[:, self.linear_order()].tocsr()
                                   for M in (self.A, self.C, self.Hf)]
@@ -333,7 +393,7 @@ class CondensedSystem:
             self._blocks_rows_N_fixed = [M[self._rows_N_fixed] for M in (self.A, self.C, self.Hf)]
         self._L_rows_N_fixed = self._fixed_sum("_sum_rows_N_fixed",
                                                self._blocks_rows_N_fixed).matrix(dt)
-        self.dt = dt
+        self.dt, self.theta = dt, self.time_weight
 
     def _fixed_sum(self, name, blocks):
         """The ``FixedSum`` of these blocks, made at the first step and kept as ``name``."""
@@ -434,17 +494,17 @@ class CondensedSystem:
         the step size is: a residual with the bulk's answer deferred never reads it (every step
         of the bundled scenes), so it is not held beside A (17 MB on the fine 30 deg scene)."""
         if self._L is None:
-            self._L = self._linear_jacobian(self.dt)
+            self._L = self._linear_jacobian(self.dt, self.theta)
         return self._L
 
-    def _linear_jacobian(self, dt):
-        """A + C / dt + theta Hf (CSR, unscaled)."""
-        return self._combine((self.A, self.C, self.Hf), dt).tocsr()
+    def _linear_jacobian(self, dt, theta=None):
+        """A + C / dt + theta Hf (CSR, unscaled; theta default the scene's)."""
+        return self._combine((self.A, self.C, self.Hf), dt, theta).tocsr()
 
-    def _combine(self, blocks, dt):
+    def _combine(self, blocks, dt, theta=None):
         """A + C / dt + theta Hf from the same block of each."""
         A, C, Hf = blocks
-        return A + C * (1.0 / dt) + Hf * self.time_weight
+        return A + C * (1.0 / dt) + Hf * (self.time_weight if theta is None else theta)
 
     def linear_order(self):
         """The linear unknowns in the factors' order."""
@@ -475,13 +535,16 @@ class CondensedSystem:
             nB = len(linear)
             swept, g = self.lu.forward(_negated_at(sR, unsigned_indices(linear), f), f[nB:] * rN)
             g /= f[nB:]
-        dxN = dense.solve(g) if len(N) else g
+        D = self._rung_rows   # (a rung's block is D M: see ``condensed``)
+        dxN = (dense.solve(g) if D is None else dense.solve(D * g)) if len(N) else g
         out[N] = dxN
         if defer:
             # P dxN, when the condensed solve's check made it: the residual with the bulk's
             # answer pending then sums the products (``PendingBulk``) instead of a pass over P
-            return out, dxN, Deferred(swept, None if swept is None else rN - g,
-                                      dense.condensation_product(dxN) if len(N) else None)
+            product = dense.condensation_product(dxN) if len(N) else None
+            if product is not None and D is not None:   # (the dense solver's P is D P)
+                product = product / D
+            return out, dxN, Deferred(swept, None if swept is None else rN - g, product)
         out[linear] = self.lu.backward(swept, dxN)
         return out, None, None
 
@@ -544,19 +607,39 @@ class CondensedSystem:
                 # another step size the next block is factorised anyway)
                 tangent, dt0 = self._restored_condensed
                 self._restored_condensed = None
-                if self.factors_any_dt or dt0 == self.dt:
-                    self._dense.set(self.P, self._linear_entries(dt0), tangent, dt0,
-                                    base=self.factorizations, symmetric=self.P_symmetric)
-        tangent = (rows, cols, vals)
-        # the Schur complements of one condensation (factorisation of the bulk) differ only in
-        # the storage term, which the dense solver is told of when it serves every step size
-        self._dense.set(self.P, self._LNN_entries, tangent, self.dt, base=self.factorizations,
-                        symmetric=self.P_symmetric)
+                if self.factors_any_dt or dt0 == self._factored_dt or dt0 == self.dt:
+                    P, symmetric = self._condensation_of(dt0)
+                    self._dense.set(P, self._linear_entries(dt0), tangent, dt0,
+                                    base=self.factorizations, symmetric=symmetric)
+        D = self._rung_rows
+        if D is None:
+            tangent = (rows, cols, vals)
+            # the Schur complements of one condensation (factorisation of the bulk) differ only
+            # in the storage term, which the dense solver is told of when it serves every step size
+            self._dense.set(self.P, self._LNN_entries, tangent, self.dt, base=self.factorizations,
+                            symmetric=self.P_symmetric)
+        else:
+            # a rung's later step: its block M in the rows of the factors' step, D M = -P0 +
+            # L_NN(dt0) + D T (D: dt / dt0 on the flow rows; theta dt is dt0's), whose linear
+            # part is the block of the rung's first step: its factors serve, and the tangent's
+            # change is taken from theirs (``CondensedSolver``)
+            at = self.n_index[rows]
+            tangent = (rows, cols, vals * np.where(at >= 0, D[at], 1.0))
+            self._dense.set(self._P_factored, self._LNN_factored, tangent, self._factored_dt,
+                            base=self.factorizations, symmetric=self._P_factored_symmetric)
         return self._dense
 
-    def _linear_entries(self, dt):
-        """L_NN's entries at step size dt (scaled; rows, columns, values)."""
-        return self._fixed_sum("_sum_NN", self._blocks_NN).entries(dt)
+    def _condensation_of(self, dt):
+        """(P, symmetric) the dense solver was given at step size dt, the current or the
+        factors' (``condensed``)."""
+        if dt == self._factored_dt and self._P_factored is not None:
+            return self._P_factored, self._P_factored_symmetric
+        return self.P, self.P_symmetric
+
+    def _linear_entries(self, dt, theta=None):
+        """L_NN's entries at step size dt (scaled; rows, columns, values; theta default the
+        scene's)."""
+        return self._fixed_sum("_sum_NN", self._blocks_NN).entries(dt, theta)
 
 
 #: the condensation P = L_NB B^-1 L_BN is taken as symmetric, and made exactly so, when no entry

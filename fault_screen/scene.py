@@ -281,6 +281,12 @@ class TimeSpec:
     """Largest step (s); default ``dt``."""
     theta: float = 1.0
     """Time integration weight of the flow terms: 1 backward Euler, 0.5 Crank-Nicolson (-)."""
+    theta_min: float | None = None
+    """Lowest time weight of the theta ladder (-), in [0.5, theta]; default off (theta fixed).
+    When set, a step size that changes within a "rung" [dt0, dt0 theta / theta_min] (dt0 the
+    rung's first step, taken at ``theta``) is taken at theta dt = theta dt0, so the poroelastic
+    bulk's factors of dt0 serve it; a step outside starts a new rung. 2/3 keeps stiff modes
+    damped by at least half a step. Only a bulk with rock pore pressure uses it."""
 
 
 @_spec
@@ -1077,6 +1083,9 @@ def _validate_time(t: TimeSpec):
     if t.dt_max is not None:
         _check(t.dt_max >= t.dt, "time.dt_max", t.dt_max, f"must be >= dt = {t.dt} s")
     _check(0.5 <= t.theta <= 1.0, "time.theta", t.theta, "must be in [0.5, 1] (unconditionally stable)")
+    if t.theta_min is not None:
+        _check(0.5 <= t.theta_min <= t.theta, "time.theta_min", t.theta_min,
+               f"must be in [0.5, theta = {t.theta}] (unconditionally stable, at most theta)")
 
 
 def _validate_solver(sv: SolverSpec):

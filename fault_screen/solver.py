@@ -312,6 +312,8 @@ class NewtonSolver:
     def __init__(self, disc: Discretisation):
         self.disc = disc
         s = disc.scene
+        # the time weight of the current step: the scene's theta, or the step's of the theta
+        # ladder (``step``'s ``time_weight``, decided by the stepper)
         self.time_weight = s.time.theta
         self.tol = s.solver.tolerance
         self.max_it = s.solver.max_iterations
@@ -435,14 +437,18 @@ class NewtonSolver:
                 np.concatenate(empty + [c for _, c, _ in parts]))
         return known[2], known[3], vals, point
 
-    def _prepare(self, dt, x_n, history):
-        """The linear system of step size ``dt`` (``CondensedSystem.prepare``), scaled at the
-        first step with the nonlinear terms' tangent at x_n."""
+    def _prepare(self, dt, x_n, history, rung=None):
+        """The linear system of step size ``dt`` and the step's time weight
+        (``CondensedSystem.prepare``; ``rung``: see there), scaled at the first step with the
+        nonlinear terms' tangent at x_n."""
         def tangent():
             rows, cols, vals, _ = self.nonlinear(x_n, history, dt, np.zeros(self.disc.n_dofs))
             return rows, cols, vals
 
-        self.system.prepare(dt, tangent)
+        if rung is None:
+            self.system.prepare(dt, tangent)
+        else:
+            self.system.prepare(dt, tangent, self.time_weight, rung)
 
     def _AH_times(self, x):
         """[A x; Hf x], the two products of the convergence test (A and Hf are not held stacked
@@ -530,7 +536,8 @@ class NewtonSolver:
         rows, cols, vals, point = self.nonlinear(x, history, dt, R)
         return R, rows, cols, vals, point
 
-    def step(self, x_n, history, dt, injection_value, damped=False, x0=None, combination=None):
+    def step(self, x_n, history, dt, injection_value, damped=False, x0=None, combination=None,
+             time_weight=None, rung=None):
         """Advance from x_n over dt. ``injection_value``: the step's injected volume (m^3, whole
         interval; rate control) or the prescribed overpressure at the step's end (Pa; pressure
         control); ignored without an injection term. ``damped``: globalise the Newton iteration
@@ -540,11 +547,20 @@ class NewtonSolver:
         overshoot and cycle, and under pressure control a shorter step does not reduce the jump.
         ``x0``: the first guess (default x_n); ``combination``: (weights, states) when x0 is
         the weighted sum of earlier accepted states (x_n the last) on the free unknowns and x_n
-        on the fixed ones (an extrapolation).
+        on the fixed ones (an extrapolation). ``time_weight``, ``rung``: a step of the theta
+        ladder, its weight and its rung's first step size (``CondensedSystem.prepare``); default
+        the scene's theta. The weight is the solver's ``time_weight`` until the next step.
 
         BLAS threads: see ``blas_threads``."""
+        theta = self.disc.scene.time.theta
+        if (time_weight is None) != (rung is None) or (
+                rung is not None and abs(time_weight * dt - theta * rung) > 1e-12 * theta * rung):
+            # (the factors of the rung serve only a step of its theta dt)
+            raise ValueError(f"a step of the theta ladder needs time_weight * dt = theta * rung "
+                             f"(theta = {theta}); got time_weight {time_weight}, dt {dt}, rung {rung}")
+        self.time_weight = theta if time_weight is None else time_weight
         with self.blas_threads():
-            return self._step(x_n, history, dt, injection_value, damped, x0, combination)
+            return self._step(x_n, history, dt, injection_value, damped, x0, combination, rung)
 
     def _reference(self, x, x_n, dt, ref0, flow_known, at_start=False):
         """Reference magnitudes of the convergence test at x: internal forces (mechanics);
@@ -638,10 +654,10 @@ class NewtonSolver:
         return (np.linalg.norm(sR[self._B_mech]) <= lim * ref[0]
                 and np.linalg.norm(sR[self._B_flow]) <= lim * ref[1])
 
-    def _step(self, x_n, history, dt, injection_value, damped, x0, combination=None):
+    def _step(self, x_n, history, dt, injection_value, damped, x0, combination=None, rung=None):
         disc = self.disc
         th = self.time_weight
-        self._prepare(dt, x_n, history)
+        self._prepare(dt, x_n, history, rung)
         scale = self.scale
         if self._AH_N is None:  # the columns of A and Hf on the condensed unknowns, stacked
             # by columns: a product then visits the few hundred columns, not every row, most of

@@ -90,6 +90,7 @@ class Simulation:
         self.dt_recover = 0.0            # step size to grow back to after cuts (s), 0: none
         self.dt_failed = 0.0             # the last step size that had to be cut (s)
         self.recovery_hold = 0           # clean steps to wait before growing back
+        self.rung = 0.0                  # first step size of the theta ladder's rung (s), 0: none
         self.stopped = None              # why the run stopped early (meta["stopped"]), or None
         # the accepted states (t, x) before the current one, oldest first, for an extrapolated
         # first guess (solver.first_guess; kept only then)
@@ -192,7 +193,8 @@ class Simulation:
                         raise SimulationError(f"step at t = {t:.6g} s failed after {cuts - 1} cuts "
                                               f"(dt = {dt_try:.3g} s): {exc}") from exc
                     dt_try *= 0.5
-            th = self.solver.time_weight
+            self.rung = self._time_weight(dt_try).get("rung", 0.0)   # (the accepted step's)
+            th = self.solver.time_weight   # (the step's: ``NewtonSolver.step``)
             q_model = (injection.model_fault_rate(self.disc, out.x, self.x, step_value, dt_try, th)
                        if injection is not None else 0.0)
             self.injected += q_model * dt_try * nof
@@ -252,9 +254,31 @@ class Simulation:
                 message=(f"fault became unstable at t = {t:.6g} s: slip rate {rate[g]:.3g} m/s at "
                          f"x = {where:.4g} m exceeds solver.unstable_slip_rate = {limit:.3g} m/s"))
 
+    def _time_weight(self, dt) -> dict:
+        """The theta ladder's time weight of a step of size dt (``time.theta_min``), decided
+        here alone, as NewtonSolver.step's keywords ({} without the ladder: the scene's theta).
+        A step whose weight theta rung / dt (theta the scene's) lies in [theta_min, theta] stays
+        in the current rung, at that weight: theta dt is the rung's, whose bulk factors serve it.
+        That is a step that grew within the rung, a step shortened to meet an event or the end of
+        ``advance`` but not below the rung's first size, and a plateau's size after it. Any other
+        size (a cut, a step shorter than the rung's first, growth beyond dt0 theta / theta_min)
+        starts a new rung at the scene's theta. The ladder needs a bulk whose factors depend on
+        the step through theta dt alone (``CondensedSystem.keeps_factors_at_theta_dt``: rock
+        pore pressure); without one the weight stays the scene's."""
+        ts = self.scene.time
+        if ts.theta_min is None or not self.solver.system.keeps_factors_at_theta_dt:
+            return {}
+        if self.rung > 0.0:
+            theta = ts.theta * self.rung / dt
+            if ts.theta_min <= theta <= ts.theta:
+                return dict(time_weight=theta, rung=self.rung)
+        return dict(time_weight=ts.theta, rung=dt)
+
     def _step(self, dt, step_value):
         """One step of size dt: full Newton; if that fails a damped Newton (line search); if
-        that fails the load continuation; then the caller halves the step."""
+        that fails the load continuation; then the caller halves the step. Each solve at the
+        step's time weight (``_time_weight``)."""
+        weight = self._time_weight(dt)
         if self.damped_ahead > 0:  # a recent step needed damping: its neighbours likely will
             self.damped_ahead -= 1
         else:
@@ -262,18 +286,18 @@ class Simulation:
             if guess is not None:
                 try:
                     return self.solver.step(self.x, self.history, dt, step_value, x0=guess,
-                                            combination=combination)
+                                            combination=combination, **weight)
                 except StepFailed:
                     pass   # (from the previous state, as without a guess)
             try:
-                return self.solver.step(self.x, self.history, dt, step_value)
+                return self.solver.step(self.x, self.history, dt, step_value, **weight)
             except StepFailed:
                 self.damped_retries += 1
                 self.damped_ahead = DAMPED_AHEAD
         try:
-            return self.solver.step(self.x, self.history, dt, step_value, damped=True)
+            return self.solver.step(self.x, self.history, dt, step_value, damped=True, **weight)
         except StepFailed:
-            return self._continuation(dt, step_value)
+            return self._continuation(dt, step_value, weight)
 
     def _extrapolated_guess(self, dt):
         """The first Newton iterate of a step of size dt under ``solver.first_guess =
@@ -292,7 +316,7 @@ class Simulation:
         guess[fixed] = self.x[fixed]
         return guess, (weights, [x for _, x in self.earlier_states] + [self.x])
 
-    def _continuation(self, dt, step_value):
+    def _continuation(self, dt, step_value, weight):
         """The same step solved through intermediate loads: the step's injection value raised
         from its neutral value (the held overpressure at the step's start under pressure control,
         no volume under rate control) in CONTINUATION_STAGES stages, each damped Newton solve
@@ -306,8 +330,10 @@ class Simulation:
         guess = None
         for k in range(1, CONTINUATION_STAGES):
             value = start + (step_value - start) * k / CONTINUATION_STAGES
-            guess = self.solver.step(self.x, self.history, dt, value, damped=True, x0=guess).x
-        out = self.solver.step(self.x, self.history, dt, step_value, damped=True, x0=guess)
+            guess = self.solver.step(self.x, self.history, dt, value, damped=True, x0=guess,
+                                     **weight).x
+        out = self.solver.step(self.x, self.history, dt, step_value, damped=True, x0=guess,
+                               **weight)
         self.continuation_steps += 1
         return out
 
@@ -420,7 +446,7 @@ class Simulation:
                                                 continuation_steps=self.continuation_steps,
                                                 stopped=self.stopped, dt_recover=self.dt_recover,
                                                 dt_failed=self.dt_failed,
-                                                recovery_hold=self.recovery_hold,
+                                                recovery_hold=self.recovery_hold, rung=self.rung,
                                                 build_time=self.build_time, wall_time=self.wall_time))
             h5["x"] = self.x
             if self.earlier_states:
@@ -474,6 +500,7 @@ class Simulation:
             sim.dt_recover = state.get("dt_recover", 0.0)
             sim.dt_failed = state.get("dt_failed", 0.0)
             sim.recovery_hold = state.get("recovery_hold", 0)
+            sim.rung = state.get("rung", 0.0)
             sim.build_time, sim.wall_time = state["build_time"], state["wall_time"]
             sim.x = h5["x"][()]
             if "earlier_x" in h5:

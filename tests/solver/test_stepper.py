@@ -57,6 +57,14 @@ def poroelastic_growing():
                      time=dataclasses.replace(s.time, end=600.0, dt=2.0, growth=1.05, dt_max=12.0))
 
 
+def poroelastic_theta_ladder():
+    """``poroelastic_growing`` with the theta ladder (time.theta_min 2/3): a step inside a rung
+    keeps the bulk's and the condensed block's factors of the rung's first size, which a
+    restored run makes again (the rung is in the checkpoint)."""
+    s = poroelastic_growing()
+    return s.replace(time=dataclasses.replace(s.time, theta_min=2 / 3))
+
+
 def extrapolated_guess():
     """``hard_rustrel`` with an extrapolated first Newton iterate: each step starts from the last
     three accepted states (growing steps: unequal intervals), which a checkpoint, a chunk
@@ -68,7 +76,8 @@ def extrapolated_guess():
 CASES = {"rate, rate-and-state, evolving aperture": hard_rustrel,
          "extrapolated first guess": extrapolated_guess,
          "pressure control": pressure_controlled,
-         "poroelastic, growing steps": poroelastic_growing}
+         "poroelastic, growing steps": poroelastic_growing,
+         "poroelastic, growing steps, theta ladder": poroelastic_theta_ladder}
 
 
 @pytest.fixture(scope="module", params=list(CASES))
