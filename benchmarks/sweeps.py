@@ -226,7 +226,7 @@ def bulk_pattern(name):
     held = {}
     order = linear_system.CondensedSystem._bulk_order
 
-    def capture(system, Ls):
+    def capture(system, Ls, *_):
         held.update(Ls=Ls, B=system.B, N=system.N, xy=system._coordinates())
         raise _Captured
 

@@ -333,9 +333,12 @@ class CondensedSystem:
                 Ls = (D @ L @ D).tocsr()
                 del L
             if self._order is None:  # the pattern of B is that of every step size
+                # (how many fault unknowns each bulk unknown couples to: the order reads it)
+                coupling = np.diff(Ls[B][:, N].tocsr().indptr)
                 self._order, self._split = _with_shared(
-                    lambda store, make: store.order(Ls[B][:, B], self._coordinates()[B], make),
-                    lambda: self._bulk_order(Ls))
+                    lambda store, make: store.order(Ls[B][:, B], self._coordinates()[B], make,
+                                                    coupling),
+                    lambda: self._bulk_order(Ls, coupling))
             self._row_factor = None
             self.lu = None  # the old factors go before the new ones are made (peak memory)
             if Ls is not None:
@@ -467,12 +470,13 @@ class CondensedSystem:
                 (bulk.indptr, bulk.indices, full(), np.asarray(bulk.shape)), nB, self._split, make),
             make)
 
-    def _bulk_order(self, Ls):
+    def _bulk_order(self, Ls, fault_coupling):
         """(the free unknowns in the factors' order, the split of B's factorisation): B in a
-        nested-dissection order of its pattern, then N."""
+        nested-dissection order of its pattern that knows which unknowns couple to the fault
+        (``fault_coupling``, see ``ordering.nested_dissection``), then N."""
         B = self.B
         inner, split, quarters = nested_dissection(Ls[B][:, B], self._coordinates()[B], return_split=True,
-                                                   return_quarters=True)
+                                                   return_quarters=True, fault_coupling=fault_coupling)
         layout, split = split_layout(len(B), split, quarters)
         if layout is not None:
             inner = inner[layout]
