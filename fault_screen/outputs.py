@@ -76,6 +76,8 @@ SCHEMA: tuple[Output, ...] = (
     Output(_S, "iterations", "(time,)", "1", "Newton iterations of the step"),
     Output(_S, "step_cuts", "(time,)", "1", "times the step was halved before it converged"),
     Output(_S, "dt", "(time,)", "s", "step size"),
+    Output(_S, "theta", "(time,)", "1", "time weight of the step's flow terms (the scene's time.theta; "
+           "lower inside a rung of the theta ladder, time.theta_min)"),
 )
 
 # the screening layer's metrics (rules.METRICS is their one definition), its traffic light and

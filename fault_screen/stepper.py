@@ -99,7 +99,8 @@ class Simulation:
         self.watch_instability = contact is not None and contact.law.rate_dependent
         self.recorder = recorder_type(self.disc, scene)
         self.recorder.record(0.0, self.x, fault_at_rest(self.disc, self.x), slip_rate=0.0,
-                             flow_rate=0.0, volume=0.0, leaked=0.0, iterations=0, cuts=0, dt=0.0)
+                             flow_rate=0.0, volume=0.0, leaked=0.0, iterations=0, cuts=0, dt=0.0,
+                             theta=scene.time.theta)
         self.disc.release_element_groups()   # (assembled: the steps do not read them)
         self.build_time = _time.perf_counter() - wall0
         self.wall_time = self.build_time
@@ -210,7 +211,7 @@ class Simulation:
             self.time = t1
             self.recorder.record(t1, self.x, out.point, slip_rate=slip_rate, flow_rate=q_model * nof,
                                  volume=self.injected, leaked=self.leaked, iterations=out.iterations,
-                                 cuts=cuts, dt=dt_try)
+                                 cuts=cuts, dt=dt_try, theta=th)
             if observer is not None:
                 observer(t1, self.x, self.disc)
             if progress is not None:
@@ -604,7 +605,8 @@ class Recorder:
                     self.store_weights[term.fluid_store] += w
 
     # -- rows ------------------------------------------------------------------------------
-    def record(self, t, x, point, *, slip_rate, flow_rate, volume, leaked, iterations, cuts, dt):
+    def record(self, t, x, point, *, slip_rate, flow_rate, volume, leaked, iterations, cuts, dt,
+               theta):
         disc = self.disc
         fp = disc.fault_points
         dp = disc.fault_overpressure(x)
@@ -624,7 +626,7 @@ class Recorder:
             inj_flow=flow_rate, inj_overpressure=p_inj, inj_pressure=disc.injection.p0 + p_inj,
             inj_slip=s_inj, inj_opening=o_inj, inj_volume=volume,
             inj_aperture=float(aperture[disc.injection.nearest_point]) if ng else 0.0,
-            iterations=iterations, cuts=cuts, dt=dt,
+            iterations=iterations, cuts=cuts, dt=dt, theta=theta,
             stored_rock=stored["rock"], stored_fault=stored["fault"], leaked=leaked,
         )
         self._commit()
@@ -687,7 +689,8 @@ class Recorder:
         out["/injection/fault_inflow_velocity"] = row["inj_flow"] / (nof * ap) if ap > 0 else 0.0
         out.update({"/balance/stored_rock": row["stored_rock"], "/balance/stored_fault": row["stored_fault"],
                     "/balance/leaked": row["leaked"], "/solver/iterations": row["iterations"],
-                    "/solver/step_cuts": row["cuts"], "/solver/dt": row["dt"]})
+                    "/solver/step_cuts": row["cuts"], "/solver/dt": row["dt"],
+                    "/solver/theta": row["theta"]})
         return out
 
     @staticmethod
@@ -773,7 +776,8 @@ class LeanRecorder(Recorder):
         self._open = False
         self.profile_every = self.profile_interval = None
 
-    def record(self, t, x, point, *, slip_rate, flow_rate, volume, leaked, iterations, cuts, dt):
+    def record(self, t, x, point, *, slip_rate, flow_rate, volume, leaked, iterations, cuts, dt,
+               theta):
         disc = self.disc
         s_inj, _ = disc.injection_jump(x)
         row = dict(time=t, slip=point["slip"],
@@ -782,7 +786,7 @@ class LeanRecorder(Recorder):
                    effective_normal_stress=point["effective_normal_stress"],
                    contact_state=point["contact_state"],
                    inj_overpressure=disc.injection_overpressure(x), inj_slip=s_inj,
-                   iterations=iterations, cuts=cuts, dt=dt, profile=False)
+                   iterations=iterations, cuts=cuts, dt=dt, theta=theta, profile=False)
         self.count += 1
         self.last = row
         self.rows.append(row)

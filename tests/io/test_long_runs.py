@@ -49,7 +49,7 @@ def _synthetic_stream(path, rows: int, marks=(), output=None, flow=float):
     point = fault_at_rest(sim.disc, sim.x)
     for k in range(1, rows):
         rec.record(5.0 * k, sim.x, point, slip_rate=0.0, flow_rate=flow(k), volume=0.0, leaked=0.0,
-                   iterations=1, cuts=0, dt=5.0)
+                   iterations=1, cuts=0, dt=5.0, theta=1.0)
         if k in marks:
             rec.keep_profile()
     assert rec.rows == []
@@ -80,7 +80,7 @@ def test_a_result_in_memory_keeps_every_profile():
     point = fault_at_rest(sim.disc, sim.x)
     for k in range(1, 600):
         sim.recorder.record(5.0 * k, sim.x, point, slip_rate=0.0, flow_rate=0.0, volume=0.0,
-                            leaked=0.0, iterations=1, cuts=0, dt=5.0)
+                            leaked=0.0, iterations=1, cuts=0, dt=5.0, theta=1.0)
     res = sim.result()
     assert res.fault_time is None and res.fault["slip"].shape[0] == len(res.time) == 600
 

@@ -44,6 +44,14 @@ def _replay():
     return _scene("rustrel-2015-calibrated.toml", end=600.0), log.volume
 
 
+def _paper_growing():
+    # the bundled (paper-units) scene with growing steps and half an hour of shut-in: its
+    # time.theta_min puts the steps of a rung at a lower time weight (the theta ladder)
+    scene = _scene("rustrel-2015-calibrated-paper-units.toml")
+    return scene.replace(time=dataclasses.replace(scene.time, growth=1.2, dt_max=600.0,
+                                                  end=scene.time.end + 1800.0))
+
+
 #: name -> () -> scene or (scene, injected_volume)
 CASES = {
     "rustrel-calibrated": lambda: _scene("rustrel-2015-calibrated.toml", end=700.0),
@@ -51,6 +59,7 @@ CASES = {
     "rustrel-impermeable": lambda: _scene("rustrel-2015-impermeable.toml"),
     "rustrel-state-evolution": _state_evolution,
     "rustrel-replay": _replay,
+    "rustrel-paper-growing": _paper_growing,
     "terzaghi": lambda: _scene("verification/terzaghi.toml"),
     "fault-diffusion": lambda: _scene("verification/fault-diffusion.toml"),
     "mass-balance": lambda: _scene("verification/mass-balance.toml"),
