@@ -56,7 +56,8 @@ Rows (keys for --skip in brackets):
   printed beside the pooled one, in wall and in CPU time, with the changed step's parts
   (re-preparation, numeric factorisation, condensed LU, Newton iterations), and the Newton
   iterations of the changed steps solved again from the same states at their own size and at
-  the previous step's (``growing_iterations``). Like for like: the same ratio over the changed
+  the previous step's (``growing_iterations``). The bundled scene sets ``time.theta_min`` (the
+  theta ladder: a step whose size stays in its rung keeps the bulk's factors). Like for like: the same ratio over the changed
   and unchanged steps that took the unchanged steps' usual number of Newton iterations; and, when
   some changed steps kept the factors (no numeric factorisation in them), those and the ones that
   refactorised apart.
@@ -240,7 +241,8 @@ def growing_iterations() -> dict:
             for key, size in (("own", dt), ("previous", last[-1])):
                 guess, combination = self._extrapolated_guess(size)
                 counts[key].append(self.solver.step(self.x, self.history, size, step_value,
-                                                    x0=guess, combination=combination).iterations)
+                                                    x0=guess, combination=combination,
+                                                    **self._time_weight(size)).iterations)
         last.append(dt)
         return take(self, dt, step_value)
 
@@ -722,7 +724,10 @@ def main():
         runs = [warm("paper-growing")] + [checked("paper-growing", child("paper-growing", env))
                                           for _ in range(GROWING_RUNS - 1)]
         iterations = checked("paper-growing-iterations", child("paper-growing-iterations", env))
-        what = "step-size change, paper-units Rustrel (growth 1.2, dt_max 600 s, 3 h shut-in)"
+        theta_min = _scene("paper-growing").time.theta_min
+        what = ("step-size change, paper-units Rustrel (growth 1.2, dt_max 600 s, 3 h shut-in"
+                + (f", the bundled scene's theta ladder: time.theta_min {theta_min:.3g})"
+                   if theta_min is not None else ")"))
         if any("timeout" in g for g in runs):
             row(what, "80x; 31 s", "<= 3x; <= 2x the 1400-s run",
                 f"> {CASE_TIMEOUT} s (stopped)")
