@@ -26,11 +26,9 @@ block is stored up to its diagonal only (a square block's zeros above it were a 
 values on Rustrel 200 x 201: 124 against 113 MB, and the sweeps read every value stored). The
 sweeps are memory-bound: on the two cores of the reference machine one thread streams 10-13 GB/s
 through factors larger than the cache. No factor is ever held twice over. A large linear
-block that SuperLU factorises (where the L D L^T fails) is factorised in parts, one after the
-other (``SplitBorderedLU``: halves or quarters), which divides SuperLU's peak memory, and its
-parts are swept by two threads (``_each_part``); an elastic (symmetric) one holds L and U's
-diagonal only. The L D L^T takes a linear block whole at any size (its factors and its peak are
-smaller than the parts': ``bordered_lu``).
+block is factorised in parts, one after the other (``SplitBorderedLU``: halves or quarters),
+which divides the factorisation's peak memory, and its parts are swept by two threads
+(``_each_part``); an elastic (symmetric) one holds L and U's diagonal only.
 """
 from __future__ import annotations
 
@@ -322,23 +320,19 @@ class BorderedLU:
     elastic bulk; not a poroelastic one, whose flow rows carry the storage over dt) and SuperLU
     kept its diagonal pivots there, U's linear rows are D L^T (D their diagonal): the backward
     sweep then reads L and D, and U is not held (half the factors' memory). U's trailing block
-    still gives the Schur complement.
-
-    ``superlu=False``: the L D L^T only; where it fails (a pivot, or a linear block not
-    symmetric) NotQuasiDefinite is raised, not SuperLU tried (``bordered_lu`` then splits)."""
+    still gives the Schur complement."""
 
     quasi_definite = False   # factorised by ldl.factorise (else by SuperLU)
     _rows_kept = False       # no row pivoted: the sweeps' vectors are M's order (no gather)
 
-    def __init__(self, M, n_linear: int, analyses=None, symmetric_parts=None, superlu=True):
+    def __init__(self, M, n_linear: int, analyses=None, symmetric_parts=None):
         if symmetric_parts is not None:   # (M's linear rows known to be symmetric)
             lower, condensed = symmetric_parts()
             self.n, self.n_linear = lower.shape[0], n_linear
             try:
                 return self._quasi_definite_parts(lower, condensed, analyses)
             except NotQuasiDefinite:
-                if not superlu:
-                    raise
+                pass
         if callable(M):
             M = M()
         n = M.shape[0]
@@ -349,10 +343,7 @@ class BorderedLU:
             try:
                 return self._quasi_definite(M, analyses)
             except NotQuasiDefinite:
-                if not superlu:
-                    raise
-        if not superlu:   # (``superlu=False``: the L D L^T or nothing)
-            raise NotQuasiDefinite("the linear block is not symmetric")
+                pass
         lu = None
         # SuperLU keeps the given column order (NATURAL) and, with SymmetricMode, prefers the
         # diagonal pivot; the scaled block's diagonal dominates, so rows stay within their block.
@@ -492,47 +483,30 @@ def _linear_rows_symmetric(M, nB):
     return difference.nnz == 0 or abs(difference).max() <= SYMMETRY_ROUNDOFF * abs(rows).max()
 
 
-#: a linear block of more unknowns than this that SuperLU factorises (the L D L^T failed) is
-#: factorised in parts (``SplitBorderedLU``)
+#: a linear block of more unknowns than this is factorised in parts (``SplitBorderedLU``)
 SPLIT_ABOVE = 50_000
 
 
 def bordered_lu(M, n_linear: int, split=None, analyses=None, symmetric_parts=None):
-    """``BorderedLU`` of ``M`` (or a function returning it). ``analyses``
-    (``ldl.SymbolicAnalyses``): a symmetric M is factorised as L D L^T on the symbolic analysis
-    of its pattern kept there (numeric work only from the second matrix of a pattern on), whole
-    at any size; where a pivot fails, by SuperLU, as ``SplitBorderedLU`` when the linear block is
-    larger than SPLIT_ABOVE and ``split`` (the sizes of its parts, then of its separators: see
-    ``split_layout``) is given. The split was for SuperLU's peak memory: the L D L^T of the whole
-    block reads fewer values and takes less time and memory than its parts (Rustrel 200 x 201:
-    15.3 M factor entries against 34.0 M; docs/incoming/whole.md).
+    """``BorderedLU`` of ``M`` (or a function returning it), or ``SplitBorderedLU`` when the
+    linear block is larger than SPLIT_ABOVE and ``split`` (the sizes of its parts, then of its
+    separators: see ``split_layout``) is given. ``analyses`` (``ldl.SymbolicAnalyses``): a
+    symmetric M is factorised as L D L^T on the symbolic analysis of its pattern kept there
+    (numeric work only from the second matrix of a pattern on), SuperLU where a pivot fails.
     ``symmetric_parts``: M's linear rows are known to be symmetric, and this function returns
     the parts of M that the L D L^T reads (the lower triangle of the linear columns, the dense
     condensed block): no symmetry check, and M (best a function, then) is made only for SuperLU
-    (which ignores them)."""
-    if split is None or n_linear <= SPLIT_ABOVE or min(split[:-1]) == 0:
-        return BorderedLU(M, n_linear, analyses, symmetric_parts)
-    if analyses is not None:
-        made = []   # (M made once: for the L D L^T, then, where it fails, for the split)
-
-        def matrix():
-            if not made:
-                made.append(M() if callable(M) else M)
-            return made[0]
-
-        try:
-            return BorderedLU(matrix, n_linear, analyses, symmetric_parts, superlu=False)
-        except NotQuasiDefinite:
-            pass
-        return SplitBorderedLU(made.pop if made else M, n_linear, split, analyses)
-    return SplitBorderedLU(M, n_linear, split, analyses)
+    or a split (which ignores them)."""
+    if split is not None and n_linear > SPLIT_ABOVE and min(split[:-1]) > 0:
+        return SplitBorderedLU(M, n_linear, split, analyses)
+    return BorderedLU(M, n_linear, analyses, symmetric_parts)
 
 
 class SplitBorderedLU:
     """``BorderedLU``'s sweeps and Schur complement with the linear block factorised in parts
-    (by SuperLU, where the L D L^T of the whole block failed: ``bordered_lu``) that do not
-    couple (the halves of the first nested-dissection cut, or the quarters of the first two),
-    each bordered by the separators S and the condensed unknowns N that it couples to.
+    that do not couple (the halves of the first nested-dissection cut, or the quarters of the
+    first two), each bordered by the separators S and the condensed unknowns N that it couples
+    to.
 
     The peak memory of a sparse LU is SuperLU's storage with scipy's copy of its factors beside
     it; one part at a time divides it. With M = [B1 . E1; . B2 E2; W1 W2 M_WW] (W = S + N),

@@ -1,7 +1,9 @@
 """A linear block above SPLIT_ABOVE (the limits lowered so that the mass balance scene, 24 x 25,
-is laid out in quarters) factorised whole by the L D L^T (``bordered_lu.bordered_lu``), and in
-parts (``SplitBorderedLU``) only where the L D L^T fails: what decides it, and the whole block
-against the split one and against numpy's dense solves.
+is laid out in quarters): factorised by ``bordered_lu.bordered_lu`` in parts
+(``SplitBorderedLU``), each part its L D L^T, or SuperLU's where the block is not symmetric;
+and the same block's L D L^T whole, which the solver does not take above SPLIT_ABOVE (its peak
+memory: ``benchmarks/sweeps.py --whole``, docs/incoming/whole.md), against the split one and
+against numpy's dense solves.
 
 Tolerances: test_ldl's (the Schur complement and both sweeps to 1e-11 relative to the dense
 reference's largest entry, the whole solve's normwise backward error below 1e-15); whole against
@@ -42,23 +44,27 @@ def _rel(a, b):
     return np.max(np.abs(a - b)) / np.max(np.abs(b))
 
 
-def test_a_quasi_definite_block_is_factorised_whole(quartered, lowered):
-    """Above SPLIT_ABOVE with a split given, the symmetric block takes one L D L^T, on one
-    symbolic analysis (not one per part), and solves as numpy's dense solves do."""
+def test_a_quasi_definite_block_above_split_above_is_split(quartered, lowered):
+    """Above SPLIT_ABOVE with a split given, the symmetric block is factorised in its four
+    quarters, each by its own L D L^T (one symbolic analysis each), and solves as numpy's dense
+    solves do."""
     _, M, nB, split = quartered
     analyses = ldl.SymbolicAnalyses()
     lu = bordered_lu.bordered_lu(M, nB, split, analyses)
-    assert type(lu) is BorderedLU and lu.quasi_definite and len(analyses._held) == 1
+    assert type(lu) is SplitBorderedLU and len(lu._parts) == 4
+    assert all(part.quasi_definite for part in lu._parts) and len(analyses._held) == 4
     _check_against_dense(lu, M, nB, 21)
 
 
-def test_whole_equals_split(quartered, lowered):
-    """The whole block's Schur complement, condensed right-hand side and bulk answer against
-    the same block's split in quarters (each part its own L D L^T), to round-off."""
+def test_whole_equals_split(quartered):
+    """The whole block's L D L^T (its Schur complement, condensed right-hand side and bulk
+    answer) against the same block split in quarters, to round-off; and against numpy."""
     _, M, nB, split = quartered
-    whole = bordered_lu.bordered_lu(M, nB, split, ldl.SymbolicAnalyses())
+    analyses = ldl.SymbolicAnalyses()
+    whole = BorderedLU(M, nB, analyses)
+    assert whole.quasi_definite and len(analyses._held) == 1
+    _check_against_dense(whole, M, nB, 22)
     parts = SplitBorderedLU(M, nB, split, ldl.SymbolicAnalyses())
-    assert len(parts._parts) == 4 and all(p.quasi_definite for p in parts._parts)
     assert _rel(whole.schur, parts.schur) < TOL
     rng = np.random.default_rng(22)
     r = rng.standard_normal(M.shape[0])
@@ -67,24 +73,11 @@ def test_whole_equals_split(quartered, lowered):
     assert _rel(g_w, g_s) < TOL
     assert _rel(whole.backward(c_w, x_N), parts.backward(c_s, x_N)) < TOL
     assert _rel(whole.backward(None, x_N), parts.backward(None, x_N)) < TOL
-    # (the factors read: the whole block's L against the parts' L and the dense R_SS)
-    assert whole.nnz < parts.nnz
-
-
-def test_split_where_the_ldl_fails(quartered, lowered, monkeypatch):
-    """A pivot below ldl.PIVOT_RATIO (raised so that every pivot is): the block goes to SuperLU
-    in parts, made from the one matrix the caller hands over (a function called once), and
-    still solves as numpy does."""
-    _, M, nB, split = quartered
-    monkeypatch.setattr(ldl, "PIVOT_RATIO", 2.0)   # (a ratio of pivots is at most 1)
-    lu = bordered_lu.bordered_lu([M].pop, nB, split, ldl.SymbolicAnalyses())
-    assert type(lu) is SplitBorderedLU and not any(p.quasi_definite for p in lu._parts)
-    _check_against_dense(lu, M, nB, 23)
 
 
 def test_split_where_the_block_is_not_symmetric(quartered, lowered):
     """The poroelastic block in its general form (flow rows not times -dt: not symmetric) is no
-    L D L^T's: in parts by SuperLU, as before."""
+    L D L^T's: in parts by SuperLU."""
     solver, _, nB, split = quartered
     M, _ = _free_block(solver, 600.0, symmetric_form=False)
     lu = bordered_lu.bordered_lu([M].pop, nB, split, ldl.SymbolicAnalyses())
@@ -93,9 +86,9 @@ def test_split_where_the_block_is_not_symmetric(quartered, lowered):
 
 
 def test_below_split_above_or_without_a_split_whole(quartered):
-    """At the default SPLIT_ABOVE (above this block) or with no split, one BorderedLU whatever
-    factorises it: SuperLU's for the general form."""
-    solver, _, nB, split = quartered
-    M, _ = _free_block(solver, 600.0, symmetric_form=False)
+    """At the default SPLIT_ABOVE (above this block) or with no split given, one BorderedLU."""
+    _, M, nB, split = quartered
     assert nB <= bordered_lu.SPLIT_ABOVE
-    assert type(bordered_lu.bordered_lu(M, nB, split, ldl.SymbolicAnalyses())) is BorderedLU
+    for given in (split, None):
+        lu = bordered_lu.bordered_lu(M, nB, given, ldl.SymbolicAnalyses())
+        assert type(lu) is BorderedLU and lu.quasi_definite

@@ -1,6 +1,6 @@
 """A new step size written into the fixed pattern (fault_screen/fixed_pattern.py) against the
 matrices built the general way (sparse sums and products, as the solver built them before), on
-an elastic bulk, a poroelastic one with a damage zone, also in the quarters' order, and its border
+an elastic bulk, a poroelastic one with a damage zone, whole and split in parts, and its border
 (the fault's unknowns): equal bit for bit (np.array_equal, and no entry differing in the sparse
 comparison), because each value is made by the same operations in the same order. A run with
 growing steps on the poroelastic scene then equals, bit for bit, the same run with each new step
@@ -105,17 +105,17 @@ def test_elastic_values_equal_the_general_way(elastic):
 
 
 def test_a_split_poroelastic_bulk(monkeypatch):
-    """The bulk in the quarters' order (the limits lowered so that the small scene splits), and
-    factorised whole by the L D L^T (``bordered_lu``: the split is SuperLU's): the values in the
-    fixed pattern equal the general way in that order, and the Schur complement at a new step
-    size equals numpy's dense one."""
+    """The bulk factorised in quarters (the limits lowered so that the small scene splits): the
+    values in the fixed pattern equal the general way in the split order, and the Schur
+    complement at a new step size equals numpy's dense one."""
     monkeypatch.setattr(bordered_lu, "SPLIT_ABOVE", 500)
     monkeypatch.setattr(bordered_lu, "PART_SIZE", 200)
     system = _solver(_mass_balance()).system
     assert len(system.split) == 5   # (four quarters and the separators)
     dt = 55.0
     system.prepare(dt, None)
-    assert isinstance(system.lu, bordered_lu.BorderedLU) and system.lu.quasi_definite
+    assert isinstance(system.lu, bordered_lu.SplitBorderedLU)
+    assert all(part.quasi_definite for part in system.lu._parts)
     old = _general_way(system, dt)
     _assert_same(system.fixed_bulk().matrix(system.fixed_bulk().values(dt)), old)
     nB = len(system.B)
