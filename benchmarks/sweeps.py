@@ -55,8 +55,8 @@ order's CPU time. Counts, not timings: the same on a busy machine.
 
 ``--whole``: the bulk's L D L^T whole (one ``BorderedLU``) against split in parts as the solver
 splits a bulk above ``bordered_lu.SPLIT_ABOVE`` (``SplitBorderedLU``: the parts one after the
-other, each its own L D L^T), on the same matrix, each in a fresh process (``--rounds`` times,
-alternating): the CPU and wall time of the first factorisation (with the symbolic analysis) and
+other, each its own L D L^T; ``--forms halves``: in the first cut's halves, however large), on the same
+matrix, each in a fresh process (``--rounds`` times, alternating): the CPU and wall time of the first factorisation (with the symbolic analysis) and
 of the numeric one again (what a change of step size pays), the peak of resident memory above
 what the process held before the factorisation, what stays resident (the factors, the Schur
 complement), the packed values the sweeps read, and a step's forward and backward sweeps (a
@@ -454,6 +454,8 @@ def whole_or_split_case(name, mode, repeat):
 
     from fault_screen import Simulation, bordered_lu, ldl
 
+    if mode == "halves":   # (the order of the first cut's halves: no part size forces quarters)
+        bordered_lu.PART_SIZE = 10 ** 9
     scene = _scene(name)
     sim = Simulation(scene)
     solver, disc = sim.solver, sim.disc
@@ -480,8 +482,8 @@ def whole_or_split_case(name, mode, repeat):
             f.write("5")   # (VmHWM back to VmRSS)
         base = _vm("VmRSS")
         w, c = time.perf_counter(), time.process_time()
-        lu = (bordered_lu.SplitBorderedLU(M, nB, split, analyses) if mode == "split"
-              else bordered_lu.BorderedLU(M, nB, analyses))
+        lu = (bordered_lu.BorderedLU(M, nB, analyses) if mode == "whole"
+              else bordered_lu.SplitBorderedLU(M, nB, split, analyses))
         out["factorisations"].append((time.process_time() - c, time.perf_counter() - w,
                                       _vm("VmHWM") - base, _vm("VmRSS") - base))
     parts = getattr(lu, "_parts", [lu])
@@ -503,15 +505,15 @@ def whole_or_split_case(name, mode, repeat):
 WHOLE_STEP_SIZE = 600.0
 
 
-def whole_or_split(name, rounds, repeat):
-    """``--whole``: split against whole, each case in a fresh process (its own peak), the two
-    alternating ``rounds`` times; the rows of each round."""
+def whole_or_split(name, rounds, repeat, modes=("split", "whole")):
+    """``--whole``: split against whole, each case in a fresh process (its own peak), the
+    ``modes`` alternating ``rounds`` times; the rows of each round."""
     import json
     import subprocess
 
     rows = []
     for _ in range(rounds):
-        for mode in ("split", "whole"):
+        for mode in modes:
             out = subprocess.run([sys.executable, __file__, "--whole-case", name, mode,
                                   "--repeat", str(repeat)], capture_output=True, text=True,
                                  check=True)
@@ -531,6 +533,8 @@ def main(argv=None):
     ap.add_argument("--whole", action="store_true",
                     help="a large bulk's L D L^T whole against split in parts: time, memory, sweeps")
     ap.add_argument("--rounds", type=int, default=2, help="--whole: split and whole alternately")
+    ap.add_argument("--forms", nargs="*", default=["split", "whole"], choices=["split", "halves", "whole"],
+                    help="--whole: split as the solver splits, in halves only, whole")
     ap.add_argument("--whole-case", nargs=2, metavar=("SCENE", "MODE"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.whole_case:
@@ -546,7 +550,7 @@ def main(argv=None):
                   "CPU s, wall s, peak MB | held MB | values MB | sweeps: wall ms, CPU ms "
                   "| load |")
             print("|---|---|---|---|---|---|---|---|")
-            for mode, o, load in whole_or_split(name, args.rounds, args.repeat):
+            for mode, o, load in whole_or_split(name, args.rounds, args.repeat, args.forms):
                 (c0, w0, p0, _), *again = o["factorisations"]
                 c1, w1 = min(a[0] for a in again), min(a[1] for a in again)
                 p1, held = max(a[2] for a in again), again[-1][3]
