@@ -92,3 +92,23 @@ def test_below_split_above_or_without_a_split_whole(quartered):
     for given in (split, None):
         lu = bordered_lu.bordered_lu(M, nB, given, ldl.SymbolicAnalyses())
         assert type(lu) is BorderedLU and lu.quasi_definite
+
+
+def test_a_symmetric_split_skips_the_parts_symmetry_checks(quartered, lowered, monkeypatch):
+    """Given ``symmetric_parts`` (the caller knows the block symmetric), the parts take their
+    L D L^T without the symmetry check (made to fail here): the same factors, bit for bit, as
+    the parts that check."""
+    _, M, nB, split = quartered
+    checked = SplitBorderedLU(M, nB, split, ldl.SymbolicAnalyses())
+
+    def no_check(*_):
+        raise AssertionError("a part's symmetry checked")
+
+    monkeypatch.setattr(bordered_lu, "_linear_rows_symmetric", no_check)
+    lu = bordered_lu.bordered_lu(M, nB, split, ldl.SymbolicAnalyses(),
+                                 symmetric_parts=bordered_lu._parts_of(M, nB))
+    assert type(lu) is SplitBorderedLU and all(p.quasi_definite for p in lu._parts)
+    assert np.array_equal(lu.schur, checked.schur)
+    r = np.random.default_rng(25).standard_normal(M.shape[0])
+    (c, g), (c0, g0) = lu.forward(r[:nB], r[nB:]), checked.forward(r[:nB], r[nB:])
+    assert np.array_equal(g, g0) and np.array_equal(lu.backward(c, r[nB:]), checked.backward(c0, r[nB:]))
