@@ -55,7 +55,8 @@ order's CPU time. Counts, not timings: the same on a busy machine.
 
 ``--whole``: the bulk's L D L^T whole (one ``BorderedLU``) against split in parts as the solver
 splits a bulk above ``bordered_lu.SPLIT_ABOVE`` (``SplitBorderedLU``: the parts one after the
-other, each its own L D L^T; ``--forms halves``: in the first cut's halves, however large), on the same
+other, each its own L D L^T; ``--forms halves``: in the first cut's halves, however large;
+``split-checked``: each part's symmetry checked, as before ``SplitBorderedLU(symmetric=True)``), on the same
 matrix, each in a fresh process (``--rounds`` times, alternating): the CPU and wall time of the first factorisation (with the symbolic analysis) and
 of the numeric one again (what a change of step size pays), the peak of resident memory above
 what the process held before the factorisation, what stays resident (the factors, the Schur
@@ -469,6 +470,9 @@ def whole_or_split_case(name, mode, repeat):
     if not system.factors_any_dt:
         M.data *= np.where(system._mechanical[system.order], 1.0, -WHOLE_STEP_SIZE)[M.indices]
     nB, split = len(system.B), system.split
+    # (a poroelastic bulk's parts are known symmetric at a new step size, as the solver's are;
+    # an elastic one's, factorised once, and ``split-checked``'s are checked)
+    symmetric = not system.factors_any_dt and mode != "split-checked"
     system.lu = system.P = None
     del sim, solver
     analyses = ldl.SymbolicAnalyses()
@@ -482,8 +486,8 @@ def whole_or_split_case(name, mode, repeat):
             f.write("5")   # (VmHWM back to VmRSS)
         base = _vm("VmRSS")
         w, c = time.perf_counter(), time.process_time()
-        lu = (bordered_lu.BorderedLU(M, nB, analyses) if mode == "whole"
-              else bordered_lu.SplitBorderedLU(M, nB, split, analyses))
+        lu = (bordered_lu.BorderedLU(M, nB, analyses) if mode == "whole" else
+              bordered_lu.SplitBorderedLU(M, nB, split, analyses, symmetric=symmetric))
         out["factorisations"].append((time.process_time() - c, time.perf_counter() - w,
                                       _vm("VmHWM") - base, _vm("VmRSS") - base))
     parts = getattr(lu, "_parts", [lu])
@@ -533,8 +537,9 @@ def main(argv=None):
     ap.add_argument("--whole", action="store_true",
                     help="a large bulk's L D L^T whole against split in parts: time, memory, sweeps")
     ap.add_argument("--rounds", type=int, default=2, help="--whole: split and whole alternately")
-    ap.add_argument("--forms", nargs="*", default=["split", "whole"], choices=["split", "halves", "whole"],
-                    help="--whole: split as the solver splits, in halves only, whole")
+    ap.add_argument("--forms", nargs="*", default=["split", "whole"], choices=["split", "split-checked", "halves", "whole"],
+                    help="--whole: split as the solver splits (split-checked: each part's symmetry "
+                         "checked), in halves only, whole")
     ap.add_argument("--whole-case", nargs=2, metavar=("SCENE", "MODE"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.whole_case:
