@@ -50,6 +50,18 @@ each set cut across its side with more node lines (the rule in use) and, beside 
 longer side in metres (the rule before), and analysed whole by the L D L^T's symbolic analysis:
 L's entries, the factorisation's multiply-adds, the MB of packed values a sweep reads, and the
 order's CPU time. Counts, not timings: the same on a busy machine.
+
+    python benchmarks/sweeps.py --whole             # a large bulk's L D L^T whole or split
+
+``--whole``: the bulk's L D L^T whole (one ``BorderedLU``) against split in parts as the solver
+splits a bulk above ``bordered_lu.SPLIT_ABOVE`` (``SplitBorderedLU``: the parts one after the
+other, each its own L D L^T; ``--forms halves``: in the first cut's halves, however large;
+``split-checked``: each part's symmetry checked, as before ``SplitBorderedLU(symmetric=True)``), on the same
+matrix, each in a fresh process (``--rounds`` times, alternating): the CPU and wall time of the first factorisation (with the symbolic analysis) and
+of the numeric one again (what a change of step size pays), the peak of resident memory above
+what the process held before the factorisation, what stays resident (the factors, the Schur
+complement), the packed values the sweeps read, and a step's forward and backward sweeps (a
+split block's parts in two threads, a whole one in one thread, as the solver sweeps them).
 """
 from __future__ import annotations
 
@@ -418,6 +430,102 @@ def print_phases(name):
         print(f"| {phase} | {calls} | {per_step} | {wall:.2f} | {cpu:.2f} | {cpu_ms} |")
 
 
+def _vm(field):
+    """This process's /proc/self/status ``field`` (VmRSS, VmHWM) in MB."""
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith(field + ":"):
+                return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def whole_or_split_case(name, mode, repeat):
+    """``--whole`` in a process of its own (``mode``: ``split`` or ``whole``): the scaled free
+    matrix at WHOLE_STEP_SIZE as the solver hands it to ``bordered_lu`` (the symmetric form of a
+    poroelastic bulk), in the solver's order with its split, factorised three times on one
+    ``ldl.SymbolicAnalyses`` (the first also analyses the pattern; the later are what a step-size
+    change pays): the process CPU and wall of each (s), the peak of resident memory above the
+    memory before it (MB: the peak reset through /proc/self/clear_refs) and what stays resident
+    after it (the factors and the Schur complement); then the packed values the sweeps read (MB)
+    and a step's forward and backward sweeps (least wall and process CPU of ``repeat``, ms: a
+    split block's parts in two threads, as the solver sweeps them)."""
+    import gc
+
+    import scipy.sparse as sp
+
+    from fault_screen import Simulation, bordered_lu, ldl
+
+    if mode == "halves":   # (the order of the first cut's halves: no part size forces quarters)
+        bordered_lu.PART_SIZE = 10 ** 9
+    scene = _scene(name)
+    sim = Simulation(scene)
+    solver, disc = sim.solver, sim.disc
+    contact = disc.physics.contact
+    solver._prepare(scene.time.dt, np.zeros(disc.n_dofs),
+                    contact.initial_history(disc) if contact is not None else None)
+    system = solver.system
+    D = sp.diags(system.scale)
+    M = (D @ system._linear_jacobian(WHOLE_STEP_SIZE) @ D).tocsr()[system.order][:, system.order]
+    M = M.tocsc()
+    if not system.factors_any_dt:
+        M.data *= np.where(system._mechanical[system.order], 1.0, -WHOLE_STEP_SIZE)[M.indices]
+    nB, split = len(system.B), system.split
+    # (a poroelastic bulk's parts are known symmetric at a new step size, as the solver's are;
+    # an elastic one's, factorised once, and ``split-checked``'s are checked)
+    symmetric = not system.factors_any_dt and mode != "split-checked"
+    system.lu = system.P = None
+    del sim, solver
+    analyses = ldl.SymbolicAnalyses()
+    out = dict(factorisations=[])
+    lu = None
+    for _ in range(3):
+        lu = None
+        gc.collect()
+        bordered_lu.release_freed_memory()
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")   # (VmHWM back to VmRSS)
+        base = _vm("VmRSS")
+        w, c = time.perf_counter(), time.process_time()
+        lu = (bordered_lu.BorderedLU(M, nB, analyses) if mode == "whole" else
+              bordered_lu.SplitBorderedLU(M, nB, split, analyses, symmetric=symmetric))
+        out["factorisations"].append((time.process_time() - c, time.perf_counter() - w,
+                                      _vm("VmHWM") - base, _vm("VmRSS") - base))
+    parts = getattr(lu, "_parts", [lu])
+    out["values_mb"] = 8e-6 * sum(part.packed_values for part in parts)
+    out["ldl"] = all(part.quasi_definite for part in parts)
+    out["parts"] = len(parts)
+    r = np.random.default_rng(1).standard_normal(lu.n)
+    wall = cpu = np.inf
+    for _ in range(repeat):
+        w, c = time.perf_counter(), time.process_time()
+        swept, _ = lu.forward(r[:nB], r[nB:])
+        lu.backward(swept, r[nB:])
+        wall, cpu = min(wall, time.perf_counter() - w), min(cpu, time.process_time() - c)
+    out["sweeps"] = (1e3 * wall, 1e3 * cpu)
+    return out
+
+
+#: ``--whole``'s step size (s): the paper-units scenes' largest
+WHOLE_STEP_SIZE = 600.0
+
+
+def whole_or_split(name, rounds, repeat, modes=("split", "whole")):
+    """``--whole``: split against whole, each case in a fresh process (its own peak), the
+    ``modes`` alternating ``rounds`` times; the rows of each round."""
+    import json
+    import subprocess
+
+    rows = []
+    for _ in range(rounds):
+        for mode in modes:
+            out = subprocess.run([sys.executable, __file__, "--whole-case", name, mode,
+                                  "--repeat", str(repeat)], capture_output=True, text=True,
+                                 check=True)
+            rows.append((mode, json.loads(out.stdout.strip().splitlines()[-1]),
+                         os.getloadavg()[0]))
+    return rows
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -426,8 +534,37 @@ def main(argv=None):
     ap.add_argument("--phases", action="store_true", help="where a whole run spends its time")
     ap.add_argument("--fill", action="store_true",
                     help="the fill-reducing order's L entries, multiply-adds and packed MB")
+    ap.add_argument("--whole", action="store_true",
+                    help="a large bulk's L D L^T whole against split in parts: time, memory, sweeps")
+    ap.add_argument("--rounds", type=int, default=2, help="--whole: split and whole alternately")
+    ap.add_argument("--forms", nargs="*", default=["split", "whole"], choices=["split", "split-checked", "halves", "whole"],
+                    help="--whole: split as the solver splits (split-checked: each part's symmetry "
+                         "checked), in halves only, whole")
+    ap.add_argument("--whole-case", nargs=2, metavar=("SCENE", "MODE"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.whole_case:
+        import json
+
+        print(json.dumps(whole_or_split_case(*args.whole_case, args.repeat)))
+        return
     print(f"load average at start: {os.getloadavg()[0]:.1f}")
+    if args.whole:
+        for name in args.scenes:
+            print(f"\n## {name}: the bulk's L D L^T whole or split (at {WHOLE_STEP_SIZE:.0f} s)")
+            print("| form | parts | analysis + numeric: CPU s, wall s, peak MB | numeric again: "
+                  "CPU s, wall s, peak MB | held MB | values MB | sweeps: wall ms, CPU ms "
+                  "| load |")
+            print("|---|---|---|---|---|---|---|---|")
+            for mode, o, load in whole_or_split(name, args.rounds, args.repeat, args.forms):
+                (c0, w0, p0, _), *again = o["factorisations"]
+                c1, w1 = min(a[0] for a in again), min(a[1] for a in again)
+                p1, held = max(a[2] for a in again), again[-1][3]
+                print(f"| {mode} | {o['parts']}{'' if o['ldl'] else ' (SuperLU)'} "
+                      f"| {c0:.3f}, {w0:.3f}, {p0:.0f} | {c1:.3f}, {w1:.3f}, {p1:.0f} | {held:.0f} "
+                      f"| {o['values_mb']:.1f} | {o['sweeps'][0]:.2f}, {o['sweeps'][1]:.2f} "
+                      f"| {load:.1f} |")
+        print(f"\nload average at end: {os.getloadavg()[0]:.1f}")
+        return
     if args.fill:
         for name in args.scenes:
             print(f"\n## {name}: the bulk's L D L^T in its fill-reducing order")

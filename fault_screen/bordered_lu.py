@@ -496,9 +496,9 @@ def bordered_lu(M, n_linear: int, split=None, analyses=None, symmetric_parts=Non
     ``symmetric_parts``: M's linear rows are known to be symmetric, and this function returns
     the parts of M that the L D L^T reads (the lower triangle of the linear columns, the dense
     condensed block): no symmetry check, and M (best a function, then) is made only for SuperLU
-    or a split (which ignores them)."""
+    or a split (whose parts then skip their symmetry checks too)."""
     if split is not None and n_linear > SPLIT_ABOVE and min(split[:-1]) > 0:
-        return SplitBorderedLU(M, n_linear, split, analyses)
+        return SplitBorderedLU(M, n_linear, split, analyses, symmetric=symmetric_parts is not None)
     return BorderedLU(M, n_linear, analyses, symmetric_parts)
 
 
@@ -524,9 +524,11 @@ class SplitBorderedLU:
     ``split``: the sizes of the parts, then of the separators (n_1, ..., n_k, n_S), in ``M``'s
     order. Vectors in and out are in ``M``'s order [B1, ..., Bk, S, N], as ``BorderedLU``'s;
     the swept right hand side handed from ``forward`` to ``backward`` is
-    [c_1, ..., c_k, R_SS^-1 g_S]."""
+    [c_1, ..., c_k, R_SS^-1 g_S]. ``symmetric``: M's linear rows are known to be symmetric, so
+    are each part's, whose L D L^T then takes its parts without the check (``BorderedLU``'s
+    ``symmetric_parts``: 0.06 s of CPU of 0.8 s a refactorisation on Rustrel 200 x 201)."""
 
-    def __init__(self, M, n_linear: int, split, analyses=None):
+    def __init__(self, M, n_linear: int, split, analyses=None, symmetric=False):
         if callable(M):
             M = M()
         M = M.tocsc()
@@ -553,7 +555,10 @@ class SplitBorderedLU:
         eliminated = []   # each part's - W_i B_i^-1 E_i, on its border
         for part, border in zip(parts, self._borders):
             release_freed_memory()  # (what the last part's factorisation freed, before the next)
-            lu = BorderedLU(blocks.pop(0), len(part), analyses)   # (the block goes with its factorisation)
+            block = blocks.pop(0)
+            lu = BorderedLU(block, len(part), analyses,
+                            _parts_of(block, len(part)) if symmetric else None)
+            del block   # (the block goes with its factorisation)
             own = M_WW[border][:, border].tocoo()
             np.subtract.at(lu.schur, (own.row, own.col), own.data)
             eliminated.append(lu.schur)
@@ -698,6 +703,12 @@ def split_layout(n_linear: int, split, quarters):
                             r(a1 + a2, n1), r(n1 + b1 + b2, split[0] + split[1]),  # S_a, S_b
                             r(split[0] + split[1], n_linear)])                      # S
     return order, (a1, a2, b1, b2, a_s + b_s + split[2])
+
+
+def _parts_of(M, n_linear):
+    """``BorderedLU``'s ``symmetric_parts`` of a symmetric block M: a function returning what its
+    L D L^T reads (``ldl.factorise``'s)."""
+    return lambda: (ldl._lower(M, n_linear), M[n_linear:, n_linear:].toarray())
 
 
 def _touched(on_W, W_rows, part):
