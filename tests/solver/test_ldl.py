@@ -313,6 +313,37 @@ def test_two_threads_give_the_factors_of_one(poroelastic, elastic, monkeypatch, 
     _check_against_dense(two, M, nB, 9)
 
 
+@pytest.mark.parametrize("shared", [False, True])
+@pytest.mark.parametrize("threads", [1, 2])
+def test_one_root_adds_its_update_into_the_schur_complement_itself(poroelastic, monkeypatch,
+                                                                    threads, shared):
+    """A tree of one root adds its update straight into M_NN, both triangles (``_numeric``'s
+    ``mirrored``, through the transpose for a Fortran-ordered M_NN): the Schur complement, the
+    pivots and the packed L equal bit for bit those made through the parts' own arrays summed
+    afterwards (the path a forest takes, and any M_NN neither C- nor Fortran-ordered, here a
+    strided view), and the Schur complement equals numpy's dense M_NN - M_NB B^-1 M_BN to
+    1e-11 of its largest entry."""
+    monkeypatch.setattr(ldl, "SPLIT_FRONT_ABOVE", 0.0 if shared else np.inf)
+    M, nB = _free_block(poroelastic, 600.0, symmetric_form=True)
+    lower, M_NN = ldl._lower(M, nB), M[nB:, nB:].toarray()
+    symbolic = ldl.SymbolicAnalyses().of(lower, nB)
+    assert symbolic.roots == 1 and (symbolic.split_front >= 0) == shared
+    ldl._numeric(lower, M_NN.copy(), symbolic, 1)   # (later ones are refactorisations)
+    strided = np.zeros((M_NN.shape[0], 2 * M_NN.shape[1]))[:, ::2]
+    made = {}
+    for name, schur in (("C", M_NN.copy(order="C")), ("F", M_NN.copy(order="F")),
+                        ("parts", strided)):
+        schur[:] = M_NN
+        values, diagonal, _ = ldl._numeric(lower, schur, symbolic, threads, share_front=shared)
+        made[name] = (values, diagonal, np.array(schur))
+    for name in ("C", "F"):
+        assert all(np.array_equal(a, b) for a, b in zip(made[name], made["parts"]))
+    dense = M.toarray()
+    reference = dense[nB:, nB:] - dense[nB:, :nB] @ np.linalg.solve(dense[:nB, :nB],
+                                                                     dense[:nB, nB:])
+    assert _rel(made["C"][2], reference) < TOL
+
+
 @pytest.mark.parametrize("kernel", ["_eliminate", "_front_step"])
 def test_an_error_in_the_second_thread_reaches_the_caller(poroelastic, monkeypatch, kernel):
     """The second thread of a refactorisation (``ldl._in_background``: a part of the tree, or
