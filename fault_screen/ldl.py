@@ -19,11 +19,12 @@ U12 = D L21^T (the symmetric form has M_BN = M_NB^T).
 from __future__ import annotations
 
 import _thread
-import threading
 
 import numpy as np
 import scipy.sparse as sp
 from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from ._jit import helper, kernel
 
@@ -657,38 +658,126 @@ def _front_buffers(sequence, symbolic, n_N, blas_width, blas_rows) -> tuple:
             np.empty(len(sequence) + 1, dtype=np.int64))
 
 
+@intrinsic
+def _load_acquire(typingctx, array, index):
+    """array[index] (int64) by an atomic load with acquire order: what the other thread wrote
+    before its ``_store_release`` of this entry is seen after it (and the load is made at each
+    call: a plain one in a waiting loop may be hoisted out of it)."""
+    def codegen(context, builder, signature, args):
+        kind = signature.args[0]
+        array = context.make_array(kind)(context, builder, args[0])
+        at = cgutils.get_item_pointer(context, builder, kind, array, [args[1]])
+        return builder.load_atomic(at, "acquire", 8)
+    return types.int64(array, index), codegen
+
+
+@intrinsic
+def _store_release(typingctx, array, index, value):
+    """array[index] = value (int64) by an atomic store with release order (``_load_acquire``)."""
+    def codegen(context, builder, signature, args):
+        kind = signature.args[0]
+        array = context.make_array(kind)(context, builder, args[0])
+        at = cgutils.get_item_pointer(context, builder, kind, array, [args[1]])
+        builder.store_atomic(args[2], at, "release", 8)
+        return context.get_dummy_value()
+    return types.void(array, index, value), codegen
+
+
+#: the C library's sched_yield and clock_gettime (found in the process, as numba_xxgemm)
+_sched_yield = types.ExternalFunction("sched_yield", types.intc())
+_clock_gettime = types.ExternalFunction("clock_gettime", types.intc(
+    types.intc, types.CPointer(types.int64)))
+#: clock_gettime's CLOCK_MONOTONIC (time.perf_counter's clock on Linux)
+_MONOTONIC = 1
+#: looks at the other half's count before a waiting thread yields its core at each further
+#: look (~10 us of spinning: a thread woken from a sleep, as at threading.Barrier, takes
+#: 70-100 us on this machine; yielding lets the other half run when both share a core)
+SPINS = 20000
+
+
+@helper
+def _stamp(stamps, half, k):
+    """The monotonic clock (s, ns) into stamps[half, 2k:2k + 2]."""
+    _clock_gettime(_MONOTONIC, stamps[half, 2 * k:].ctypes)
+
+
+@helper
+def _meet(sync, stamps, half, k):
+    """The two halves' k-th meeting: this half's count to k, then wait until the other's is k
+    (spinning, then yielding: ``SPINS``); False when the other half failed (``sync[2]`` set).
+    Its arrival and its departure stamped (``stamps[half]``, points 2k - 1 and 2k)."""
+    _stamp(stamps, half, 2 * k - 1)
+    _store_release(sync, half, k)
+    looks = 0
+    while _load_acquire(sync, 1 - half) < k:
+        if _load_acquire(sync, 2) != 0:
+            return False
+        looks += 1
+        if looks > SPINS:
+            _sched_yield()
+    _stamp(stamps, half, 2 * k)
+    return True
+
+
 @kernel
-def _front_step(what, t, c0, b, begin, end, blocks, front, where, indptr, indices, data, first,
-                width, row_at, srows, child_ptr, child_list, relative, stack, update_at,
-                diagonal, column_d, xt, dlrows, strip, value_at, values, condensed, mirrored):
-    """One step of a front factorised outside ``_eliminate`` by panels whose rows below and
-    update are shared between two threads (``_split_front``), supernode t (a root): ``what``
-    0 assembles the front (``_assemble``); 1 factorises the pivot block of the panel of ``b``
-    columns from column ``c0``; 2 solves its rows below ``begin .. end - 1`` (``_panel_rows``);
-    3 updates its trailing block's rows in the blocks of UPDATE_BLOCK rows from each of
-    ``blocks`` (the rows' blocks of ``_panel_update`` over all ``end`` rows); 4 packs
-    the factor and adds the update into ``condensed`` (``_pack_front``, ``_to_condensed``).
-    One kernel for the five: one cache load."""
+def _front_by_halves(half, t, panel_c0, panel_b, rows_cut, block_ptr, blocks, sync, stamps,
+                     front, where, indptr, indices, data, first, width, row_at, srows, child_ptr,
+                     child_list, relative, stack, update_at, diagonal, column_d, xt, dlrows,
+                     strip, value_at, values, condensed, mirrored):
+    """Supernode t (a root) factorised by panels whose rows below and update are shared
+    between two halves (``_split_front``): ``half`` 0 (the calling thread: the assembly, each
+    panel's pivots, the packing), 1 (the other thread), or -1 (both, one after the other, in
+    one thread). Per panel p (columns ``panel_c0[p]``, ``panel_b[p]`` of them): its pivot block
+    (``_pivot_block``), then each half's rows below (``_panel_rows``: half 0 the first
+    ``rows_cut[p]``, half 1 the others), then each half's blocks of UPDATE_BLOCK rows of the
+    update (``_panel_update``: those from ``blocks[block_ptr[2p + half]:block_ptr[2p + half
+    + 1]]``); in two threads the halves meet (``_meet``) after the pivots, after the rows
+    and after the update, with ``sync`` (the halves' counts; [2]: a half failed) and
+    ``stamps`` (each half's clock at the start, at each meeting's arrival and departure, at
+    the end). The same calls on the same rows in one thread or two: the same factors bit for
+    bit. False when the other half failed. One kernel for a half's whole front: a call, not a
+    Python call and a threading.Barrier per step (70-100 us each)."""
     j0, w = first[t], width[t]
     r0 = row_at[t]
     m = row_at[t + 1] - r0
-    o = c0 * m + c0
-    if what == 0:
+    both = half == -1
+    own = 0 if both else half
+    k = 0
+    _stamp(stamps, own, 0)
+    if half != 1:
         _assemble(front, t, where, indptr, indices, data, first, width, row_at, srows,
                   child_ptr, child_list, relative, stack, update_at)
-    elif what == 1:
-        _pivot_block(front, m, o, b, diagonal, j0 + c0, column_d)
-    elif what == 2:
-        _panel_rows(front, m, o, b, diagonal[j0 + c0:j0 + c0 + b], begin, end, xt, dlrows,
-                    strip)
-    elif what == 3:
-        for k in range(len(blocks)):
-            _panel_update(front, m, o, b, dlrows, blocks[k],
-                          min(blocks[k] + UPDATE_BLOCK, end))
-    else:
+    for p in range(len(panel_c0)):
+        c0, b = panel_c0[p], panel_b[p]
+        o = c0 * m + c0
+        u = m - c0 - b
+        if half != 1:
+            _pivot_block(front, m, o, b, diagonal, j0 + c0, column_d)
+        for step in range(2):   # (the rows below, then the update)
+            if not both:
+                k += 1
+                if not _meet(sync, stamps, half, k):
+                    return False
+            for h in range(2):
+                if both or h == half:
+                    if step == 0:
+                        _panel_rows(front, m, o, b, diagonal[j0 + c0:j0 + c0 + b],
+                                    0 if h == 0 else rows_cut[p], rows_cut[p] if h == 0 else u,
+                                    xt[h], dlrows, strip[h])
+                    else:
+                        for q in range(block_ptr[2 * p + h], block_ptr[2 * p + h + 1]):
+                            _panel_update(front, m, o, b, dlrows, blocks[q],
+                                          min(blocks[q] + UPDATE_BLOCK, u))
+        if not both:   # (the trailing block updated: the next pivots, or the packing)
+            k += 1
+            if not _meet(sync, stamps, half, k):
+                return False
+    if half != 1:
         _pack_front(front, m, w, values, value_at[t])
         _to_condensed(front, m, w, r0, relative, condensed.reshape(-1), condensed.shape[0],
                       mirrored)
+    _stamp(stamps, own, 2 * k + 1)
+    return True
 
 
 def _in_background(fn, *args):
@@ -719,90 +808,83 @@ def _in_background(fn, *args):
     return join
 
 
-def _split_front(t, lower, symbolic, diagonal, values, stack, update_at, condensed, mirrored,
-                 threads):
-    """Supernode t (the last of the top: a root) factorised by panels of PANEL columns, each
-    panel's pivot block in the calling thread, then its rows below and their update in two
-    halves, in two threads when ``threads`` is 2, else one after the other: the same calls on
-    the same rows either way, so the same factors bit for bit."""
-    first, width, row_at, srows, tparent, children, relative = symbolic.tree
+def _front_plan(t, symbolic):
+    """The panels of the shared front t (``_split_front``), from the pattern alone: (their first
+    columns, widths, rows-below cuts, and per panel and half where its update's blocks start in
+    the blocks' list, the list). Each panel's rows below are cut in half at a multiple of
+    SPLIT_ALIGN rows; its update's blocks (``_panel_update``'s own, rows i0 .. i1 - 1 taking
+    (i1 - i0) i1 products) are dealt to the lighter half, the largest first."""
+    width, row_at = symbolic.tree[1], symbolic.tree[2]
     w, m = int(width[t]), int(row_at[t + 1] - row_at[t])
-    n_N = condensed.shape[0]
-    front = np.empty(m * m)
-    where = np.empty(symbolic.n_linear + n_N, dtype=np.int64)
-    column_d = np.empty(max(w, 1))
-    dlrows = np.empty(PANEL * m)
-    buffers = [(np.empty(PANEL * m), np.empty(SOLVE_BLOCK * PANEL)) for _ in range(2)]
-    shared = (lower.indptr, lower.indices, lower.data, first, width, row_at, srows,
-              symbolic.child_ptr, symbolic.child_list, relative, stack, update_at, diagonal,
-              column_d)
-
-    no_blocks = np.zeros(0, dtype=np.int64)
-
-    def step(what, c0=0, b=0, begin=0, end=0, half=0, blocks=no_blocks):
-        xt, strip = buffers[half]
-        _front_step(what, t, c0, b, begin, end, blocks, front, where, *shared, xt, dlrows, strip,
-                    symbolic.value_at, values, condensed, mirrored)
-
-    panels = []
+    panel_c0, panel_b, rows_cut, block_ptr, blocks = [], [], [], [0], []
     c0 = 0
     while c0 < w:
         b = min(PANEL, w - c0)
         u = m - c0 - b
-        # the rows below in half, cut at a multiple of SPLIT_ALIGN rows; the update's blocks
-        # (``_panel_update``'s own, rows i0 .. i1 - 1 taking (i1 - i0) i1 products) dealt to the
-        # lighter half, the largest first
-        rows_cut = min(u, SPLIT_ALIGN * int(round(u / 2.0 / SPLIT_ALIGN)))
         starts = np.arange(0, u, UPDATE_BLOCK, dtype=np.int64)
         ends = np.minimum(starts + UPDATE_BLOCK, u)
         dealt, loads = ([], []), [0, 0]
         for k in sorted(range(len(starts)), key=lambda k: (-(ends[k] - starts[k]) * ends[k], k)):
             half = 0 if loads[0] <= loads[1] else 1
-            dealt[half].append(starts[k])
+            dealt[half].append(int(starts[k]))
             loads[half] += (ends[k] - starts[k]) * ends[k]
-        update = tuple(np.sort(np.asarray(d, dtype=np.int64)) for d in dealt)
-        panels.append((c0, b, u, ((0, rows_cut), (rows_cut, u)), update))
+        for half in (0, 1):
+            blocks += sorted(dealt[half])
+            block_ptr.append(len(blocks))
+        panel_c0.append(c0)
+        panel_b.append(b)
+        rows_cut.append(min(u, SPLIT_ALIGN * int(round(u / 2.0 / SPLIT_ALIGN))))
         c0 += b
+    return tuple(np.asarray(x, dtype=np.int64) for x in (panel_c0, panel_b, rows_cut, block_ptr,
+                                                          blocks))
 
-    step(0)
-    if threads >= 2:
-        barrier = threading.Barrier(2)
 
-        def second_half():
-            try:
-                for c0, b, u, rows, update in panels:
-                    barrier.wait()   # (its pivots made)
-                    step(2, c0, b, *rows[1], 1)
-                    barrier.wait()   # (every row below made)
-                    step(3, c0, b, 0, u, 1, update[1])
-                    barrier.wait()   # (the trailing block updated)
-            except BaseException:
-                barrier.abort()
-                raise
+def _split_front(t, lower, symbolic, diagonal, values, stack, update_at, condensed, mirrored,
+                 threads):
+    """Supernode t (the last of the top: a root) factorised by panels of PANEL columns, each
+    panel's pivot block in the calling thread, then its rows below and their update in two
+    halves (``_front_by_halves``), in two threads when ``threads`` is 2, else one after the
+    other: the same calls on the same rows either way, so the same factors bit for bit. The
+    halves' clock stamps are left in ``symbolic.front_stamps`` (``benchmarks/factorisation.py
+    --fronts``)."""
+    first, width, row_at, srows, tparent, children, relative = symbolic.tree
+    w, m = int(width[t]), int(row_at[t + 1] - row_at[t])
+    n_N = condensed.shape[0]
+    if symbolic.front_plan is None:
+        symbolic.front_plan = _front_plan(t, symbolic)
+    plan = symbolic.front_plan
+    meetings = 3 * len(plan[0])
+    sync = np.zeros(3, dtype=np.int64)
+    stamps = np.zeros((2, 2 * (2 * meetings + 2)), dtype=np.int64)
+    arguments = (t, *plan, sync, stamps, np.empty(m * m),
+                 np.empty(symbolic.n_linear + n_N, dtype=np.int64), lower.indptr, lower.indices,
+                 lower.data, first, width, row_at, srows, symbolic.child_ptr,
+                 symbolic.child_list, relative, stack, update_at, diagonal,
+                 np.empty(max(w, 1)), np.empty((2, PANEL * m)), np.empty(PANEL * m),
+                 np.empty((2, SOLVE_BLOCK * PANEL)), symbolic.value_at, values, condensed,
+                 mirrored)
+    symbolic.front_stamps = stamps
+    if threads < 2:
+        _front_by_halves(-1, *arguments)
+        return
 
-        join = _in_background(second_half)
+    def second_half():
         try:
-            for c0, b, u, rows, update in panels:
-                step(1, c0, b)
-                barrier.wait()
-                step(2, c0, b, *rows[0], 0)
-                barrier.wait()
-                step(3, c0, b, 0, u, 0, update[0])
-                barrier.wait()
-        except BaseException as error:
-            barrier.abort()
-            # (a barrier broken by the other thread: its error is the one to raise)
-            join(raise_failure=isinstance(error, threading.BrokenBarrierError))
+            _front_by_halves(1, *arguments)
+        except BaseException:
+            sync[2] = 1   # (the calling thread stops waiting for it)
             raise
-        join()
-    else:
-        for c0, b, u, rows, update in panels:
-            step(1, c0, b)
-            for half in (0, 1):
-                step(2, c0, b, *rows[half], half)
-            for half in (0, 1):
-                step(3, c0, b, 0, u, half, update[half])
-    step(4)
+
+    join = _in_background(second_half)
+    try:
+        whole = _front_by_halves(0, *arguments)
+    except BaseException:
+        sync[2] = 1
+        join(raise_failure=False)
+        raise
+    join()   # (raises the second half's error: when it failed, ``whole`` is False)
+    if not whole:
+        raise RuntimeError("the shared front's second half stopped without an error")
 
 
 def front_multiply_adds(width, below):
@@ -1036,6 +1118,7 @@ class LDLSymbolic:
         self.factorisations = 0   # (numeric ones on this analysis: ``_numeric``)
         self.roots = int(np.sum(tparent == -1))
         self.split_front = -1
+        self.front_plan = self.front_stamps = None   # (``_split_front``'s)
         if len(parts[2]):
             last = int(parts[2][-1])
             if (width[last] >= BLAS_MIN_WIDTH and u[last] >= BLAS_MIN_ROWS

@@ -344,7 +344,7 @@ def test_one_root_adds_its_update_into_the_schur_complement_itself(poroelastic, 
     assert _rel(made["C"][2], reference) < TOL
 
 
-@pytest.mark.parametrize("kernel", ["_eliminate", "_front_step"])
+@pytest.mark.parametrize("kernel", ["_eliminate", "_front_by_halves"])
 def test_an_error_in_the_second_thread_reaches_the_caller(poroelastic, monkeypatch, kernel):
     """The second thread of a refactorisation (``ldl._in_background``: a part of the tree, or
     the second half of the shared front) failing: its own error is raised by the
