@@ -49,8 +49,12 @@ CPU time of numpy's matrix product (BLAS dgemm, one thread) on the very shapes o
 the BLAS fronts make, which bounds what those fronts can take; and the parts that a
 refactorisation runs in two threads (``ldl.LDLSymbolic.parts``, the top's last front shared by
 the threads: ``ldl._split_front``, by BLAS panels also in the loops-only timing): each part's
-thread CPU time in one thread, the path of two threads that this gives (a shared front's longer
-half of each step), and the wall time in one and in two threads.
+thread CPU time in one thread and the wall time in one and in two threads; and where the wall in
+two threads goes (medians of timers around the kernels and of the shared front's own clock
+stamps, ``ldl._front_by_halves``): the set-up before the parts, each part's wall and the later
+one's lead, the join, the top, the shared front's wall against its halves' path (per stretch
+between their meetings the longer half's), the end, and the process's minor page faults per
+factorisation.
 Every timing is the least CPU time of ``--repeat`` runs in this one process, with one BLAS
 thread (on a shared machine wall time measures the other processes too); compare rows of one
 run. Each method factorises the whole free matrix in one call: the solver splits a

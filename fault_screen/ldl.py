@@ -528,8 +528,8 @@ def _to_condensed(front, m, w, r0, relative, flat, n_N, mirrored):
 @kernel
 def _eliminate(sequence, indptr, indices, data, first, width, row_at, srows,
                tparent, child_ptr, child_list, stacked, relative, value_at, values, diagonal,
-               condensed, mirrored, stack, stack_base, update_at, blas_width, blas_rows, front,
-               panel_t, where, column_d, xt, dlrows, strip, stack_at):
+               condensed, stack, stack_base, update_at, blas_width, blas_rows, front, panel_t,
+               where, column_d, xt, dlrows, strip, stack_at):
     """The multifrontal LDL^T of the supernodes ``sequence`` (ascending postorder positions:
     whole subtrees, or the top of the tree once they are done: see ``LDLSymbolic.parts``), their
     fronts in buffers of their own, so that two calls on disjoint subtrees may run at once.
@@ -538,8 +538,7 @@ def _eliminate(sequence, indptr, indices, data, first, width, row_at, srows,
     column). Writes each supernode's packed L (``bordered_lu._pack``'s layout: by rows, the unit
     diagonal block's triangle, then the rows below it) at ``values[value_at[t]:]`` and its
     pivots into ``diagonal``; adds each root's update (its rows below are all condensed) into
-    ``condensed`` (n_N x n_N, its lower triangle; also its upper one when ``mirrored``:
-    ``_to_condensed``); the other updates wait for their parent in
+    ``condensed`` (n_N x n_N, its lower triangle); the other updates wait for their parent in
     ``stack``, supernode t's from ``update_at[t]``, a stack of this call's own from
     ``stack_base``: a supernode takes the updates of its children (``child_list[child_ptr[t]:
     child_ptr[t + 1]]``, in reverse postorder), of which the last ``stacked[t]`` pushed on this
@@ -625,7 +624,7 @@ def _eliminate(sequence, indptr, indices, data, first, width, row_at, srows,
         # condensed) into ``condensed``
         u = m - w
         if tparent[t] == -1:
-            _to_condensed(front, m, w, r0, relative, flat, n_N, mirrored)
+            _to_condensed(front, m, w, r0, relative, flat, n_N, False)
         else:
             base = stack_at[depth]   # (its children's entries popped: theirs are read)
             for a in range(u):
@@ -943,13 +942,16 @@ def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=No
     stack = np.empty(symbolic.stack_size)
     update_at = np.empty(len(width), dtype=np.int64)
     sequences, bases = symbolic.parts, symbolic.part_bases
+    share_front = share_front and symbolic.split_front >= 0   # (the top's last supernode)
     # the roots' updates: of the first part and the top (after it), and of the second part; a
-    # tree's one root (the usual case) adds its update into the Schur complement itself, both
-    # triangles, as M_NN + update (the same sums as through the parts' arrays, which would
-    # hold it alone: 0.3 ms less on paper-units Rustrel, two n_N x n_N arrays less)
-    # (a Fortran-ordered one through its transpose, whose triangles take the same sums)
+    # tree whose one root is the shared front (a refactorisation's usual case) adds that
+    # root's update into the Schur complement itself, both triangles, as M_NN + update (the
+    # same sums as through the parts' arrays, which would hold it alone: 0.3 ms less on
+    # paper-units Rustrel, two n_N x n_N arrays less); a Fortran-ordered one through its
+    # transpose, whose triangles take the same sums. (Not in ``_eliminate``, whose argument
+    # types stay those compile_ahead.KERNELS lists.)
     direct = schur if schur.flags.c_contiguous else schur.T
-    mirrored = symbolic.roots == 1 and direct.flags.c_contiguous
+    mirrored = share_front and symbolic.roots == 1 and direct.flags.c_contiguous
     first_part, second_part = ((direct, direct) if mirrored
                                else (np.zeros((n_N, n_N)), np.zeros((n_N, n_N))))
     common = (lower.indptr, lower.indices, lower.data, first, width, row_at, srows,
@@ -958,7 +960,7 @@ def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=No
 
     def run(part, condensed, sequence=None, buffers=None):
         sequence = sequences[part] if sequence is None else sequence
-        _eliminate(sequence, *common, condensed, mirrored, stack, bases[part], update_at,
+        _eliminate(sequence, *common, condensed, stack, bases[part], update_at,
                    blas_width, blas_rows,
                    *(buffers or _front_buffers(sequence, symbolic, n_N, blas_width, blas_rows)))
 
@@ -977,7 +979,7 @@ def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=No
     else:
         run(0, first_part)
         run(1, second_part)
-    if share_front and symbolic.split_front >= 0:   # (the top's last supernode)
+    if share_front:
         run(2, first_part, sequences[2][:-1])
         _split_front(symbolic.split_front, lower, symbolic, diagonal, values, stack, update_at,
                      first_part, mirrored, threads)

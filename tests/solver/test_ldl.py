@@ -317,12 +317,13 @@ def test_two_threads_give_the_factors_of_one(poroelastic, elastic, monkeypatch, 
 @pytest.mark.parametrize("threads", [1, 2])
 def test_one_root_adds_its_update_into_the_schur_complement_itself(poroelastic, monkeypatch,
                                                                     threads, shared):
-    """A tree of one root adds its update straight into M_NN, both triangles (``_numeric``'s
-    ``mirrored``, through the transpose for a Fortran-ordered M_NN): the Schur complement, the
-    pivots and the packed L equal bit for bit those made through the parts' own arrays summed
-    afterwards (the path a forest takes, and any M_NN neither C- nor Fortran-ordered, here a
-    strided view), and the Schur complement equals numpy's dense M_NN - M_NB B^-1 M_BN to
-    1e-11 of its largest entry."""
+    """A tree whose one root is the shared front (``shared``) adds that root's update straight
+    into M_NN, both triangles (``_numeric``'s ``mirrored``, through the transpose for a
+    Fortran-ordered M_NN); unshared, the roots' updates go through the parts' own arrays summed
+    afterwards (also the path of a forest, and of an M_NN neither C- nor Fortran-ordered, here
+    a strided view). Either way the Schur complement, the pivots and the packed L are equal
+    bit for bit for the three layouts, and the Schur complement equals numpy's dense
+    M_NN - M_NB B^-1 M_BN to 1e-11 of its largest entry."""
     monkeypatch.setattr(ldl, "SPLIT_FRONT_ABOVE", 0.0 if shared else np.inf)
     M, nB = _free_block(poroelastic, 600.0, symmetric_form=True)
     lower, M_NN = ldl._lower(M, nB), M[nB:, nB:].toarray()
