@@ -48,7 +48,7 @@ of the numeric factorisation with the large fronts through BLAS (``ldl.BLAS_MIN_
 CPU time of numpy's matrix product (BLAS dgemm, one thread) on the very shapes of the products
 the BLAS fronts make, which bounds what those fronts can take; and the parts that a
 refactorisation runs in two threads (``ldl.LDLSymbolic.parts``, the top's last front shared by
-the threads: ``ldl._split_front``, by BLAS panels also in the loops-only timing): each part's
+the threads: ``ldl._front_by_halves``, by BLAS panels also in the loops-only timing): each part's
 thread CPU time in one thread and the wall time in one and in two threads; and where the wall in
 two threads goes (medians of timers around the kernels and of the shared front's own clock
 stamps, ``ldl._front_by_halves``): the set-up before the parts, each part's wall and the later
@@ -359,10 +359,8 @@ def fronts(key, repeat):
               f"{ms['imbalance']:.2f} after), to the top {ms['to_top']:.2f}, the top "
               f"{ms['top']:.2f}, to the shared front {ms['to_front']:.2f}, the front "
               f"{ms['front']:.2f} (its halves' path {ms['front_path']:.2f}, lost to "
-              f"{line['meetings']:.0f} meetings and the second half's start "
-              f"{ms['front'] - ms['front_path']:.2f}, of it the start {ms['front_start']:.2f}; "
-              f"its set-up {ms['front_python']:.2f}), the end {ms['end']:.2f}: wall "
-              f"{ms['wall']:.2f} against "
+              f"{line['meetings']:.0f} meetings {ms['front'] - ms['front_path']:.2f}), the end "
+              f"{ms['end']:.2f}: wall {ms['wall']:.2f} against "
               f"the threads' path {1e3 * path:.2f} (the parts and the top's thread CPU in one "
               f"thread, the front's halves in two); {line['faults']:.0f} minor page faults a "
               f"factorisation")
@@ -387,15 +385,16 @@ def _entries_moved(lower, symbolic):
 def _front_halves(stamps):
     """From the shared front's clock stamps of a two-thread factorisation
     (``ldl._front_by_halves``: each half's start, each meeting's arrival and departure, its
-    end): (its wall, its path: per stretch between meetings the longer half's, the second
-    half's start after the first's, meetings). The wall less the path is what the halves lost
-    to meeting: the second thread's start, a half noticing the other's arrival late."""
+    end): (its wall from the first half's start, its path: per stretch between meetings the
+    longer half's, meetings). The wall less the path is what the halves lost to meeting (a
+    half noticing the other's arrival late). The second half starts earlier, after its part of
+    the tree, and waits at the first meeting."""
     t = stamps[:, 0::2] + 1e-9 * stamps[:, 1::2]   # (s)
     meetings = (t.shape[1] - 2) // 2
     begin = np.concatenate([t[:, :1], t[:, 2:-1:2]], axis=1)   # (each stretch's start, end)
     end = np.concatenate([t[:, 1:-1:2], t[:, -1:]], axis=1)
     path = float(np.sum(np.max(end - begin, axis=0)))
-    return float(t[:, -1].max() - t[:, 0].min()), path, float(t[1, 0] - t[0, 0]), meetings
+    return float(t[:, -1].max() - t[0, 0]), path, meetings
 
 
 def _parts(lower, condensed, symbolic, repeat):
@@ -403,13 +402,13 @@ def _parts(lower, condensed, symbolic, repeat):
     part's thread CPU time (the first part, the second, the top less a shared front, that
     front); the wall time in one and in two threads; and of the two-thread runs the median
     timeline (ms): the set-up before the parts (allocations, buffers, the second thread's
-    start), each part's wall and the later one's lead (imbalance), from the join to the top,
-    the top, from it to the shared front, the front's wall, its path (``_front_halves``) and
-    its halves' waiting for each other, the end (the roots' updates summed), and the minor
-    page faults of the process per factorisation."""
+    start), each part's wall and the later one's lead (imbalance), from the later end to the
+    top, the top, from it to the shared front, the front's wall and its path
+    (``_front_halves``), the end (after the front), and the minor page faults of the process
+    per factorisation."""
     from fault_screen import ldl
 
-    names = ("_eliminate", "_front_by_halves", "_split_front", "_front_buffers")
+    names = ("_eliminate", "_front_by_halves", "_await_part", "_front_buffers")
     saved, log = {name: getattr(ldl, name) for name in names}, []
 
     def timed(name):
@@ -445,19 +444,18 @@ def _parts(lower, condensed, symbolic, repeat):
             own, other = ([e for e in runs if e[1] == mine] for mine in (True, False))
             if len(own) < 2 or not other:
                 continue
-            split = [e for e in log if e[0] == "_split_front"]
+            halves = [e for e in log if e[0] == "_front_by_halves" and e[1]]
             top_end = own[-1][3]
-            front = _front_halves(symbolic.front_stamps) if split else (0.0, 0.0, 0.0, 0)
+            front = _front_halves(symbolic.front_stamps) if halves else (0.0, 0.0, 0)
             timeline.append(dict(
                 setup=min(own[0][2], other[0][2]) - w0,
                 first=own[0][3] - own[0][2], second=other[0][3] - other[0][2],
                 imbalance=abs(own[0][3] - other[0][3]),
                 to_top=own[1][2] - max(own[0][3], other[0][3]), top=own[1][3] - own[1][2],
-                to_front=(split[0][2] - top_end) if split else 0.0,
-                front=front[0], front_path=front[1], front_start=front[2],
-                front_python=(split[0][3] - split[0][2] - front[0]) if split else 0.0,
-                end=w1 - (split[0][3] if split else top_end), wall=w1 - w0, faults=faults,
-                meetings=front[3]))
+                to_front=(halves[0][2] - top_end) if halves else 0.0,
+                front=front[0], front_path=front[1],
+                end=w1 - (halves[0][3] if halves else top_end), wall=w1 - w0, faults=faults,
+                meetings=front[2]))
     finally:
         for name, fn in saved.items():
             setattr(ldl, name, fn)

@@ -682,16 +682,21 @@ def _store_release(typingctx, array, index, value):
     return types.void(array, index, value), codegen
 
 
-#: the C library's sched_yield and clock_gettime (found in the process, as numba_xxgemm)
-_sched_yield = types.ExternalFunction("sched_yield", types.intc())
+#: the C library's clock_gettime and usleep (found in the process, as numba_xxgemm)
 _clock_gettime = types.ExternalFunction("clock_gettime", types.intc(
     types.intc, types.CPointer(types.int64)))
+_usleep = types.ExternalFunction("usleep", types.intc(types.uint32))
 #: clock_gettime's CLOCK_MONOTONIC (time.perf_counter's clock on Linux)
 _MONOTONIC = 1
-#: looks at the other half's count before a waiting thread yields its core at each further
-#: look (~10 us of spinning: a thread woken from a sleep, as at threading.Barrier, takes
-#: 70-100 us on this machine; yielding lets the other half run when both share a core)
-SPINS = 20000
+#: a waiting thread spins this long (ns; a thread woken from a sleep, as at a
+#: threading.Barrier, took 70-100 us on this machine, a spin 0.4 us), ...
+SPIN_NS = 50_000
+#: ... then sleeps this long (us, plus the kernel's timer slack) between looks, so that a
+#: machine's other work, or the other half sharing its core, runs
+SLEEP_US = 20
+#: ``sync``'s entries: the halves' counts (0, 1), a thread failed (2), the second thread's
+#: part of the tree done (3), each half's clock read (from 8 and 16: other cache lines)
+_SYNC_SIZE, _CLOCK_AT = 24, 8
 
 
 @helper
@@ -701,21 +706,51 @@ def _stamp(stamps, half, k):
 
 
 @helper
-def _meet(sync, stamps, half, k):
-    """The two halves' k-th meeting: this half's count to k, then wait until the other's is k
-    (spinning, then yielding: ``SPINS``); False when the other half failed (``sync[2]`` set).
-    Its arrival and its departure stamped (``stamps[half]``, points 2k - 1 and 2k)."""
-    _stamp(stamps, half, 2 * k - 1)
-    _store_release(sync, half, k)
+def _now(sync, half):
+    """The monotonic clock (ns), read into ``sync``'s entries for ``half``."""
+    at = _CLOCK_AT * (1 + half)
+    _clock_gettime(_MONOTONIC, sync[at:].ctypes)
+    return sync[at] * 1_000_000_000 + sync[at + 1]
+
+
+@helper
+def _wait_until(sync, half, index, count):
+    """Half ``half`` waits until ``sync[index]`` is at least ``count``: spinning for SPIN_NS,
+    then sleeping SLEEP_US between looks; False when a thread failed (``sync[2]`` set)."""
     looks = 0
-    while _load_acquire(sync, 1 - half) < k:
+    start = -1
+    while _load_acquire(sync, index) < count:
         if _load_acquire(sync, 2) != 0:
             return False
         looks += 1
-        if looks > SPINS:
-            _sched_yield()
+        if looks % 64 == 0:
+            if start < 0:
+                start = _now(sync, half)
+            elif _now(sync, half) - start > SPIN_NS:
+                _usleep(SLEEP_US)
+    return True
+
+
+@helper
+def _meet(sync, stamps, half, k):
+    """The two halves' k-th meeting: this half's count (``sync[half]``) to k, then wait until
+    the other's is k (``_wait_until``); False when the other half failed. Its arrival and its
+    departure stamped (``stamps[half]``, points 2k - 1 and 2k)."""
+    _stamp(stamps, half, 2 * k - 1)
+    _store_release(sync, half, k)
+    if not _wait_until(sync, half, 1 - half, k):
+        return False
     _stamp(stamps, half, 2 * k)
     return True
+
+
+@kernel
+def _await_part(sync):
+    """The calling thread waits for the second thread's part of the tree, done when its half of
+    the shared front starts (``sync[3]``): a spin of the two threads' own, where a lock would
+    wake the waiting thread 0.1-0.2 ms late on this machine (``_wait_until``). False when it
+    failed."""
+    return _wait_until(sync, 0, 3, 1)
 
 
 @kernel
@@ -723,16 +758,17 @@ def _front_by_halves(half, t, panel_c0, panel_b, rows_cut, block_ptr, blocks, sy
                      front, where, indptr, indices, data, first, width, row_at, srows, child_ptr,
                      child_list, relative, stack, update_at, diagonal, column_d, xt, dlrows,
                      strip, value_at, values, condensed, mirrored):
-    """Supernode t (a root) factorised by panels whose rows below and update are shared
-    between two halves (``_split_front``): ``half`` 0 (the calling thread: the assembly, each
-    panel's pivots, the packing), 1 (the other thread), or -1 (both, one after the other, in
-    one thread). Per panel p (columns ``panel_c0[p]``, ``panel_b[p]`` of them): its pivot block
-    (``_pivot_block``), then each half's rows below (``_panel_rows``: half 0 the first
-    ``rows_cut[p]``, half 1 the others), then each half's blocks of UPDATE_BLOCK rows of the
-    update (``_panel_update``: those from ``blocks[block_ptr[2p + half]:block_ptr[2p + half
-    + 1]]``); in two threads the halves meet (``_meet``) after the pivots, after the rows
-    and after the update, with ``sync`` (the halves' counts; [2]: a half failed) and
-    ``stamps`` (each half's clock at the start, at each meeting's arrival and departure, at
+    """Supernode t (the last of the top: a root) factorised by panels whose rows below and
+    update are shared between two halves (``_numeric``, ``_front_arguments``): ``half`` 0 (the
+    calling thread: the assembly, each panel's pivots, the packing), 1 (the other thread,
+    after its part of the tree), or -1 (both, one after the other, in one thread). Per panel
+    p (columns ``panel_c0[p]``, ``panel_b[p]`` of them): its pivot block (``_pivot_block``),
+    then each half's rows below (``_panel_rows``: half 0 the first ``rows_cut[p]``, half 1 the
+    others), then each half's blocks of UPDATE_BLOCK rows of the update (``_panel_update``:
+    those from ``blocks[block_ptr[2p + half]:block_ptr[2p + half + 1]]``); in two threads the
+    halves meet (``_meet``) after the pivots, after the rows and after the update, with
+    ``sync`` (``_SYNC_SIZE``: the halves' counts, a thread failed, [3] set as the second half
+    starts, after the second thread's part of the tree) and ``stamps`` (each half's clock at the start, at each meeting's arrival and departure, at
     the end). The same calls on the same rows in one thread or two: the same factors bit for
     bit. False when the other half failed. One kernel for a half's whole front: a call, not a
     Python call and a threading.Barrier per step (70-100 us each)."""
@@ -743,6 +779,8 @@ def _front_by_halves(half, t, panel_c0, panel_b, rows_cut, block_ptr, blocks, sy
     own = 0 if both else half
     k = 0
     _stamp(stamps, own, 0)
+    if half == 1:   # (the second thread's part of the tree is done: ``_await_part``)
+        _store_release(sync, 3, 1)
     if half != 1:
         _assemble(front, t, where, indptr, indices, data, first, width, row_at, srows,
                   child_ptr, child_list, relative, stack, update_at)
@@ -808,7 +846,7 @@ def _in_background(fn, *args):
 
 
 def _front_plan(t, symbolic):
-    """The panels of the shared front t (``_split_front``), from the pattern alone: (their first
+    """The panels of the shared front t (``_front_by_halves``), from the pattern alone: (their first
     columns, widths, rows-below cuts, and per panel and half where its update's blocks start in
     the blocks' list, the list). Each panel's rows below are cut in half at a multiple of
     SPLIT_ALIGN rows; its update's blocks (``_panel_update``'s own, rows i0 .. i1 - 1 taking
@@ -838,52 +876,25 @@ def _front_plan(t, symbolic):
                                                           blocks))
 
 
-def _split_front(t, lower, symbolic, diagonal, values, stack, update_at, condensed, mirrored,
-                 threads):
-    """Supernode t (the last of the top: a root) factorised by panels of PANEL columns, each
-    panel's pivot block in the calling thread, then its rows below and their update in two
-    halves (``_front_by_halves``), in two threads when ``threads`` is 2, else one after the
-    other: the same calls on the same rows either way, so the same factors bit for bit. The
-    halves' clock stamps are left in ``symbolic.front_stamps`` (``benchmarks/factorisation.py
-    --fronts``)."""
+def _front_arguments(t, lower, symbolic, diagonal, values, stack, update_at, condensed,
+                     mirrored):
+    """``_front_by_halves``' arguments after ``half`` for supernode t (the last of the top: a
+    root), its buffers made here, in the calling thread (``_front_buffers``); ``sync`` is the
+    seventh. The halves' clock stamps are left in ``symbolic.front_stamps``
+    (``benchmarks/factorisation.py --fronts``)."""
     first, width, row_at, srows, tparent, children, relative = symbolic.tree
     w, m = int(width[t]), int(row_at[t + 1] - row_at[t])
-    n_N = condensed.shape[0]
     if symbolic.front_plan is None:
         symbolic.front_plan = _front_plan(t, symbolic)
     plan = symbolic.front_plan
     meetings = 3 * len(plan[0])
-    sync = np.zeros(3, dtype=np.int64)
-    stamps = np.zeros((2, 2 * (2 * meetings + 2)), dtype=np.int64)
-    arguments = (t, *plan, sync, stamps, np.empty(m * m),
-                 np.empty(symbolic.n_linear + n_N, dtype=np.int64), lower.indptr, lower.indices,
-                 lower.data, first, width, row_at, srows, symbolic.child_ptr,
-                 symbolic.child_list, relative, stack, update_at, diagonal,
-                 np.empty(max(w, 1)), np.empty((2, PANEL * m)), np.empty(PANEL * m),
-                 np.empty((2, SOLVE_BLOCK * PANEL)), symbolic.value_at, values, condensed,
-                 mirrored)
-    symbolic.front_stamps = stamps
-    if threads < 2:
-        _front_by_halves(-1, *arguments)
-        return
-
-    def second_half():
-        try:
-            _front_by_halves(1, *arguments)
-        except BaseException:
-            sync[2] = 1   # (the calling thread stops waiting for it)
-            raise
-
-    join = _in_background(second_half)
-    try:
-        whole = _front_by_halves(0, *arguments)
-    except BaseException:
-        sync[2] = 1
-        join(raise_failure=False)
-        raise
-    join()   # (raises the second half's error: when it failed, ``whole`` is False)
-    if not whole:
-        raise RuntimeError("the shared front's second half stopped without an error")
+    symbolic.front_stamps = stamps = np.zeros((2, 2 * (2 * meetings + 2)), dtype=np.int64)
+    return (t, *plan, np.zeros(_SYNC_SIZE, dtype=np.int64), stamps, np.empty(m * m),
+            np.empty(symbolic.n_linear + condensed.shape[0], dtype=np.int64), lower.indptr,
+            lower.indices, lower.data, first, width, row_at, srows, symbolic.child_ptr,
+            symbolic.child_list, relative, stack, update_at, diagonal, np.empty(max(w, 1)),
+            np.empty((2, PANEL * m)), np.empty(PANEL * m), np.empty((2, SOLVE_BLOCK * PANEL)),
+            symbolic.value_at, values, condensed, mirrored)
 
 
 def front_multiply_adds(width, below):
@@ -901,7 +912,7 @@ THREADS_ABOVE = 20e6
 BALANCE = 0.03
 #: ... splitting at most this many subtrees (each split moves a front into the serial top)
 MOST_SPLITS = 16
-#: the top's last front is shared between the two threads (``_split_front``) when its rows
+#: the top's last front is shared between the two threads (``_front_by_halves``) when its rows
 #: below and its update take at least this many multiply-adds, at a refactorisation only (a
 #: pattern's numeric factorisations after its first: a run on one step size never compiles or
 #: loads the shared front's kernel, which costs seconds of compilation and a cache load for
@@ -966,25 +977,51 @@ def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=No
 
     if threads is None:
         threads = 2 if symbolic.multiply_adds > THREADS_ABOVE else 1
-    if threads >= 2 and len(sequences[0]) and len(sequences[1]):
+    # the shared front's halves (``_front_by_halves``): the second in the thread of the second
+    # part, right after it, so that one thread is started and joined per factorisation, and
+    # the first thread waits for that part by a spin (``_await_part``), not a lock
+    halves = (_front_arguments(symbolic.split_front, lower, symbolic, diagonal, values, stack,
+                               update_at, first_part, mirrored) if share_front else None)
+    top = sequences[2][:-1] if share_front else sequences[2]
+    if threads >= 2 and (halves is not None or (len(sequences[0]) and len(sequences[1]))):
         # (the second part's buffers made here, not in its thread: see _front_buffers)
-        join = _in_background(run, 1, second_part, None,
-                              _front_buffers(sequences[1], symbolic, n_N, blas_width, blas_rows))
+        buffers = _front_buffers(sequences[1], symbolic, n_N, blas_width, blas_rows)
+
+        def second():
+            try:
+                run(1, second_part, None, buffers)
+                if halves is not None:
+                    _front_by_halves(1, *halves)
+            except BaseException:
+                if halves is not None:
+                    halves[6][2] = 1   # (the calling thread stops waiting for it)
+                raise
+
+        join = _in_background(second)
+        whole = True
         try:
             run(0, first_part)
+            if halves is None:
+                join()
+            elif not _await_part(halves[6]):
+                join()   # (raises the second thread's error)
+            run(2, first_part, top)
+            if halves is not None:
+                whole = _front_by_halves(0, *halves)
         except BaseException:
+            if halves is not None:
+                halves[6][2] = 1
             join(raise_failure=False)
             raise
-        join()
+        join()   # (raises the second half's error: when it failed, ``whole`` is False)
+        if not whole:
+            raise RuntimeError("the shared front's second half stopped without an error")
     else:
         run(0, first_part)
         run(1, second_part)
-    if share_front:
-        run(2, first_part, sequences[2][:-1])
-        _split_front(symbolic.split_front, lower, symbolic, diagonal, values, stack, update_at,
-                     first_part, mirrored, threads)
-    else:
-        run(2, first_part)
+        run(2, first_part, top)
+        if halves is not None:
+            _front_by_halves(-1, *halves)
     if not mirrored:
         # the roots' updates are lower triangles (zero above the diagonal): summed in place and
         # mirrored with one temporary (n_N x n_N arrays: 46 MB each on a fault of 2,400 unknowns)
@@ -1120,7 +1157,7 @@ class LDLSymbolic:
         self.factorisations = 0   # (numeric ones on this analysis: ``_numeric``)
         self.roots = int(np.sum(tparent == -1))
         self.split_front = -1
-        self.front_plan = self.front_stamps = None   # (``_split_front``'s)
+        self.front_plan = self.front_stamps = None   # (``_front_arguments``)
         if len(parts[2]):
             last = int(parts[2][-1])
             if (width[last] >= BLAS_MIN_WIDTH and u[last] >= BLAS_MIN_ROWS

@@ -242,7 +242,7 @@ def test_a_wide_dense_front_by_panels(n, nB, shared, monkeypatch):
     ldl.PANEL columns at a time, each panel's rows solved in blocks of ldl.SOLVE_BLOCK and
     updated in blocks of ldl.UPDATE_BLOCK (several of each, and partial last ones), against
     numpy to 1e-11 and the backward error below 1e-15. ``shared``: the front is the top's
-    last, shared between two threads (``ldl._split_front``: each panel's rows below and
+    last, shared between two threads (``ldl._front_by_halves``: each panel's rows below and
     update in two halves), its factors in one and in two threads equal bit for bit."""
     monkeypatch.setattr(ldl, "SPLIT_FRONT_ABOVE", 0.0 if shared else np.inf)
     monkeypatch.setattr(ldl, "THREADS_ABOVE", 0.0)   # (two threads)
@@ -279,7 +279,7 @@ def test_two_threads_give_the_factors_of_one(poroelastic, elastic, monkeypatch, 
     the factors, pivots and Schur complement equal, bit for bit, those of the same parts one
     after the other; and against numpy's dense solves to 1e-11, the backward error below 1e-15
     (``_check_against_dense``). ``shared``: also the top's last front shared between the two
-    threads (``ldl._split_front``)."""
+    threads (``ldl._front_by_halves``)."""
     monkeypatch.setattr(ldl, "SPLIT_FRONT_ABOVE", 0.0 if shared else np.inf)
     if kind in ("elastic", "split"):
         M, nB = _free_block(elastic, elastic.system.dt, symmetric_form=False)
