@@ -435,9 +435,10 @@ def _parts(lower, condensed, symbolic, repeat):
             best = [min(b, t) for b, t in zip(best, parts[:2] + [sum(parts[2:]), front])]
         for _ in range(max(repeat, 5)):
             log.clear()
+            schur = condensed.copy()   # (not in the timeline: the caller's array)
             faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
             w0 = time.perf_counter()
-            ldl._numeric(lower, condensed.copy(), symbolic, 2, share_front=True)
+            ldl._numeric(lower, schur, symbolic, 2, share_front=True)
             w1 = time.perf_counter()
             faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults
             runs = [e for e in log if e[0] == "_eliminate"]
@@ -463,8 +464,9 @@ def _parts(lower, condensed, symbolic, repeat):
     for threads in (1, 2):
         walls[threads] = np.inf
         for _ in range(repeat):
+            schur = condensed.copy()
             t0 = time.perf_counter()
-            ldl._numeric(lower, condensed.copy(), symbolic, threads, share_front=True)
+            ldl._numeric(lower, schur, symbolic, threads, share_front=True)
             walls[threads] = min(walls[threads], time.perf_counter() - t0)
     median = {k: float(np.median([r[k] for r in timeline])) for k in timeline[0]} if timeline else {}
     return (*best, walls, median)
