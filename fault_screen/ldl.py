@@ -465,28 +465,43 @@ def _panel_update(front, m, o, w, dlrows, i_begin, i_end):
 
 @helper
 def _assemble(front, t, where, indptr, indices, data, first, width, row_at, srows, child_ptr,
-              child_list, relative, stack, update_at):
-    """Supernode t's front (m x m, its lower triangle): the matrix's own entries of its columns,
-    then the extend-add of each child's update (lower triangles, at ``update_at[child]`` in
-    ``stack``), the children in ``child_list``'s order (``_eliminate``)."""
+              child_list, relative, stack, update_at, k_begin, k_end):
+    """Rows ``k_begin .. k_end - 1`` of supernode t's front (m x m, its lower triangle): the
+    matrix's own entries of its columns, then the extend-add of each child's update (lower
+    triangles, at ``update_at[child]`` in ``stack``), the children in ``child_list``'s order
+    (``_eliminate``: all the rows; ``_front_by_halves``: two ranges, one a thread, each entry
+    the same sums in the same order). ``where``: each of those rows' position, by its row."""
     j0, w = first[t], width[t]
     r0 = row_at[t]
     m = row_at[t + 1] - r0
-    for a in range(m):   # (only the lower triangle is read)
+    whole = k_begin == 0 and k_end == m
+    for a in range(k_begin, k_end):   # (only the lower triangle is read)
         for b in range(a + 1):
             front[_unsigned(a * m + b)] = 0.0
-    for k in range(m):
+    for k in range(k_begin, k_end):
         where[srows[r0 + k]] = k
+    if k_end <= k_begin:
+        return
+    lowest, highest = srows[r0 + k_begin], srows[r0 + k_end - 1]   # (the front's rows sorted)
     for c in range(w):   # the matrix's own entries of the supernode's columns
         for p in range(indptr[j0 + c], indptr[j0 + c + 1]):
-            front[where[indices[p]] * m + c] += data[p]
+            i = indices[p]
+            if whole or lowest <= i <= highest:
+                front[where[i] * m + c] += data[p]
     for q in range(child_ptr[t], child_ptr[t + 1]):
         child = child_list[q]
         base = update_at[child]
         cw = width[child]
         c0 = row_at[child] + cw
         u = row_at[child + 1] - c0
-        for a in range(u):
+        a0, a1 = 0, u   # (the child's rows in the range: its positions ascend)
+        if not whole:
+            while a0 < u and relative[c0 + a0] < k_begin:
+                a0 += 1
+            a1 = a0
+            while a1 < u and relative[c0 + a1] < k_end:
+                a1 += 1
+        for a in range(a0, a1):
             ra = relative[c0 + a] * m
             at = base + a * u
             for b in range(a + 1):
@@ -559,7 +574,7 @@ def _eliminate(sequence, indptr, indices, data, first, width, row_at, srows,
         r0 = row_at[t]
         m = row_at[t + 1] - r0
         _assemble(front, t, where, indptr, indices, data, first, width, row_at, srows,
-                  child_ptr, child_list, relative, stack, update_at)
+                  child_ptr, child_list, relative, stack, update_at, 0, m)
         depth -= stacked[t]   # (this call's stack: its children's entries are its top ones)
         if w >= blas_width and m - w >= blas_rows:
             # a panel of columns at a time: its pivots, then its rows below and their update
@@ -695,7 +710,8 @@ SPIN_NS = 50_000
 #: machine's other work, or the other half sharing its core, runs
 SLEEP_US = 20
 #: ``sync``'s entries: the halves' counts (0, 1), a thread failed (2), the second thread's
-#: part of the tree done (3), each half's clock read (from 8 and 16: other cache lines)
+#: part of the tree done (3), the top done (4), each half's clock read (from 8 and 16: other
+#: cache lines)
 _SYNC_SIZE, _CLOCK_AT = 24, 8
 
 
@@ -754,21 +770,23 @@ def _await_part(sync):
 
 
 @kernel
-def _front_by_halves(half, t, panel_c0, panel_b, rows_cut, block_ptr, blocks, sync, stamps,
-                     front, where, indptr, indices, data, first, width, row_at, srows, child_ptr,
-                     child_list, relative, stack, update_at, diagonal, column_d, xt, dlrows,
-                     strip, value_at, values, condensed, mirrored):
+def _front_by_halves(half, t, assembly_cut, panel_c0, panel_b, rows_cut, block_ptr, blocks,
+                     sync, stamps, front, where, indptr, indices, data, first, width, row_at,
+                     srows, child_ptr, child_list, relative, stack, update_at, diagonal, column_d,
+                     xt, dlrows, strip, value_at, values, condensed, mirrored):
     """Supernode t (the last of the top: a root) factorised by panels whose rows below and
     update are shared between two halves (``_numeric``, ``_front_arguments``): ``half`` 0 (the
-    calling thread: the assembly, each panel's pivots, the packing), 1 (the other thread,
-    after its part of the tree), or -1 (both, one after the other, in one thread). Per panel
+    calling thread: its rows before ``assembly_cut`` assembled, each panel's pivots, the
+    packing), 1 (the other thread, after its part of the tree: the other rows assembled), or
+    -1 (both, one after the other, in one thread). Per panel
     p (columns ``panel_c0[p]``, ``panel_b[p]`` of them): its pivot block (``_pivot_block``),
     then each half's rows below (``_panel_rows``: half 0 the first ``rows_cut[p]``, half 1 the
     others), then each half's blocks of UPDATE_BLOCK rows of the update (``_panel_update``:
     those from ``blocks[block_ptr[2p + half]:block_ptr[2p + half + 1]]``); in two threads the
     halves meet (``_meet``) after the pivots, after the rows and after the update, with
     ``sync`` (``_SYNC_SIZE``: the halves' counts, a thread failed, [3] set as the second half
-    starts, after the second thread's part of the tree) and ``stamps`` (each half's clock at the start, at each meeting's arrival and departure, at
+    starts, after the second thread's part of the tree, [4] as the first starts, after the
+    top) and ``stamps`` (each half's clock at the start, at each meeting's arrival and departure, at
     the end). The same calls on the same rows in one thread or two: the same factors bit for
     bit. False when the other half failed. One kernel for a half's whole front: a call, not a
     Python call and a threading.Barrier per step (70-100 us each)."""
@@ -778,12 +796,18 @@ def _front_by_halves(half, t, panel_c0, panel_b, rows_cut, block_ptr, blocks, sy
     both = half == -1
     own = 0 if both else half
     k = 0
+    if half == 1:   # (its part of the tree is done: ``_await_part``; it assembles its rows
+        _store_release(sync, 3, 1)   # once the top's updates are made: sync[4])
+        if not _wait_until(sync, 1, 4, 1):
+            return False
+    elif half == 0:
+        _store_release(sync, 4, 1)
     _stamp(stamps, own, 0)
-    if half == 1:   # (the second thread's part of the tree is done: ``_await_part``)
-        _store_release(sync, 3, 1)
-    if half != 1:
-        _assemble(front, t, where, indptr, indices, data, first, width, row_at, srows,
-                  child_ptr, child_list, relative, stack, update_at)
+    for h in range(2):   # (its rows in two ranges; the first holds the first pivot block)
+        if both or h == half:
+            _assemble(front, t, where, indptr, indices, data, first, width, row_at, srows,
+                      child_ptr, child_list, relative, stack, update_at,
+                      0 if h == 0 else assembly_cut, assembly_cut if h == 0 else m)
     for p in range(len(panel_c0)):
         c0, b = panel_c0[p], panel_b[p]
         o = c0 * m + c0
@@ -846,9 +870,11 @@ def _in_background(fn, *args):
 
 
 def _front_plan(t, symbolic):
-    """The panels of the shared front t (``_front_by_halves``), from the pattern alone: (their first
-    columns, widths, rows-below cuts, and per panel and half where its update's blocks start in
-    the blocks' list, the list). Each panel's rows below are cut in half at a multiple of
+    """The plan of the shared front t (``_front_by_halves``), from the pattern alone: (the row
+    where its assembly is cut between the halves, then per panel its first column, width,
+    rows-below cut, and per half where its update's blocks start in the blocks' list, the list).
+    The assembly is cut where the rows before hold ASSEMBLY_SHARE of the lower triangle (at
+    least a panel: the first pivot block is the calling thread's, before the halves meet). Each panel's rows below are cut in half at a multiple of
     SPLIT_ALIGN rows; its update's blocks (``_panel_update``'s own, rows i0 .. i1 - 1 taking
     (i1 - i0) i1 products) are dealt to the lighter half, the largest first."""
     width, row_at = symbolic.tree[1], symbolic.tree[2]
@@ -872,29 +898,30 @@ def _front_plan(t, symbolic):
         panel_b.append(b)
         rows_cut.append(min(u, SPLIT_ALIGN * int(round(u / 2.0 / SPLIT_ALIGN))))
         c0 += b
-    return tuple(np.asarray(x, dtype=np.int64) for x in (panel_c0, panel_b, rows_cut, block_ptr,
-                                                          blocks))
+    assembly_cut = min(m, max(PANEL, int(round(m * np.sqrt(ASSEMBLY_SHARE)))))
+    return (assembly_cut, *(np.asarray(x, dtype=np.int64)
+                            for x in (panel_c0, panel_b, rows_cut, block_ptr, blocks)))
 
 
 def _front_arguments(t, lower, symbolic, diagonal, values, stack, update_at, condensed,
                      mirrored):
-    """``_front_by_halves``' arguments after ``half`` for supernode t (the last of the top: a
-    root), its buffers made here, in the calling thread (``_front_buffers``); ``sync`` is the
-    seventh. The halves' clock stamps are left in ``symbolic.front_stamps``
+    """(``_front_by_halves``' arguments after ``half`` for supernode t (the last of the top: a
+    root), their ``sync``), its buffers made here, in the calling thread (``_front_buffers``). The halves' clock stamps are left in ``symbolic.front_stamps``
     (``benchmarks/factorisation.py --fronts``)."""
     first, width, row_at, srows, tparent, children, relative = symbolic.tree
     w, m = int(width[t]), int(row_at[t + 1] - row_at[t])
     if symbolic.front_plan is None:
         symbolic.front_plan = _front_plan(t, symbolic)
     plan = symbolic.front_plan
-    meetings = 3 * len(plan[0])
+    meetings = 3 * len(plan[1])
     symbolic.front_stamps = stamps = np.zeros((2, 2 * (2 * meetings + 2)), dtype=np.int64)
-    return (t, *plan, np.zeros(_SYNC_SIZE, dtype=np.int64), stamps, np.empty(m * m),
+    sync = np.zeros(_SYNC_SIZE, dtype=np.int64)
+    return (t, *plan, sync, stamps, np.empty(m * m),
             np.empty(symbolic.n_linear + condensed.shape[0], dtype=np.int64), lower.indptr,
             lower.indices, lower.data, first, width, row_at, srows, symbolic.child_ptr,
             symbolic.child_list, relative, stack, update_at, diagonal, np.empty(max(w, 1)),
             np.empty((2, PANEL * m)), np.empty(PANEL * m), np.empty((2, SOLVE_BLOCK * PANEL)),
-            symbolic.value_at, values, condensed, mirrored)
+            symbolic.value_at, values, condensed, mirrored), sync
 
 
 def front_multiply_adds(width, below):
@@ -924,6 +951,10 @@ SPLIT_FRONT_ABOVE = 4e6
 #: first factorisation must equal the refactorisation it repeats (cuts at any row gave
 #: differences of 1e-20 of the largest entry)
 SPLIT_ALIGN = 16
+#: the calling thread assembles the shared front's rows that hold this share of its lower
+#: triangle, the other thread the rest (the calling thread also makes the first pivots before
+#: they meet: on paper-units Rustrel, with half the rows' entries each, 0.17 against 0.10 ms)
+ASSEMBLY_SHARE = 0.4
 
 
 def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=None,
@@ -980,8 +1011,9 @@ def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=No
     # the shared front's halves (``_front_by_halves``): the second in the thread of the second
     # part, right after it, so that one thread is started and joined per factorisation, and
     # the first thread waits for that part by a spin (``_await_part``), not a lock
-    halves = (_front_arguments(symbolic.split_front, lower, symbolic, diagonal, values, stack,
-                               update_at, first_part, mirrored) if share_front else None)
+    halves, sync = (_front_arguments(symbolic.split_front, lower, symbolic, diagonal, values,
+                                     stack, update_at, first_part, mirrored)
+                    if share_front else (None, None))
     top = sequences[2][:-1] if share_front else sequences[2]
     if threads >= 2 and (halves is not None or (len(sequences[0]) and len(sequences[1]))):
         # (the second part's buffers made here, not in its thread: see _front_buffers)
@@ -994,7 +1026,7 @@ def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=No
                     _front_by_halves(1, *halves)
             except BaseException:
                 if halves is not None:
-                    halves[6][2] = 1   # (the calling thread stops waiting for it)
+                    sync[2] = 1   # (the calling thread stops waiting for it)
                 raise
 
         join = _in_background(second)
@@ -1003,14 +1035,14 @@ def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=No
             run(0, first_part)
             if halves is None:
                 join()
-            elif not _await_part(halves[6]):
+            elif not _await_part(sync):
                 join()   # (raises the second thread's error)
             run(2, first_part, top)
             if halves is not None:
                 whole = _front_by_halves(0, *halves)
         except BaseException:
             if halves is not None:
-                halves[6][2] = 1
+                sync[2] = 1
             join(raise_failure=False)
             raise
         join()   # (raises the second half's error: when it failed, ``whole`` is False)

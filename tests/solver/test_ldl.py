@@ -8,6 +8,7 @@ relative to the reference's largest entry (tests/solver/test_bordered_lu.py's ch
 to a normwise backward error |M x - r| / (|M| |x| + |r|) (infinity norms) below 1e-15 (measured
 2e-17 and less), which a wrong factor entry anywhere exceeds by orders of magnitude."""
 import threading
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -343,6 +344,34 @@ def test_one_root_adds_its_update_into_the_schur_complement_itself(poroelastic, 
     reference = dense[nB:, nB:] - dense[nB:, :nB] @ np.linalg.solve(dense[:nB, :nB],
                                                                      dense[:nB, nB:])
     assert _rel(made["C"][2], reference) < TOL
+
+
+def test_the_second_half_assembles_after_the_calling_threads_fronts(poroelastic, monkeypatch):
+    """The second thread reaches the shared front right after its part of the tree, while the
+    calling thread may still run its own part and the top, whose updates the front's rows
+    take: with each of the calling thread's ``_eliminate`` calls held back 50 ms, the second
+    half must wait for them (``sync[4]``) before it assembles its rows, and the factors equal
+    one thread's bit for bit (a half that did not wait reads those updates before they are
+    made: other factors)."""
+    monkeypatch.setattr(ldl, "SPLIT_FRONT_ABOVE", 0.0)
+    M, nB = _free_block(poroelastic, 600.0, symmetric_form=True)
+    analyses = ldl.SymbolicAnalyses()
+    BorderedLU(M, nB, analyses)   # (the first factorisation: the front not shared yet)
+    monkeypatch.setattr(ldl, "THREADS_ABOVE", np.inf)
+    one = BorderedLU(M, nB, analyses)
+    monkeypatch.setattr(ldl, "THREADS_ABOVE", 0.0)
+    assert analyses.of(ldl._lower(M, nB), nB).split_front >= 0
+    works = ldl._eliminate
+
+    def late(*args):
+        if threading.current_thread() is threading.main_thread():
+            time.sleep(0.05)
+        return works(*args)
+
+    monkeypatch.setattr(ldl, "_eliminate", late)
+    two = BorderedLU(M, nB, analyses)
+    assert np.array_equal(one.schur, two.schur) and np.array_equal(one._D, two._D)
+    assert all(np.array_equal(x, y) for x, y in zip(one._L.arrays, two._L.arrays))
 
 
 @pytest.mark.parametrize("kernel", ["_eliminate", "_front_by_halves"])
