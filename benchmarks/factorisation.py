@@ -468,7 +468,8 @@ def _parts(lower, condensed, symbolic, repeat):
             t0 = time.perf_counter()
             ldl._numeric(lower, schur, symbolic, threads, share_front=True)
             walls[threads] = min(walls[threads], time.perf_counter() - t0)
-    median = {k: float(np.median([r[k] for r in timeline])) for k in timeline[0]} if timeline else {}
+    median = ({k: float(np.median([r[k] for r in timeline])) for k in timeline[0]}
+              if timeline else {})
     return (*best, walls, median)
 
 

@@ -874,9 +874,10 @@ def _front_plan(t, symbolic):
     where its assembly is cut between the halves, then per panel its first column, width,
     rows-below cut, and per half where its update's blocks start in the blocks' list, the list).
     The assembly is cut where the rows before hold ASSEMBLY_SHARE of the lower triangle (at
-    least a panel: the first pivot block is the calling thread's, before the halves meet). Each panel's rows below are cut in half at a multiple of
-    SPLIT_ALIGN rows; its update's blocks (``_panel_update``'s own, rows i0 .. i1 - 1 taking
-    (i1 - i0) i1 products) are dealt to the lighter half, the largest first."""
+    least a panel: the first pivot block is the calling thread's, before the halves meet).
+    Each panel's rows below are cut in half at a multiple of SPLIT_ALIGN rows; its update's
+    blocks (``_panel_update``'s own, rows i0 .. i1 - 1 taking (i1 - i0) i1 products) are dealt
+    to the lighter half, the largest first."""
     width, row_at = symbolic.tree[1], symbolic.tree[2]
     w, m = int(width[t]), int(row_at[t + 1] - row_at[t])
     panel_c0, panel_b, rows_cut, block_ptr, blocks = [], [], [], [0], []
@@ -906,7 +907,8 @@ def _front_plan(t, symbolic):
 def _front_arguments(t, lower, symbolic, diagonal, values, stack, update_at, condensed,
                      mirrored):
     """(``_front_by_halves``' arguments after ``half`` for supernode t (the last of the top: a
-    root), their ``sync``), its buffers made here, in the calling thread (``_front_buffers``). The halves' clock stamps are left in ``symbolic.front_stamps``
+    root), their ``sync``), its buffers made here, in the calling thread (``_front_buffers``).
+    The halves' clock stamps are left in ``symbolic.front_stamps``
     (``benchmarks/factorisation.py --fronts``)."""
     first, width, row_at, srows, tparent, children, relative = symbolic.tree
     w, m = int(width[t]), int(row_at[t + 1] - row_at[t])

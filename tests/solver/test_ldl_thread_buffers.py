@@ -27,7 +27,8 @@ def test_the_second_thread_allocates_no_buffer_of_its_own(poroelastic, monkeypat
     one = BorderedLU(M, nB, analyses)
     monkeypatch.setattr(ldl, "THREADS_ABOVE", 0.0)
     made_in, kernel_calls, numeric = [], [], []
-    make, kernels = ldl._front_buffers, {k: getattr(ldl, k) for k in ("_eliminate", "_front_by_halves", "_await_part")}
+    make = ldl._front_buffers
+    kernels = {k: getattr(ldl, k) for k in ("_eliminate", "_front_by_halves", "_await_part")}
     factorise = ldl._numeric
 
     def making(*args):
