@@ -944,7 +944,7 @@ MOST_SPLITS = 16
 #: the top's last front is shared between the two threads (``_front_by_halves``) when its rows
 #: below and its update take at least this many multiply-adds, at a refactorisation only (a
 #: pattern's numeric factorisations after its first: a run on one step size never compiles or
-#: loads the shared front's kernel, which costs seconds of compilation and a cache load for
+#: loads the shared front's kernels, which cost seconds of compilation and a cache load for
 #: a millisecond or two)
 SPLIT_FRONT_ABOVE = 4e6
 #: its rows below are cut at a multiple of this many (its update by the unshared front's blocks
@@ -972,7 +972,8 @@ def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=No
     its update, as when one pass made it. ``blas_width``, ``blas_rows``: the fronts through
     BLAS (``_eliminate``; default BLAS_MIN_WIDTH and BLAS_MIN_ROWS). ``share_front``: the
     top's last front shared by the threads where the plan has one (``split_front``; default:
-    at a refactorisation, see SPLIT_FRONT_ABOVE)."""
+    at a refactorisation, see SPLIT_FRONT_ABOVE): its halves by ``_front_by_halves``, in two
+    threads the second by the thread of the second part, after it."""
     if share_front is None:
         share_front = symbolic.factorisations > 0
     symbolic.factorisations += 1
