@@ -48,9 +48,13 @@ of the numeric factorisation with the large fronts through BLAS (``ldl.BLAS_MIN_
 CPU time of numpy's matrix product (BLAS dgemm, one thread) on the very shapes of the products
 the BLAS fronts make, which bounds what those fronts can take; and the parts that a
 refactorisation runs in two threads (``ldl.LDLSymbolic.parts``, the top's last front shared by
-the threads: ``ldl._split_front``, by BLAS panels also in the loops-only timing): each part's
-thread CPU time in one thread, the path of two threads that this gives (a shared front's longer
-half of each step), and the wall time in one and in two threads.
+the threads: ``ldl._front_by_halves``, by BLAS panels also in the loops-only timing): each part's
+thread CPU time in one thread and the wall time in one and in two threads; and where the wall in
+two threads goes (medians of timers around the kernels and of the shared front's own clock
+stamps, ``ldl._front_by_halves``): the set-up before the parts, each part's wall and the later
+one's lead, the join, the top, the shared front's wall against its halves' path (per stretch
+between their meetings the longer half's), the end, and the process's minor page faults per
+factorisation.
 Every timing is the least CPU time of ``--repeat`` runs in this one process, with one BLAS
 thread (on a shared machine wall time measures the other processes too); compare rows of one
 run. Each method factorises the whole free matrix in one call: the solver splits a
@@ -61,7 +65,9 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import sys
+import threading
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -339,13 +345,25 @@ def fronts(key, repeat):
           f"{1e3 * times['loops only']:.1f} ms by loops alone; numpy dot alone on the BLAS "
           f"fronts' {len(shapes)} product shapes ({products / 1e6:.1f} M multiply-adds): "
           f"{1e3 * t_dot:.1f} ms ({products / t_dot / 1e9:.1f} G/s)")
-    first_cpu, second_cpu, top_cpu, front_path, walls = parts
+    first_cpu, second_cpu, top_cpu, front_cpu, walls, line = parts
     print(f"the parts of a refactorisation (ldl.LDLSymbolic.parts), thread CPU in one thread: "
           f"{1e3 * first_cpu:.1f} and {1e3 * second_cpu:.1f} ms beside each other, then the top "
           f"{1e3 * top_cpu:.1f} ms and its last front shared by the two threads "
-          f"{1e3 * front_path:.1f} ms on their path: the two threads' path "
-          f"{1e3 * (max(first_cpu, second_cpu) + top_cpu + front_path):.1f} ms; wall in one "
-          f"thread {1e3 * walls[1]:.1f} ms, in two {1e3 * walls[2]:.1f} ms (at this load)")
+          f"({1e3 * front_cpu:.1f} ms in one); wall in one thread {1e3 * walls[1]:.1f} ms, in "
+          f"two {1e3 * walls[2]:.1f} ms (at this load)")
+    if line:
+        ms = {k: 1e3 * v for k, v in line.items()}
+        path = max(first_cpu, second_cpu) + top_cpu + line["front_path"]
+        print(f"two threads, where the wall goes (median ms): set-up {ms['setup']:.2f}, the "
+              f"parts {ms['first']:.2f} and {ms['second']:.2f} (the later ends "
+              f"{ms['imbalance']:.2f} after), to the top {ms['to_top']:.2f}, the top "
+              f"{ms['top']:.2f}, to the shared front {ms['to_front']:.2f}, the front "
+              f"{ms['front']:.2f} (its halves' path {ms['front_path']:.2f}, lost to "
+              f"{line['meetings']:.0f} meetings {ms['front'] - ms['front_path']:.2f}), the end "
+              f"{ms['end']:.2f}: wall {ms['wall']:.2f} against "
+              f"the threads' path {1e3 * path:.2f} (the parts and the top's thread CPU in one "
+              f"thread, the front's halves in two); {line['faults']:.0f} minor page faults a "
+              f"factorisation")
 
 def _entries_moved(lower, symbolic):
     """Entries each front's passes over memory touch in a numeric factorisation
@@ -364,38 +382,81 @@ def _entries_moved(lower, symbolic):
                      u * (u + 1) / 2.0])
 
 
+def _front_halves(stamps):
+    """From the shared front's clock stamps of a two-thread factorisation
+    (``ldl._front_by_halves``: each half's start, each meeting's arrival and departure, its
+    end): (its wall from the first half's start, its path: per stretch between meetings the
+    longer half's, meetings). The wall less the path is what the halves lost to meeting (a
+    half noticing the other's arrival late). The second half starts earlier, after its part of
+    the tree, and waits at the first meeting."""
+    t = stamps[:, 0::2] + 1e-9 * stamps[:, 1::2]   # (s)
+    meetings = (t.shape[1] - 2) // 2
+    begin = np.concatenate([t[:, :1], t[:, 2:-1:2]], axis=1)   # (each stretch's start, end)
+    end = np.concatenate([t[:, 1:-1:2], t[:, -1:]], axis=1)
+    path = float(np.sum(np.max(end - begin, axis=0)))
+    return float(t[:, -1].max() - t[0, 0]), path, meetings
+
+
 def _parts(lower, condensed, symbolic, repeat):
-    """The least thread CPU time of each part of the numeric factorisation run in one thread
-    (the first part, the second, the top less a shared front, that front's steps by the two
-    threads' path: its assembly, each panel's pivots, the longer of each panel's two halves of
-    rows below and of update, its packing), and the least wall time of the whole in one and in
-    two threads."""
+    """The numeric factorisation's parts, the least of ``repeat`` runs each: in one thread each
+    part's thread CPU time (the first part, the second, the top less a shared front, that
+    front); the wall time in one and in two threads; and of the two-thread runs the median
+    timeline (ms): the set-up before the parts (allocations, buffers, the second thread's
+    start), each part's wall and the later one's lead (imbalance), from the later end to the
+    top, the top, from it to the shared front, the front's wall and its path
+    (``_front_halves``), the end (after the front), and the minor page faults of the process
+    per factorisation."""
     from fault_screen import ldl
 
-    saved, log = {name: getattr(ldl, name) for name in ("_eliminate", "_front_step")}, []
+    names = ("_eliminate", "_front_by_halves", "_await_part", "_front_buffers")
+    saved, log = {name: getattr(ldl, name) for name in names}, []
 
     def timed(name):
         def call(*args):
-            t0 = time.thread_time()
-            saved[name](*args)
-            log.append((name, time.thread_time() - t0))
+            w0, t0 = time.perf_counter(), time.thread_time()
+            try:
+                return saved[name](*args)
+            finally:
+                log.append((name, threading.get_ident() == caller, w0, time.perf_counter(),
+                            time.thread_time() - t0))
         return call
 
+    caller = threading.get_ident()
     best = [np.inf] * 4
-    for name in saved:
+    timeline = []
+    for name in names:
         setattr(ldl, name, timed(name))
     try:
         for _ in range(repeat):
             log.clear()
             ldl._numeric(lower, condensed.copy(), symbolic, 1, share_front=True)
-            parts = [t for name, t in log if name == "_eliminate"]
-            steps = [t for name, t in log if name == "_front_step"]
-            front = 0.0
-            if steps:   # assembly, per panel (pivots, rows x 2, update x 2), packing
-                front = steps[0] + steps[-1] + sum(
-                    steps[i] + max(steps[i + 1], steps[i + 2]) + max(steps[i + 3], steps[i + 4])
-                    for i in range(1, len(steps) - 1, 5))
+            parts = [e[4] for e in log if e[0] == "_eliminate"]
+            front = sum(e[4] for e in log if e[0] == "_front_by_halves")
             best = [min(b, t) for b, t in zip(best, parts[:2] + [sum(parts[2:]), front])]
+        for _ in range(max(repeat, 5)):
+            log.clear()
+            schur = condensed.copy()   # (not in the timeline: the caller's array)
+            faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+            w0 = time.perf_counter()
+            ldl._numeric(lower, schur, symbolic, 2, share_front=True)
+            w1 = time.perf_counter()
+            faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults
+            runs = [e for e in log if e[0] == "_eliminate"]
+            own, other = ([e for e in runs if e[1] == mine] for mine in (True, False))
+            if len(own) < 2 or not other:
+                continue
+            halves = [e for e in log if e[0] == "_front_by_halves" and e[1]]
+            top_end = own[-1][3]
+            front = _front_halves(symbolic.front_stamps) if halves else (0.0, 0.0, 0)
+            timeline.append(dict(
+                setup=min(own[0][2], other[0][2]) - w0,
+                first=own[0][3] - own[0][2], second=other[0][3] - other[0][2],
+                imbalance=abs(own[0][3] - other[0][3]),
+                to_top=own[1][2] - max(own[0][3], other[0][3]), top=own[1][3] - own[1][2],
+                to_front=(halves[0][2] - top_end) if halves else 0.0,
+                front=front[0], front_path=front[1],
+                end=w1 - (halves[0][3] if halves else top_end), wall=w1 - w0, faults=faults,
+                meetings=front[2]))
     finally:
         for name, fn in saved.items():
             setattr(ldl, name, fn)
@@ -403,10 +464,13 @@ def _parts(lower, condensed, symbolic, repeat):
     for threads in (1, 2):
         walls[threads] = np.inf
         for _ in range(repeat):
+            schur = condensed.copy()
             t0 = time.perf_counter()
-            ldl._numeric(lower, condensed.copy(), symbolic, threads, share_front=True)
+            ldl._numeric(lower, schur, symbolic, threads, share_front=True)
             walls[threads] = min(walls[threads], time.perf_counter() - t0)
-    return (*best, walls)
+    median = ({k: float(np.median([r[k] for r in timeline])) for k in timeline[0]}
+              if timeline else {})
+    return (*best, walls, median)
 
 
 def main(argv=None):

@@ -19,11 +19,12 @@ U12 = D L21^T (the symmetric form has M_BN = M_NB^T).
 from __future__ import annotations
 
 import _thread
-import threading
 
 import numpy as np
 import scipy.sparse as sp
 from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from ._jit import helper, kernel
 
@@ -464,28 +465,43 @@ def _panel_update(front, m, o, w, dlrows, i_begin, i_end):
 
 @helper
 def _assemble(front, t, where, indptr, indices, data, first, width, row_at, srows, child_ptr,
-              child_list, relative, stack, update_at):
-    """Supernode t's front (m x m, its lower triangle): the matrix's own entries of its columns,
-    then the extend-add of each child's update (lower triangles, at ``update_at[child]`` in
-    ``stack``), the children in ``child_list``'s order (``_eliminate``)."""
+              child_list, relative, stack, update_at, k_begin, k_end):
+    """Rows ``k_begin .. k_end - 1`` of supernode t's front (m x m, its lower triangle): the
+    matrix's own entries of its columns, then the extend-add of each child's update (lower
+    triangles, at ``update_at[child]`` in ``stack``), the children in ``child_list``'s order
+    (``_eliminate``: all the rows; ``_front_by_halves``: two ranges, one a thread, each entry
+    the same sums in the same order). ``where``: each of those rows' position, by its row."""
     j0, w = first[t], width[t]
     r0 = row_at[t]
     m = row_at[t + 1] - r0
-    for a in range(m):   # (only the lower triangle is read)
+    whole = k_begin == 0 and k_end == m
+    for a in range(k_begin, k_end):   # (only the lower triangle is read)
         for b in range(a + 1):
             front[_unsigned(a * m + b)] = 0.0
-    for k in range(m):
+    for k in range(k_begin, k_end):
         where[srows[r0 + k]] = k
+    if k_end <= k_begin:
+        return
+    lowest, highest = srows[r0 + k_begin], srows[r0 + k_end - 1]   # (the front's rows sorted)
     for c in range(w):   # the matrix's own entries of the supernode's columns
         for p in range(indptr[j0 + c], indptr[j0 + c + 1]):
-            front[where[indices[p]] * m + c] += data[p]
+            i = indices[p]
+            if whole or lowest <= i <= highest:
+                front[where[i] * m + c] += data[p]
     for q in range(child_ptr[t], child_ptr[t + 1]):
         child = child_list[q]
         base = update_at[child]
         cw = width[child]
         c0 = row_at[child] + cw
         u = row_at[child + 1] - c0
-        for a in range(u):
+        a0, a1 = 0, u   # (the child's rows in the range: its positions ascend)
+        if not whole:
+            while a0 < u and relative[c0 + a0] < k_begin:
+                a0 += 1
+            a1 = a0
+            while a1 < u and relative[c0 + a1] < k_end:
+                a1 += 1
+        for a in range(a0, a1):
             ra = relative[c0 + a] * m
             at = base + a * u
             for b in range(a + 1):
@@ -508,14 +524,20 @@ def _pack_front(front, m, w, values, v):
 
 
 @helper
-def _to_condensed(front, m, w, r0, relative, flat, n_N):
+def _to_condensed(front, m, w, r0, relative, flat, n_N, mirrored):
     """A root's update (its rows below, all condensed) added into the condensed block's lower
-    triangle (``flat``: n_N x n_N by rows)."""
+    triangle (``flat``: n_N x n_N by rows), and when ``mirrored`` also into its upper triangle
+    (the update is symmetric: the Schur complement itself, when this is the only root)."""
     for a in range(m - w):
-        ra = relative[r0 + w + a] * n_N
+        i = relative[r0 + w + a]
+        ra = i * n_N
         row = (w + a) * m + w
         for b in range(a + 1):
             flat[_unsigned(ra + relative[_unsigned(r0 + w + b)])] += front[_unsigned(row + b)]
+        if mirrored:
+            for b in range(a):
+                flat[_unsigned(relative[_unsigned(r0 + w + b)] * n_N + i)] += \
+                    front[_unsigned(row + b)]
 
 
 @kernel
@@ -552,7 +574,7 @@ def _eliminate(sequence, indptr, indices, data, first, width, row_at, srows,
         r0 = row_at[t]
         m = row_at[t + 1] - r0
         _assemble(front, t, where, indptr, indices, data, first, width, row_at, srows,
-                  child_ptr, child_list, relative, stack, update_at)
+                  child_ptr, child_list, relative, stack, update_at, 0, m)
         depth -= stacked[t]   # (this call's stack: its children's entries are its top ones)
         if w >= blas_width and m - w >= blas_rows:
             # a panel of columns at a time: its pivots, then its rows below and their update
@@ -617,7 +639,7 @@ def _eliminate(sequence, indptr, indices, data, first, width, row_at, srows,
         # condensed) into ``condensed``
         u = m - w
         if tparent[t] == -1:
-            _to_condensed(front, m, w, r0, relative, flat, n_N)
+            _to_condensed(front, m, w, r0, relative, flat, n_N, False)
         else:
             base = stack_at[depth]   # (its children's entries popped: theirs are read)
             for a in range(u):
@@ -650,37 +672,173 @@ def _front_buffers(sequence, symbolic, n_N, blas_width, blas_rows) -> tuple:
             np.empty(len(sequence) + 1, dtype=np.int64))
 
 
+@intrinsic
+def _load_acquire(typingctx, array, index):
+    """array[index] (int64) by an atomic load with acquire order: what the other thread wrote
+    before its ``_store_release`` of this entry is seen after it (and the load is made at each
+    call: a plain one in a waiting loop may be hoisted out of it)."""
+    def codegen(context, builder, signature, args):
+        kind = signature.args[0]
+        array = context.make_array(kind)(context, builder, args[0])
+        at = cgutils.get_item_pointer(context, builder, kind, array, [args[1]])
+        return builder.load_atomic(at, "acquire", 8)
+    return types.int64(array, index), codegen
+
+
+@intrinsic
+def _store_release(typingctx, array, index, value):
+    """array[index] = value (int64) by an atomic store with release order (``_load_acquire``)."""
+    def codegen(context, builder, signature, args):
+        kind = signature.args[0]
+        array = context.make_array(kind)(context, builder, args[0])
+        at = cgutils.get_item_pointer(context, builder, kind, array, [args[1]])
+        builder.store_atomic(args[2], at, "release", 8)
+        return context.get_dummy_value()
+    return types.void(array, index, value), codegen
+
+
+#: the C library's clock_gettime and usleep (found in the process, as numba_xxgemm)
+_clock_gettime = types.ExternalFunction("clock_gettime", types.intc(
+    types.intc, types.CPointer(types.int64)))
+_usleep = types.ExternalFunction("usleep", types.intc(types.uint32))
+#: clock_gettime's CLOCK_MONOTONIC (time.perf_counter's clock on Linux)
+_MONOTONIC = 1
+#: a waiting thread spins this long (ns; a thread woken from a sleep, as at a
+#: threading.Barrier, took 70-100 us on this machine, a spin 0.4 us), ...
+SPIN_NS = 50_000
+#: ... then sleeps this long (us, plus the kernel's timer slack) between looks, so that a
+#: machine's other work, or the other half sharing its core, runs
+SLEEP_US = 20
+#: ``sync``'s entries: the halves' counts (0, 1), a thread failed (2), the second thread's
+#: part of the tree done (3), the top done (4), each half's clock read (from 8 and 16: other
+#: cache lines)
+_SYNC_SIZE, _CLOCK_AT = 24, 8
+
+
+@helper
+def _stamp(stamps, half, k):
+    """The monotonic clock (s, ns) into stamps[half, 2k:2k + 2]."""
+    _clock_gettime(_MONOTONIC, stamps[half, 2 * k:].ctypes)
+
+
+@helper
+def _now(sync, half):
+    """The monotonic clock (ns), read into ``sync``'s entries for ``half``."""
+    at = _CLOCK_AT * (1 + half)
+    _clock_gettime(_MONOTONIC, sync[at:].ctypes)
+    return sync[at] * 1_000_000_000 + sync[at + 1]
+
+
+@helper
+def _wait_until(sync, half, index, count):
+    """Half ``half`` waits until ``sync[index]`` is at least ``count``: spinning for SPIN_NS,
+    then sleeping SLEEP_US between looks; False when a thread failed (``sync[2]`` set)."""
+    looks = 0
+    start = -1
+    while _load_acquire(sync, index) < count:
+        if _load_acquire(sync, 2) != 0:
+            return False
+        looks += 1
+        if looks % 64 == 0:
+            if start < 0:
+                start = _now(sync, half)
+            elif _now(sync, half) - start > SPIN_NS:
+                _usleep(SLEEP_US)
+    return True
+
+
+@helper
+def _meet(sync, stamps, half, k):
+    """The two halves' k-th meeting: this half's count (``sync[half]``) to k, then wait until
+    the other's is k (``_wait_until``); False when the other half failed. Its arrival and its
+    departure stamped (``stamps[half]``, points 2k - 1 and 2k)."""
+    _stamp(stamps, half, 2 * k - 1)
+    _store_release(sync, half, k)
+    if not _wait_until(sync, half, 1 - half, k):
+        return False
+    _stamp(stamps, half, 2 * k)
+    return True
+
+
 @kernel
-def _front_step(what, t, c0, b, begin, end, blocks, front, where, indptr, indices, data, first,
-                width, row_at, srows, child_ptr, child_list, relative, stack, update_at,
-                diagonal, column_d, xt, dlrows, strip, value_at, values, condensed):
-    """One step of a front factorised outside ``_eliminate`` by panels whose rows below and
-    update are shared between two threads (``_split_front``), supernode t (a root): ``what``
-    0 assembles the front (``_assemble``); 1 factorises the pivot block of the panel of ``b``
-    columns from column ``c0``; 2 solves its rows below ``begin .. end - 1`` (``_panel_rows``);
-    3 updates its trailing block's rows in the blocks of UPDATE_BLOCK rows from each of
-    ``blocks`` (the rows' blocks of ``_panel_update`` over all ``end`` rows); 4 packs
-    the factor and adds the update into ``condensed`` (``_pack_front``, ``_to_condensed``).
-    One kernel for the five: one cache load."""
+def _await_part(sync):
+    """The calling thread waits for the second thread's part of the tree, done when its half of
+    the shared front starts (``sync[3]``): a spin of the two threads' own, where a lock would
+    wake the waiting thread 0.1-0.2 ms late on this machine (``_wait_until``). False when it
+    failed."""
+    return _wait_until(sync, 0, 3, 1)
+
+
+@kernel
+def _front_by_halves(half, t, assembly_cut, panel_c0, panel_b, rows_cut, block_ptr, blocks,
+                     sync, stamps, front, where, indptr, indices, data, first, width, row_at,
+                     srows, child_ptr, child_list, relative, stack, update_at, diagonal, column_d,
+                     xt, dlrows, strip, value_at, values, condensed, mirrored):
+    """Supernode t (the last of the top: a root) factorised by panels whose rows below and
+    update are shared between two halves (``_numeric``, ``_front_arguments``): ``half`` 0 (the
+    calling thread: its rows before ``assembly_cut`` assembled, each panel's pivots, the
+    packing), 1 (the other thread, after its part of the tree: the other rows assembled), or
+    -1 (both, one after the other, in one thread). Per panel
+    p (columns ``panel_c0[p]``, ``panel_b[p]`` of them): its pivot block (``_pivot_block``),
+    then each half's rows below (``_panel_rows``: half 0 the first ``rows_cut[p]``, half 1 the
+    others), then each half's blocks of UPDATE_BLOCK rows of the update (``_panel_update``:
+    those from ``blocks[block_ptr[2p + half]:block_ptr[2p + half + 1]]``); in two threads the
+    halves meet (``_meet``) after the pivots, after the rows and after the update, with
+    ``sync`` (``_SYNC_SIZE``: the halves' counts, a thread failed, [3] set as the second half
+    starts, after the second thread's part of the tree, [4] as the first starts, after the
+    top) and ``stamps`` (each half's clock at the start, at each meeting's arrival and departure, at
+    the end). The same calls on the same rows in one thread or two: the same factors bit for
+    bit. False when the other half failed. One kernel for a half's whole front: a call, not a
+    Python call and a threading.Barrier per step (70-100 us each)."""
     j0, w = first[t], width[t]
     r0 = row_at[t]
     m = row_at[t + 1] - r0
-    o = c0 * m + c0
-    if what == 0:
-        _assemble(front, t, where, indptr, indices, data, first, width, row_at, srows,
-                  child_ptr, child_list, relative, stack, update_at)
-    elif what == 1:
-        _pivot_block(front, m, o, b, diagonal, j0 + c0, column_d)
-    elif what == 2:
-        _panel_rows(front, m, o, b, diagonal[j0 + c0:j0 + c0 + b], begin, end, xt, dlrows,
-                    strip)
-    elif what == 3:
-        for k in range(len(blocks)):
-            _panel_update(front, m, o, b, dlrows, blocks[k],
-                          min(blocks[k] + UPDATE_BLOCK, end))
-    else:
+    both = half == -1
+    own = 0 if both else half
+    k = 0
+    if half == 1:   # (its part of the tree is done: ``_await_part``; it assembles its rows
+        _store_release(sync, 3, 1)   # once the top's updates are made: sync[4])
+        if not _wait_until(sync, 1, 4, 1):
+            return False
+    elif half == 0:
+        _store_release(sync, 4, 1)
+    _stamp(stamps, own, 0)
+    for h in range(2):   # (its rows in two ranges; the first holds the first pivot block)
+        if both or h == half:
+            _assemble(front, t, where, indptr, indices, data, first, width, row_at, srows,
+                      child_ptr, child_list, relative, stack, update_at,
+                      0 if h == 0 else assembly_cut, assembly_cut if h == 0 else m)
+    for p in range(len(panel_c0)):
+        c0, b = panel_c0[p], panel_b[p]
+        o = c0 * m + c0
+        u = m - c0 - b
+        if half != 1:
+            _pivot_block(front, m, o, b, diagonal, j0 + c0, column_d)
+        for step in range(2):   # (the rows below, then the update)
+            if not both:
+                k += 1
+                if not _meet(sync, stamps, half, k):
+                    return False
+            for h in range(2):
+                if both or h == half:
+                    if step == 0:
+                        _panel_rows(front, m, o, b, diagonal[j0 + c0:j0 + c0 + b],
+                                    0 if h == 0 else rows_cut[p], rows_cut[p] if h == 0 else u,
+                                    xt[h], dlrows, strip[h])
+                    else:
+                        for q in range(block_ptr[2 * p + h], block_ptr[2 * p + h + 1]):
+                            _panel_update(front, m, o, b, dlrows, blocks[q],
+                                          min(blocks[q] + UPDATE_BLOCK, u))
+        if not both:   # (the trailing block updated: the next pivots, or the packing)
+            k += 1
+            if not _meet(sync, stamps, half, k):
+                return False
+    if half != 1:
         _pack_front(front, m, w, values, value_at[t])
-        _to_condensed(front, m, w, r0, relative, condensed.reshape(-1), condensed.shape[0])
+        _to_condensed(front, m, w, r0, relative, condensed.reshape(-1), condensed.shape[0],
+                      mirrored)
+    _stamp(stamps, own, 2 * k + 1)
+    return True
 
 
 def _in_background(fn, *args):
@@ -711,89 +869,61 @@ def _in_background(fn, *args):
     return join
 
 
-def _split_front(t, lower, symbolic, diagonal, values, stack, update_at, condensed, threads):
-    """Supernode t (the last of the top: a root) factorised by panels of PANEL columns, each
-    panel's pivot block in the calling thread, then its rows below and their update in two
-    halves, in two threads when ``threads`` is 2, else one after the other: the same calls on
-    the same rows either way, so the same factors bit for bit."""
-    first, width, row_at, srows, tparent, children, relative = symbolic.tree
+def _front_plan(t, symbolic):
+    """The plan of the shared front t (``_front_by_halves``), from the pattern alone: (the row
+    where its assembly is cut between the halves, then per panel its first column, width,
+    rows-below cut, and per half where its update's blocks start in the blocks' list, the list).
+    The assembly is cut where the rows before hold ASSEMBLY_SHARE of the lower triangle (at
+    least a panel: the first pivot block is the calling thread's, before the halves meet).
+    Each panel's rows below are cut in half at a multiple of SPLIT_ALIGN rows; its update's
+    blocks (``_panel_update``'s own, rows i0 .. i1 - 1 taking (i1 - i0) i1 products) are dealt
+    to the lighter half, the largest first."""
+    width, row_at = symbolic.tree[1], symbolic.tree[2]
     w, m = int(width[t]), int(row_at[t + 1] - row_at[t])
-    n_N = condensed.shape[0]
-    front = np.empty(m * m)
-    where = np.empty(symbolic.n_linear + n_N, dtype=np.int64)
-    column_d = np.empty(max(w, 1))
-    dlrows = np.empty(PANEL * m)
-    buffers = [(np.empty(PANEL * m), np.empty(SOLVE_BLOCK * PANEL)) for _ in range(2)]
-    shared = (lower.indptr, lower.indices, lower.data, first, width, row_at, srows,
-              symbolic.child_ptr, symbolic.child_list, relative, stack, update_at, diagonal,
-              column_d)
-
-    no_blocks = np.zeros(0, dtype=np.int64)
-
-    def step(what, c0=0, b=0, begin=0, end=0, half=0, blocks=no_blocks):
-        xt, strip = buffers[half]
-        _front_step(what, t, c0, b, begin, end, blocks, front, where, *shared, xt, dlrows, strip,
-                    symbolic.value_at, values, condensed)
-
-    panels = []
+    panel_c0, panel_b, rows_cut, block_ptr, blocks = [], [], [], [0], []
     c0 = 0
     while c0 < w:
         b = min(PANEL, w - c0)
         u = m - c0 - b
-        # the rows below in half, cut at a multiple of SPLIT_ALIGN rows; the update's blocks
-        # (``_panel_update``'s own, rows i0 .. i1 - 1 taking (i1 - i0) i1 products) dealt to the
-        # lighter half, the largest first
-        rows_cut = min(u, SPLIT_ALIGN * int(round(u / 2.0 / SPLIT_ALIGN)))
         starts = np.arange(0, u, UPDATE_BLOCK, dtype=np.int64)
         ends = np.minimum(starts + UPDATE_BLOCK, u)
         dealt, loads = ([], []), [0, 0]
         for k in sorted(range(len(starts)), key=lambda k: (-(ends[k] - starts[k]) * ends[k], k)):
             half = 0 if loads[0] <= loads[1] else 1
-            dealt[half].append(starts[k])
+            dealt[half].append(int(starts[k]))
             loads[half] += (ends[k] - starts[k]) * ends[k]
-        update = tuple(np.sort(np.asarray(d, dtype=np.int64)) for d in dealt)
-        panels.append((c0, b, u, ((0, rows_cut), (rows_cut, u)), update))
+        for half in (0, 1):
+            blocks += sorted(dealt[half])
+            block_ptr.append(len(blocks))
+        panel_c0.append(c0)
+        panel_b.append(b)
+        rows_cut.append(min(u, SPLIT_ALIGN * int(round(u / 2.0 / SPLIT_ALIGN))))
         c0 += b
+    assembly_cut = min(m, max(PANEL, int(round(m * np.sqrt(ASSEMBLY_SHARE)))))
+    return (assembly_cut, *(np.asarray(x, dtype=np.int64)
+                            for x in (panel_c0, panel_b, rows_cut, block_ptr, blocks)))
 
-    step(0)
-    if threads >= 2:
-        barrier = threading.Barrier(2)
 
-        def second_half():
-            try:
-                for c0, b, u, rows, update in panels:
-                    barrier.wait()   # (its pivots made)
-                    step(2, c0, b, *rows[1], 1)
-                    barrier.wait()   # (every row below made)
-                    step(3, c0, b, 0, u, 1, update[1])
-                    barrier.wait()   # (the trailing block updated)
-            except BaseException:
-                barrier.abort()
-                raise
-
-        join = _in_background(second_half)
-        try:
-            for c0, b, u, rows, update in panels:
-                step(1, c0, b)
-                barrier.wait()
-                step(2, c0, b, *rows[0], 0)
-                barrier.wait()
-                step(3, c0, b, 0, u, 0, update[0])
-                barrier.wait()
-        except BaseException as error:
-            barrier.abort()
-            # (a barrier broken by the other thread: its error is the one to raise)
-            join(raise_failure=isinstance(error, threading.BrokenBarrierError))
-            raise
-        join()
-    else:
-        for c0, b, u, rows, update in panels:
-            step(1, c0, b)
-            for half in (0, 1):
-                step(2, c0, b, *rows[half], half)
-            for half in (0, 1):
-                step(3, c0, b, 0, u, half, update[half])
-    step(4)
+def _front_arguments(t, lower, symbolic, diagonal, values, stack, update_at, condensed,
+                     mirrored):
+    """(``_front_by_halves``' arguments after ``half`` for supernode t (the last of the top: a
+    root), their ``sync``), its buffers made here, in the calling thread (``_front_buffers``).
+    The halves' clock stamps are left in ``symbolic.front_stamps``
+    (``benchmarks/factorisation.py --fronts``)."""
+    first, width, row_at, srows, tparent, children, relative = symbolic.tree
+    w, m = int(width[t]), int(row_at[t + 1] - row_at[t])
+    if symbolic.front_plan is None:
+        symbolic.front_plan = _front_plan(t, symbolic)
+    plan = symbolic.front_plan
+    meetings = 3 * len(plan[1])
+    symbolic.front_stamps = stamps = np.zeros((2, 2 * (2 * meetings + 2)), dtype=np.int64)
+    sync = np.zeros(_SYNC_SIZE, dtype=np.int64)
+    return (t, *plan, sync, stamps, np.empty(m * m),
+            np.empty(symbolic.n_linear + condensed.shape[0], dtype=np.int64), lower.indptr,
+            lower.indices, lower.data, first, width, row_at, srows, symbolic.child_ptr,
+            symbolic.child_list, relative, stack, update_at, diagonal, np.empty(max(w, 1)),
+            np.empty((2, PANEL * m)), np.empty(PANEL * m), np.empty((2, SOLVE_BLOCK * PANEL)),
+            symbolic.value_at, values, condensed, mirrored), sync
 
 
 def front_multiply_adds(width, below):
@@ -811,10 +941,10 @@ THREADS_ABOVE = 20e6
 BALANCE = 0.03
 #: ... splitting at most this many subtrees (each split moves a front into the serial top)
 MOST_SPLITS = 16
-#: the top's last front is shared between the two threads (``_split_front``) when its rows
+#: the top's last front is shared between the two threads (``_front_by_halves``) when its rows
 #: below and its update take at least this many multiply-adds, at a refactorisation only (a
 #: pattern's numeric factorisations after its first: a run on one step size never compiles or
-#: loads the shared front's kernel, which costs seconds of compilation and a cache load for
+#: loads the shared front's kernels, which cost seconds of compilation and a cache load for
 #: a millisecond or two)
 SPLIT_FRONT_ABOVE = 4e6
 #: its rows below are cut at a multiple of this many (its update by the unshared front's blocks
@@ -823,6 +953,10 @@ SPLIT_FRONT_ABOVE = 4e6
 #: first factorisation must equal the refactorisation it repeats (cuts at any row gave
 #: differences of 1e-20 of the largest entry)
 SPLIT_ALIGN = 16
+#: the calling thread assembles the shared front's rows that hold this share of its lower
+#: triangle, the other thread the rest (the calling thread also makes the first pivots before
+#: they meet: on paper-units Rustrel, with half the rows' entries each, 0.17 against 0.10 ms)
+ASSEMBLY_SHARE = 0.4
 
 
 def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=None,
@@ -838,7 +972,8 @@ def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=No
     its update, as when one pass made it. ``blas_width``, ``blas_rows``: the fronts through
     BLAS (``_eliminate``; default BLAS_MIN_WIDTH and BLAS_MIN_ROWS). ``share_front``: the
     top's last front shared by the threads where the plan has one (``split_front``; default:
-    at a refactorisation, see SPLIT_FRONT_ABOVE)."""
+    at a refactorisation, see SPLIT_FRONT_ABOVE): its halves by ``_front_by_halves``, in two
+    threads the second by the thread of the second part, after it."""
     if share_front is None:
         share_front = symbolic.factorisations > 0
     symbolic.factorisations += 1
@@ -852,45 +987,83 @@ def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=No
     stack = np.empty(symbolic.stack_size)
     update_at = np.empty(len(width), dtype=np.int64)
     sequences, bases = symbolic.parts, symbolic.part_bases
-    # the roots' updates: of the first part and the top (after it), and of the second part
-    first_part, second_part = np.zeros((n_N, n_N)), np.zeros((n_N, n_N))
+    share_front = share_front and symbolic.split_front >= 0   # (the top's last supernode)
+    # the roots' updates: of the first part and the top (after it), and of the second part; a
+    # tree whose one root is the shared front (a refactorisation's usual case) adds that
+    # root's update into the Schur complement itself, both triangles, as M_NN + update (the
+    # same sums as through the parts' arrays, which would hold it alone: 0.3 ms less on
+    # paper-units Rustrel, two n_N x n_N arrays less); a Fortran-ordered one through its
+    # transpose, whose triangles take the same sums. (Not in ``_eliminate``, whose argument
+    # types stay those compile_ahead.KERNELS lists.)
+    direct = schur if schur.flags.c_contiguous else schur.T
+    mirrored = share_front and symbolic.roots == 1 and direct.flags.c_contiguous
+    first_part, second_part = ((direct, direct) if mirrored
+                               else (np.zeros((n_N, n_N)), np.zeros((n_N, n_N))))
     common = (lower.indptr, lower.indices, lower.data, first, width, row_at, srows,
               tparent, symbolic.child_ptr, symbolic.child_list, symbolic.stacked, relative,
               symbolic.value_at, values, diagonal)
 
     def run(part, condensed, sequence=None, buffers=None):
         sequence = sequences[part] if sequence is None else sequence
-        _eliminate(sequence, *common, condensed, stack, bases[part], update_at, blas_width,
-                   blas_rows, *(buffers or _front_buffers(sequence, symbolic, n_N, blas_width,
-                                                          blas_rows)))
+        _eliminate(sequence, *common, condensed, stack, bases[part], update_at,
+                   blas_width, blas_rows,
+                   *(buffers or _front_buffers(sequence, symbolic, n_N, blas_width, blas_rows)))
 
     if threads is None:
         threads = 2 if symbolic.multiply_adds > THREADS_ABOVE else 1
-    if threads >= 2 and len(sequences[0]) and len(sequences[1]):
+    # the shared front's halves (``_front_by_halves``): the second in the thread of the second
+    # part, right after it, so that one thread is started and joined per factorisation, and
+    # the first thread waits for that part by a spin (``_await_part``), not a lock
+    halves, sync = (_front_arguments(symbolic.split_front, lower, symbolic, diagonal, values,
+                                     stack, update_at, first_part, mirrored)
+                    if share_front else (None, None))
+    top = sequences[2][:-1] if share_front else sequences[2]
+    if threads >= 2 and (halves is not None or (len(sequences[0]) and len(sequences[1]))):
         # (the second part's buffers made here, not in its thread: see _front_buffers)
-        join = _in_background(run, 1, second_part, None,
-                              _front_buffers(sequences[1], symbolic, n_N, blas_width, blas_rows))
+        buffers = _front_buffers(sequences[1], symbolic, n_N, blas_width, blas_rows)
+
+        def second():
+            try:
+                run(1, second_part, None, buffers)
+                if halves is not None:
+                    _front_by_halves(1, *halves)
+            except BaseException:
+                if halves is not None:
+                    sync[2] = 1   # (the calling thread stops waiting for it)
+                raise
+
+        join = _in_background(second)
+        whole = True
         try:
             run(0, first_part)
+            if halves is None:
+                join()
+            elif not _await_part(sync):
+                join()   # (raises the second thread's error)
+            run(2, first_part, top)
+            if halves is not None:
+                whole = _front_by_halves(0, *halves)
         except BaseException:
+            if halves is not None:
+                sync[2] = 1
             join(raise_failure=False)
             raise
-        join()
+        join()   # (raises the second half's error: when it failed, ``whole`` is False)
+        if not whole:
+            raise RuntimeError("the shared front's second half stopped without an error")
     else:
         run(0, first_part)
         run(1, second_part)
-    if share_front and symbolic.split_front >= 0:   # (the top's last supernode)
-        run(2, first_part, sequences[2][:-1])
-        _split_front(symbolic.split_front, lower, symbolic, diagonal, values, stack, update_at,
-                     first_part, threads)
-    else:
-        run(2, first_part)
-    # the roots' updates are lower triangles (zero above the diagonal): summed in place and
-    # mirrored with one temporary (n_N x n_N arrays: 46 MB each on a fault of 2,400 unknowns)
-    update = np.add(first_part, second_part, out=first_part)
-    del second_part
-    schur += update
-    schur += np.tril(update, -1).T
+        run(2, first_part, top)
+        if halves is not None:
+            _front_by_halves(-1, *halves)
+    if not mirrored:
+        # the roots' updates are lower triangles (zero above the diagonal): summed in place and
+        # mirrored with one temporary (n_N x n_N arrays: 46 MB each on a fault of 2,400 unknowns)
+        update = np.add(first_part, second_part, out=first_part)
+        del second_part
+        schur += update
+        schur += np.tril(update, -1).T
     magnitude = np.abs(diagonal)
     if not np.all(np.isfinite(magnitude)):
         return values, diagonal, np.nan
@@ -1017,7 +1190,9 @@ class LDLSymbolic:
         self.parts = tuple(parts)
         # the top's last supernode (a root) shared between the threads when it is large
         self.factorisations = 0   # (numeric ones on this analysis: ``_numeric``)
+        self.roots = int(np.sum(tparent == -1))
         self.split_front = -1
+        self.front_plan = self.front_stamps = None   # (``_front_arguments``)
         if len(parts[2]):
             last = int(parts[2][-1])
             if (width[last] >= BLAS_MIN_WIDTH and u[last] >= BLAS_MIN_ROWS

@@ -8,6 +8,7 @@ relative to the reference's largest entry (tests/solver/test_bordered_lu.py's ch
 to a normwise backward error |M x - r| / (|M| |x| + |r|) (infinity norms) below 1e-15 (measured
 2e-17 and less), which a wrong factor entry anywhere exceeds by orders of magnitude."""
 import threading
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -242,7 +243,7 @@ def test_a_wide_dense_front_by_panels(n, nB, shared, monkeypatch):
     ldl.PANEL columns at a time, each panel's rows solved in blocks of ldl.SOLVE_BLOCK and
     updated in blocks of ldl.UPDATE_BLOCK (several of each, and partial last ones), against
     numpy to 1e-11 and the backward error below 1e-15. ``shared``: the front is the top's
-    last, shared between two threads (``ldl._split_front``: each panel's rows below and
+    last, shared between two threads (``ldl._front_by_halves``: each panel's rows below and
     update in two halves), its factors in one and in two threads equal bit for bit."""
     monkeypatch.setattr(ldl, "SPLIT_FRONT_ABOVE", 0.0 if shared else np.inf)
     monkeypatch.setattr(ldl, "THREADS_ABOVE", 0.0)   # (two threads)
@@ -279,7 +280,7 @@ def test_two_threads_give_the_factors_of_one(poroelastic, elastic, monkeypatch, 
     the factors, pivots and Schur complement equal, bit for bit, those of the same parts one
     after the other; and against numpy's dense solves to 1e-11, the backward error below 1e-15
     (``_check_against_dense``). ``shared``: also the top's last front shared between the two
-    threads (``ldl._split_front``)."""
+    threads (``ldl._front_by_halves``)."""
     monkeypatch.setattr(ldl, "SPLIT_FRONT_ABOVE", 0.0 if shared else np.inf)
     if kind in ("elastic", "split"):
         M, nB = _free_block(elastic, elastic.system.dt, symmetric_form=False)
@@ -313,7 +314,67 @@ def test_two_threads_give_the_factors_of_one(poroelastic, elastic, monkeypatch, 
     _check_against_dense(two, M, nB, 9)
 
 
-@pytest.mark.parametrize("kernel", ["_eliminate", "_front_step"])
+@pytest.mark.parametrize("shared", [False, True])
+@pytest.mark.parametrize("threads", [1, 2])
+def test_one_root_adds_its_update_into_the_schur_complement_itself(poroelastic, monkeypatch,
+                                                                    threads, shared):
+    """A tree whose one root is the shared front (``shared``) adds that root's update straight
+    into M_NN, both triangles (``_numeric``'s ``mirrored``, through the transpose for a
+    Fortran-ordered M_NN); unshared, the roots' updates go through the parts' own arrays summed
+    afterwards (also the path of a forest, and of an M_NN neither C- nor Fortran-ordered, here
+    a strided view). Either way the Schur complement, the pivots and the packed L are equal
+    bit for bit for the three layouts, and the Schur complement equals numpy's dense
+    M_NN - M_NB B^-1 M_BN to 1e-11 of its largest entry."""
+    monkeypatch.setattr(ldl, "SPLIT_FRONT_ABOVE", 0.0 if shared else np.inf)
+    M, nB = _free_block(poroelastic, 600.0, symmetric_form=True)
+    lower, M_NN = ldl._lower(M, nB), M[nB:, nB:].toarray()
+    symbolic = ldl.SymbolicAnalyses().of(lower, nB)
+    assert symbolic.roots == 1 and (symbolic.split_front >= 0) == shared
+    ldl._numeric(lower, M_NN.copy(), symbolic, 1)   # (later ones are refactorisations)
+    strided = np.zeros((M_NN.shape[0], 2 * M_NN.shape[1]))[:, ::2]
+    made = {}
+    for name, schur in (("C", M_NN.copy(order="C")), ("F", M_NN.copy(order="F")),
+                        ("parts", strided)):
+        schur[:] = M_NN
+        values, diagonal, _ = ldl._numeric(lower, schur, symbolic, threads, share_front=shared)
+        made[name] = (values, diagonal, np.array(schur))
+    for name in ("C", "F"):
+        assert all(np.array_equal(a, b) for a, b in zip(made[name], made["parts"]))
+    dense = M.toarray()
+    reference = dense[nB:, nB:] - dense[nB:, :nB] @ np.linalg.solve(dense[:nB, :nB],
+                                                                     dense[:nB, nB:])
+    assert _rel(made["C"][2], reference) < TOL
+
+
+def test_the_second_half_assembles_after_the_calling_threads_fronts(poroelastic, monkeypatch):
+    """The second thread reaches the shared front right after its part of the tree, while the
+    calling thread may still run its own part and the top, whose updates the front's rows
+    take: with each of the calling thread's ``_eliminate`` calls held back 50 ms, the second
+    half must wait for them (``sync[4]``) before it assembles its rows, and the factors equal
+    one thread's bit for bit (a half that did not wait reads those updates before they are
+    made: other factors)."""
+    monkeypatch.setattr(ldl, "SPLIT_FRONT_ABOVE", 0.0)
+    M, nB = _free_block(poroelastic, 600.0, symmetric_form=True)
+    analyses = ldl.SymbolicAnalyses()
+    BorderedLU(M, nB, analyses)   # (the first factorisation: the front not shared yet)
+    monkeypatch.setattr(ldl, "THREADS_ABOVE", np.inf)
+    one = BorderedLU(M, nB, analyses)
+    monkeypatch.setattr(ldl, "THREADS_ABOVE", 0.0)
+    assert analyses.of(ldl._lower(M, nB), nB).split_front >= 0
+    works = ldl._eliminate
+
+    def late(*args):
+        if threading.current_thread() is threading.main_thread():
+            time.sleep(0.05)
+        return works(*args)
+
+    monkeypatch.setattr(ldl, "_eliminate", late)
+    two = BorderedLU(M, nB, analyses)
+    assert np.array_equal(one.schur, two.schur) and np.array_equal(one._D, two._D)
+    assert all(np.array_equal(x, y) for x, y in zip(one._L.arrays, two._L.arrays))
+
+
+@pytest.mark.parametrize("kernel", ["_eliminate", "_front_by_halves"])
 def test_an_error_in_the_second_thread_reaches_the_caller(poroelastic, monkeypatch, kernel):
     """The second thread of a refactorisation (``ldl._in_background``: a part of the tree, or
     the second half of the shared front) failing: its own error is raised by the

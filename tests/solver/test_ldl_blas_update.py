@@ -148,7 +148,7 @@ def test_the_fronts_at_the_default_thresholds_against_dense(poroelastic, dt):
 
 def test_a_shared_front_with_an_empty_half_of_rows(monkeypatch):
     """A dense front of 40 pivots (wider than ldl.SOLVE_BLOCK: its rows below take a product
-    per block) shared between two threads (``ldl._split_front``) with exactly ldl.SPLIT_ALIGN
+    per block) shared between two threads (``ldl._front_by_halves``) with exactly ldl.SPLIT_ALIGN
     rows below them: the cut leaves one thread no rows, so its products are empty (skipped:
     BLAS takes their leading dimension of 0 as an error). Against numpy to 1e-11 and a
     backward error below 1e-15 (``test_ldl._check_against_dense``), and equal bit for bit to

@@ -27,7 +27,8 @@ def test_the_second_thread_allocates_no_buffer_of_its_own(poroelastic, monkeypat
     one = BorderedLU(M, nB, analyses)
     monkeypatch.setattr(ldl, "THREADS_ABOVE", 0.0)
     made_in, kernel_calls, numeric = [], [], []
-    make, kernels = ldl._front_buffers, {k: getattr(ldl, k) for k in ("_eliminate", "_front_step")}
+    make = ldl._front_buffers
+    kernels = {k: getattr(ldl, k) for k in ("_eliminate", "_front_by_halves", "_await_part")}
     factorise = ldl._numeric
 
     def making(*args):
@@ -66,7 +67,7 @@ def test_the_second_thread_allocates_no_buffer_of_its_own(poroelastic, monkeypat
     assert len(eliminations) == 3 and made_in == [caller] * 3
     assert caller in {c[1] for c in eliminations} and len({c[1] for c in eliminations}) == 2
     assert numeric == [sum(c[2] for c in kernel_calls)]   # (nothing allocated by a kernel)
-    assert any(c[0] == "_front_step" for c in kernel_calls) == shared
+    assert any(c[0] == "_front_by_halves" for c in kernel_calls) == shared
     assert two.quasi_definite and np.array_equal(two.schur, one.schur)
     assert np.array_equal(two._D, one._D)
     assert all(np.array_equal(x, y) for x, y in zip(two._L.arrays, one._L.arrays))
