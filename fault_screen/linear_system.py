@@ -19,6 +19,8 @@ from __future__ import annotations
 import contextlib
 import copy
 import functools
+import os
+import sys
 import threading
 from typing import NamedTuple
 
@@ -870,6 +872,22 @@ REFINEMENT_GAIN = 1e-3
 UNCHECKED_MARGIN = 2.0
 
 
+#: the nice value of a thread making factors ahead (``_yield_to_the_steps``)
+AHEAD_NICE = 19
+
+
+def _yield_to_the_steps():
+    """Lower the calling thread's scheduling priority (Linux: nice is per thread, inherited by
+    the threads it starts): the factors made ahead take a core the steps leave idle, not the
+    steps' own when another process holds the other core; a step that waits for them leaves its
+    core to them. (Elsewhere PRIO_PROCESS would name the process: left as it is.)"""
+    if sys.platform == "linux" and AHEAD_NICE > 0:
+        try:
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), AHEAD_NICE)
+        except OSError:
+            pass
+
+
 class _Ahead:
     """``make(dt)`` run in a thread of its own (``CondensedSystem.factorise_ahead``)."""
 
@@ -879,6 +897,7 @@ class _Ahead:
         self._failed = []
 
         def body():
+            _yield_to_the_steps()
             try:
                 self._out.append(make(dt))
             except BaseException as error:   # (raised where the factors are taken)
