@@ -463,7 +463,7 @@ class NewtonSolver:
 
     def settle(self):
         """No factors in the making after this (``CondensedSystem.settle``): at the end of a
-        run's steps however they ended, before a checkpoint or a fork."""
+        run's steps, however they ended."""
         self._next_rung = None
         self.system.settle()
 

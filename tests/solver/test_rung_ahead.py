@@ -217,3 +217,40 @@ def test_no_thread_where_it_cannot_help(what, monkeypatch):
     sim = Simulation(scene)
     sim.advance(scene.time.end)
     assert counts.started == 0
+
+
+def _fork_and_checkpoint_in_observer(tmp_path, at_step):
+    """The ladder run with a fork and a checkpoint made by the observer after step ``at_step``
+    (inside ``advance``: the stepper's next size not yet set, so they continue from there as
+    such), each taken to the end: (run, fork, restored run) series, and whether factors were
+    in the making then."""
+    made = {}
+
+    def observer(t, x, disc):
+        if sim.steps == at_step:
+            made["ahead"] = sim.solver.system.making_ahead is not None
+            made["fork"] = sim.fork()
+            made["path"] = sim.checkpoint(tmp_path / f"state-{len(list(tmp_path.iterdir()))}.h5")
+
+    sim = Simulation(_ladder_scene())
+    sim.advance(sim.scene.time.end, observer=observer)
+    twin = made["fork"]
+    twin.advance(twin.scene.time.end)
+    restored = Simulation.restore(made["path"])
+    restored.advance(restored.scene.time.end)
+    return [_series(s) for s in (sim, twin, restored)], made["ahead"]
+
+
+def test_a_fork_and_a_checkpoint_while_the_thread_runs_equal_those_without(tmp_path, monkeypatch):
+    """Made while the next rung's factors are in the making (the fork shares the fixed pattern
+    and the symbolic analyses that thread reads): the run, the fork and the restored run equal
+    those made the same way in a run without the thread."""
+    at_step = 10
+    with_thread, ahead = _fork_and_checkpoint_in_observer(tmp_path, at_step)
+    assert ahead
+    _no_ahead(monkeypatch)
+    without, ahead = _fork_and_checkpoint_in_observer(tmp_path, at_step)
+    assert not ahead
+    for a, b in zip(with_thread, without):
+        _assert_equal_runs(a, b)
+    assert not _alive()
