@@ -19,6 +19,8 @@ from __future__ import annotations
 import contextlib
 import copy
 import functools
+import os
+import sys
 import threading
 from typing import NamedTuple
 
@@ -144,6 +146,7 @@ class CondensedSystem:
     _bulk_symmetric = False
     bulk_patterns = 0    # FixedBulk patterns made (one a run)
     _sum_NN = _sum_fixed = _sum_rows_N_fixed = None   # fixed patterns of L's other parts
+    _ahead = None        # the next rung's bulk factors in the making (``factorise_ahead``)
 
     def __init__(self, A, C, Hf, time_weight, free, fixed, condensed, coordinates, mechanical):
         self.A, self.C, self.Hf = A, C, Hf
@@ -224,6 +227,7 @@ class CondensedSystem:
         own. Call it between steps."""
         twin = copy.copy(self)
         twin._blas_limited = False
+        twin._ahead = None   # (the factors made ahead are this run's guess)
         twin._dense = None if self._dense is None else self._dense.fork()
         return twin
 
@@ -302,6 +306,9 @@ class CondensedSystem:
         factorisation (kept in checkpoints, so that a restored run repeats the same round-off)."""
         if dt == self.dt and self.theta == self.time_weight:
             return
+        # factors made ahead for this step size, or none (made for another size: dropped, their
+        # thread ended first, before this thread factorises on the same pattern)
+        ahead = self._take_ahead(dt)
         self._L = None   # (the last step size's L goes first)
         factorise = self.lu is None or not self.factors_any_dt
         # the Jacobian summed the general way: for the scaling and the order (first step) and an
@@ -367,8 +374,9 @@ class CondensedSystem:
                 self.lu = self._factorise_held(held, len(B))
                 if self.factors_any_dt:
                     self._analyses = None
-            else:   # the symmetric form in its fixed pattern
-                self.lu = self._factorise_symmetric(dt)
+            else:   # the symmetric form in its fixed pattern (made ahead, or now)
+                self.lu = ahead if ahead is not None else self._factorise_symmetric(dt)
+                self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
             self.factorizations += 1
             if self._row_factor is not None:   # (the Schur complement of the rows as they are)
                 self.lu.schur /= self._row_factor[len(B):, None]
@@ -442,7 +450,6 @@ class CondensedSystem:
         bulk = self.fixed_bulk()
         if self._analyses is None:
             self._analyses = _with_shared(lambda store, make: store.analyses, SymbolicAnalyses)
-        self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
         # every entry's value only where it is read: by SuperLU, a split bulk or as the key of
         # a shared bulk (the L D L^T reads the lower triangle and the condensed block alone)
         values = []
@@ -469,6 +476,56 @@ class CondensedSystem:
             lambda store, make: store.factors(
                 (bulk.indptr, bulk.indices, full(), np.asarray(bulk.shape)), nB, self._split, make),
             make)
+
+    def factorise_ahead(self, dt):
+        """Start the bulk's factors for step size ``dt`` at the scene's time weight (the next
+        rung's first size, ``Simulation._next_rung``) in a thread of their own, while the current
+        rung's steps run on their factors: ``prepare`` at that size takes them (waiting for them if
+        unfinished), a factorisation at any other size drops them first. Only where a rung's
+        start refactorises (``keeps_factors_at_theta_dt``, the fixed pattern's first factors
+        made), outside ``shared_bulk.sharing()`` (whose store is the calling thread's). The thread
+        calls what ``prepare`` would, ``_factorise_symmetric(dt)`` on the same arrays, which
+        writes nothing a step reads: the same factors bit for bit (ldl.py's factors are the same
+        bits in one thread or two)."""
+        if (not self.keeps_factors_at_theta_dt or self.lu is None or self._order is None
+                or dt == self._factored_dt or shared_bulk.active() is not None):
+            return
+        self.settle()
+        self.fixed_bulk()   # (made here, so that the thread only reads what the run holds)
+        if self._analyses is None:
+            self._analyses = SymbolicAnalyses()
+        self._ahead = _Ahead(dt, self._factorise_symmetric)
+
+    def _take_ahead(self, dt):
+        """The factors made ahead for step size ``dt`` (waiting for them), or None (none made,
+        or made for another size: dropped once their thread has ended). A failure in their
+        thread is raised here, where ``prepare`` would have raised it."""
+        ahead, self._ahead = self._ahead, None
+        if ahead is None:
+            return None
+        if ahead.dt != dt:
+            ahead.discard()
+            return None
+        return ahead.factors()
+
+    @property
+    def making_ahead(self) -> float | None:
+        """The step size whose factors are being made ahead, or None."""
+        return None if self._ahead is None else self._ahead.dt
+
+    def finish_ahead(self):
+        """Wait for the factors in the making (kept for their step): before a fork, which
+        shares the fixed pattern and the symbolic analyses, or a checkpoint."""
+        if self._ahead is not None:
+            self._ahead.wait()
+
+    def settle(self):
+        """Drop factors made ahead (their thread ended first): at the end of a run's steps,
+        however they ended, so that no thread outlives them and no second set of factors is held
+        between calls."""
+        ahead, self._ahead = self._ahead, None
+        if ahead is not None:
+            ahead.discard()
 
     def _bulk_order(self, Ls, fault_coupling):
         """(the free unknowns in the factors' order, the split of B's factorisation): B in a
@@ -813,6 +870,58 @@ REFINEMENT_GAIN = 1e-3
 #: to 1e-11: a tenth of the goal at most), so a product with P would only confirm that it misses
 #: (the paper-units Rustrel scene: 1.16 such products a step of 2.36)
 UNCHECKED_MARGIN = 2.0
+
+
+#: the nice value of a thread making factors ahead (``_yield_to_the_steps``)
+AHEAD_NICE = 19
+
+
+def _yield_to_the_steps():
+    """Lower the calling thread's scheduling priority (Linux: nice is per thread, inherited by
+    the threads it starts): the factors made ahead take a core the steps leave idle, not the
+    steps' own when another process holds the other core; a step that waits for them leaves its
+    core to them. (Elsewhere PRIO_PROCESS would name the process: left as it is.)"""
+    if sys.platform == "linux" and AHEAD_NICE > 0:
+        try:
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), AHEAD_NICE)
+        except OSError:
+            pass
+
+
+class _Ahead:
+    """``make(dt)`` run in a thread of its own (``CondensedSystem.factorise_ahead``)."""
+
+    def __init__(self, dt, make):
+        self.dt = dt
+        self._out = []
+        self._failed = []
+
+        def body():
+            _yield_to_the_steps()
+            try:
+                self._out.append(make(dt))
+            except BaseException as error:   # (raised where the factors are taken)
+                self._failed.append(error)
+
+        self._thread = threading.Thread(target=body, name="fault_screen rung ahead", daemon=True)
+        self._thread.start()
+
+    def factors(self):
+        """The factors, once made (waits); raises what making them raised."""
+        self._thread.join()
+        if self._failed:
+            raise self._failed.pop()
+        return self._out.pop()
+
+    def wait(self):
+        self._thread.join()
+
+    def discard(self):
+        """Wait for the thread to end and drop what it made or raised."""
+        self._thread.join()
+        self._out.clear()
+        self._failed.clear()
+
 
 #: GMRES iterations allowed before the condensed block is factorised anew: an LU of n unknowns
 #: costs about as much as 12 iterations (each a product with M and a solve with the old factors)

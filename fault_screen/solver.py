@@ -306,6 +306,7 @@ class NewtonSolver:
     _AH_N = None
     _products = None
     _Cx_n = None       # (x_n, C x_n) of the current step
+    _next_rung = None            # the next rung's expected first step size (``expect_rung``)
     _in_situ_floor = None        # (see _in_situ_reference)
     _state_products = ()         # (x, [A; Hf] x, C x) of the last accepted states, whole
 
@@ -397,6 +398,7 @@ class NewtonSolver:
         the constant matrices and factors shared read-only). Call it between steps."""
         twin = copy.copy(self)
         twin.system = self.system.fork()
+        twin._next_rung = None
         return twin
 
     def blas_threads(self):
@@ -449,6 +451,21 @@ class NewtonSolver:
             self.system.prepare(dt, tangent)
         else:
             self.system.prepare(dt, tangent, self.time_weight, rung)
+        if self._next_rung is not None:   # (once: a retry of this step does not start it again)
+            self.system.factorise_ahead(self._next_rung)
+            self._next_rung = None
+
+    def expect_rung(self, dt):
+        """The next rung's first step size, if the steps go as planned (None: none expected):
+        its bulk factors are made beside this rung's steps, started once this step's linear
+        system is at hand (``CondensedSystem.factorise_ahead``)."""
+        self._next_rung = dt
+
+    def settle(self):
+        """No factors in the making after this (``CondensedSystem.settle``): at the end of a
+        run's steps, however they ended."""
+        self._next_rung = None
+        self.system.settle()
 
     def _AH_times(self, x):
         """[A x; Hf x], the two products of the convergence test (A and Hf are not held stacked

@@ -159,7 +159,10 @@ class Simulation:
         value = self._injection_value(volume, pressure, t_next)
         wall0 = _time.perf_counter()
         with self.solver.blas_threads():  # held over all the steps (see there)
-            taken = self._advance(t_next, value, align, max_steps, progress, observer, wall0)
+            try:
+                taken = self._advance(t_next, value, align, max_steps, progress, observer, wall0)
+            finally:
+                self.solver.settle()   # (no factors made ahead outlive the steps)
         self.wall_time += _time.perf_counter() - wall0
         return taken
 
@@ -167,8 +170,6 @@ class Simulation:
         """The steps of ``advance``, ``value`` the injection value of a step (t0, t1), ``wall0``
         when the call began (for ``progress``)."""
         scene = self.scene
-        ts = scene.time
-        dt_max = ts.dt_max if ts.dt_max is not None else ts.dt
         injection = self.physics.injection
         nof = scene.injection.number_of_fractures
         contact = self.physics.contact
@@ -182,6 +183,9 @@ class Simulation:
             dt_try = min(self.dt, t_next - t)
             shortened = dt_try < self.dt
             cuts = 0
+            if not shortened:
+                self.solver.expect_rung(self._next_rung(t, dt_try, t_next, align,
+                                                        None if max_steps is None else max_steps - taken))
             while True:
                 t1 = t + dt_try
                 step_value = value(t, t1)
@@ -189,6 +193,7 @@ class Simulation:
                     out = self._step(dt_try, step_value)
                     break
                 except StepFailed as exc:
+                    self.solver.expect_rung(None)   # (a halved step: the prediction fails)
                     cuts += 1
                     if cuts > scene.solver.max_step_cuts:
                         raise SimulationError(f"step at t = {t:.6g} s failed after {cuts - 1} cuts "
@@ -227,19 +232,56 @@ class Simulation:
                 self.dt_failed = self.dt
                 self.dt = dt_try
             elif not shortened:
-                self.dt = min(dt_try * ts.growth, dt_max)
-                if self.recovery_hold > 0:
-                    self.recovery_hold -= 1
-                elif self.dt_recover > self.dt:  # after cuts: back to the sequence's size, not stuck
-                    self.dt = min(dt_try * max(ts.growth, RECOVERY_GROWTH), self.dt_recover)
-                if self.dt >= self.dt_recover:
-                    self.dt_recover = 0.0
+                self.dt, self.dt_recover, self.recovery_hold = self._after_clean_step(
+                    dt_try, self.dt_recover, self.recovery_hold)
             if contact is not None:
                 limit = contact.law.max_step(slip_rate)
                 if limit < self.dt:
                     self.dt_recover = max(self.dt_recover, self.dt)  # grow back once it slows
                     self.dt = limit
         return taken
+
+    def _after_clean_step(self, dt_try, recover, hold):
+        """(dt, dt_recover, recovery_hold) after a step of size dt_try that needed no cut and
+        was not shortened, from dt_recover and recovery_hold before it: the sequence's growth up
+        to dt_max, or back towards the size that failed after cuts (see RECOVERY_GROWTH)."""
+        ts = self.scene.time
+        dt_max = ts.dt_max if ts.dt_max is not None else ts.dt
+        dt = min(dt_try * ts.growth, dt_max)
+        if hold > 0:
+            hold -= 1
+        elif recover > dt:  # after cuts: back to the sequence's size, not stuck
+            dt = min(dt_try * max(ts.growth, RECOVERY_GROWTH), recover)
+        if dt >= recover:
+            recover = 0.0
+        return dt, recover, hold
+
+    def _next_rung(self, t, dt_try, t_next, align, steps_left):
+        """The first step size of the theta ladder's next rung when the step (t, t + dt_try)
+        starts a rung and the steps after it go as planned (no cut, no slip-rate limit, none
+        shortened) inside this ``advance`` call; else None. Its factors are then made beside
+        this rung's steps (``NewtonSolver.expect_rung``); a wrong guess only costs their work.
+        None under pressure control (its steps' sizes follow the held pressure's jumps)."""
+        weight = self._time_weight(dt_try)
+        injection = self.physics.injection
+        if (weight.get("rung") != dt_try or weight.get("rung") == self.rung
+                or (injection is not None and injection.control == "pressure")):
+            return None
+        ts = self.scene.time
+        dt, recover, hold = dt_try, self.dt_recover, self.recovery_hold
+        t1, steps = t + dt_try, 1
+        while steps_left is None or steps < steps_left:
+            if t1 >= t_next * (1 - 1e-12):
+                return None
+            following, recover, hold = self._after_clean_step(dt, recover, hold)
+            if following == dt:
+                return None   # (a plateau: this rung's steps from here on)
+            if following > t_next - t1 or (align and t1 + following > t_next * (1 + 1e-12)):
+                return None   # (shortened to meet the end, or not taken)
+            if not ts.theta_min <= ts.theta * dt_try / following <= ts.theta:
+                return following
+            dt, t1, steps = following, t1 + following, steps + 1
+        return None
 
     def _check_instability(self, t, slip_rate):
         """Stop (``self.stopped``) once the peak slip rate exceeds ``solver.unstable_slip_rate``:
@@ -409,6 +451,7 @@ class Simulation:
         starting with this run's newest row (a look-ahead; this run may stream to a file).
         Call it between steps of this run; after that, this run and the fork may step at the
         same time in two threads (what either writes is its own)."""
+        self.solver.system.finish_ahead()   # (the fork shares what that thread reads)
         twin = object.__new__(type(self))
         twin.__dict__.update(self.__dict__)     # the counters and step-sequence state: scalars
         twin.solver = self._forked_solver()
@@ -436,6 +479,7 @@ class Simulation:
         """Write the complete state (unknowns, fault history, step size, time, recorded rows,
         scene, solver scaling) to HDF5, atomically (temporary file, then rename)."""
         path = Path(path)
+        self.solver.system.finish_ahead()   # (its thread ended: the state as it stands)
         with atomic_hdf5(path) as h5:
             h5.attrs["format"] = CHECKPOINT_FORMAT
             h5.attrs["version"] = __version__
