@@ -19,6 +19,8 @@ U12 = D L21^T (the symmetric form has M_BN = M_NB^T).
 from __future__ import annotations
 
 import _thread
+import contextlib
+import threading
 
 import numpy as np
 import scipy.sparse as sp
@@ -936,6 +938,22 @@ def front_multiply_adds(width, below):
 #: a factorisation of more multiply-adds than this takes its two parts in two threads
 #: (``LDLSymbolic.parts``); below it a thread's start costs more than it saves
 THREADS_ABOVE = 20e6
+
+_in_this_thread = threading.local()
+
+
+@contextlib.contextmanager
+def one_thread():
+    """Factorisations made by the calling thread inside this block take one thread (the same
+    factors bit for bit): one made beside the steps (``linear_system.CondensedSystem.
+    factorise_ahead``) would otherwise be a third thread on two cores, and its second thread
+    another malloc arena."""
+    before = getattr(_in_this_thread, "one", False)
+    _in_this_thread.one = True
+    try:
+        yield
+    finally:
+        _in_this_thread.one = before
 #: the two threads' parts are balanced until their multiply-adds differ by at most this
 #: fraction of their sum (``LDLSymbolic._plan``), ...
 BALANCE = 0.03
@@ -1010,7 +1028,8 @@ def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=No
                    *(buffers or _front_buffers(sequence, symbolic, n_N, blas_width, blas_rows)))
 
     if threads is None:
-        threads = 2 if symbolic.multiply_adds > THREADS_ABOVE else 1
+        threads = (1 if getattr(_in_this_thread, "one", False) else
+                   2 if symbolic.multiply_adds > THREADS_ABOVE else 1)
     # the shared front's halves (``_front_by_halves``): the second in the thread of the second
     # part, right after it, so that one thread is started and joined per factorisation, and
     # the first thread waits for that part by a spin (``_await_part``), not a lock

@@ -33,6 +33,7 @@ from ._jit import helper, kernel
 from .bordered_lu import (_linear_rows_symmetric, bordered_lu, lu_solve, release_freed_memory,
                           split_layout)
 from .fixed_pattern import FixedBulk, FixedSum
+from . import ldl
 from .ldl import SymbolicAnalyses
 from .ordering import nested_dissection
 from . import shared_bulk
@@ -899,7 +900,8 @@ class _Ahead:
         def body():
             _yield_to_the_steps()
             try:
-                self._out.append(make(dt))
+                with ldl.one_thread():   # (the steps hold the other core)
+                    self._out.append(make(dt))
             except BaseException as error:   # (raised where the factors are taken)
                 self._failed.append(error)
 

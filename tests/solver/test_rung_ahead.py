@@ -254,3 +254,27 @@ def test_a_fork_and_a_checkpoint_while_the_thread_runs_equal_those_without(tmp_p
     for a, b in zip(with_thread, without):
         _assert_equal_runs(a, b)
     assert not _alive()
+
+
+def test_the_factors_made_ahead_take_one_thread(reference, monkeypatch):
+    """The thread beside the steps factorises in one thread (``ldl.one_thread``), where every
+    other factorisation of the run takes two (THREADS_ABOVE lowered to 0): no third thread on
+    two cores; the same run bit for bit."""
+    import fault_screen.ldl as ldl
+
+    monkeypatch.setattr(ldl, "THREADS_ABOVE", 0.0)
+    seen, numeric = [], ldl._numeric
+
+    def watched(*args, **kwargs):
+        seen.append((threading.current_thread().name, getattr(ldl._in_this_thread, "one", False)))
+        return numeric(*args, **kwargs)
+
+    monkeypatch.setattr(ldl, "_numeric", watched)
+    sim = Simulation(_ladder_scene())
+    sim.advance(sim.scene.time.end)
+    _assert_equal_runs(_series(sim), reference)
+    ahead = [one for name, one in seen if name == THREAD]
+    elsewhere = [one for name, one in seen if name != THREAD]
+    assert len(ahead) >= 4 and all(ahead)
+    assert elsewhere and not any(elsewhere)
+    assert not _alive()
