@@ -57,10 +57,11 @@ Rows (keys for --skip in brackets):
   (re-preparation, numeric factorisation, condensed LU, Newton iterations), and the Newton
   iterations of the changed steps solved again from the same states at their own size and at
   the previous step's (``growing_iterations``). The bundled scene sets ``time.theta_min`` (the
-  theta ladder: a step whose size stays in its rung keeps the bulk's factors). Like for like: the same ratio over the changed
-  and unchanged steps that took the unchanged steps' usual number of Newton iterations; and, when
-  some changed steps kept the factors (no numeric factorisation in them), those and the ones that
-  refactorised apart.
+  theta ladder: a step whose size stays in its rung keeps the bulk's factors). Like for like:
+  the same ratio over the changed and unchanged steps that took the unchanged steps' usual
+  number of Newton iterations; and the changed steps inside a rung (the bulk's factors kept)
+  apart from those that start a rung (new factors, made in place or ahead in a thread beside
+  the rung before: see ``benchmarks/rung_switch.py``).
 - [tests] `python -m pytest -q` (the README's test command), wall time.
 """
 from __future__ import annotations
@@ -205,7 +206,8 @@ def run_growing() -> dict:
     def progress(step, t, end, wall):
         now = (time.perf_counter(), time.process_time())
         parts = [x for name in ("prepare", "factorise", "condensed_lu") for x in spent[name]]
-        steps.append([sim.last_row["dt"], now[0] - last[0], now[1] - last[1], *parts])
+        steps.append([sim.last_row["dt"], now[0] - last[0], now[1] - last[1], *parts,
+                      sim.last_row["theta"]])
         for v in spent.values():
             v[:] = [0.0, 0.0]
         last[:] = now
@@ -220,7 +222,7 @@ def run_growing() -> dict:
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     iterations = np.asarray(result.solver["iterations"])[-len(steps):]
     return dict(case="paper-growing", wall=wall, cpu=cpu, steps=steps,
-                iterations=iterations.tolist())
+                iterations=iterations.tolist(), theta=scene.time.theta)
 
 
 def growing_iterations() -> dict:
@@ -281,9 +283,10 @@ def growing_summary(runs: list[dict]) -> dict:
     # number of Newton iterations (the changed ones are the busier phase's, see the row)
     counts = np.bincount(its_un.astype(int))
     usual = int(np.argmax(counts))
-    # a changed step whose size kept the factors (no numeric factorisation in it) and one that
-    # refactorised
-    refactorised = ch[:, 6] > 0.0
+    # a changed step inside a rung of the theta ladder (a weight below the scene's: the bulk's
+    # factors kept) and one that starts a rung (the scene's weight: factors of a new size, made
+    # in place or ahead beside the rung before, so not told apart by the factorisation's time)
+    refactorised = ch[:, 9] == runs[0]["theta"]
     return dict(
         n_runs=len(runs), n_changed=len(ch), n_unchanged=len(un),
         changed_ms=med(ch[:, 1]), unchanged_ms=med(un[:, 1]),
@@ -739,9 +742,9 @@ def main():
                      f"{sum(iterations['previous'])} at the previous step's")
             spread = lambda r: f"{min(r):.1f}-{max(r):.1f}x"   # noqa: E731
             kept = ("" if g["n_refactorised"] == g["n_changed"] else
-                    f"; {g['n_changed'] - g['n_refactorised']} changed steps kept the factors: "
+                    f"; {g['n_changed'] - g['n_refactorised']} changed steps inside a rung "
                     f"{g['kept_ms']:.1f} ms = {g['kept_ms'] / g['unchanged_ms']:.1f}x, the "
-                    f"{g['n_refactorised']} that refactorised {g['refactorised_ms']:.0f} ms = "
+                    f"{g['n_refactorised']} that start a rung {g['refactorised_ms']:.1f} ms = "
                     f"{g['refactorised_ms'] / g['unchanged_ms']:.1f}x")
             like = (f"; like for like ({g['usual_iterations']} Newton iterations each, "
                     f"{g['n_like_changed']} changed and {g['n_like_unchanged']} unchanged steps) "
