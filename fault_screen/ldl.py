@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import _thread
 import contextlib
+import sys
 import threading
 
 import numpy as np
@@ -942,6 +943,13 @@ THREADS_ABOVE = 20e6
 _in_this_thread = threading.local()
 
 
+def _two_threads_here() -> bool:
+    """The two threads meet through the C library's clock_gettime (CLOCK_MONOTONIC = 1) and
+    usleep (``_wait_until``), Linux's: elsewhere a factorisation takes one thread (the same
+    factors bit for bit)."""
+    return sys.platform.startswith("linux")
+
+
 @contextlib.contextmanager
 def one_thread():
     """Factorisations made by the calling thread inside this block take one thread (the same
@@ -1028,7 +1036,7 @@ def _numeric(lower, schur, symbolic, threads=None, blas_width=None, blas_rows=No
                    *(buffers or _front_buffers(sequence, symbolic, n_N, blas_width, blas_rows)))
 
     if threads is None:
-        threads = (1 if getattr(_in_this_thread, "one", False) else
+        threads = (1 if getattr(_in_this_thread, "one", False) or not _two_threads_here() else
                    2 if symbolic.multiply_adds > THREADS_ABOVE else 1)
     # the shared front's halves (``_front_by_halves``): the second in the thread of the second
     # part, right after it, so that one thread is started and joined per factorisation, and

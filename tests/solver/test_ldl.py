@@ -532,3 +532,22 @@ def _paths(symbolic):
     loads = [work[part].sum() for part in symbolic.parts]
     assert np.isclose(sum(loads), symbolic.multiply_adds, rtol=1e-12)
     return max(loads[:2]) + loads[2], _contiguous_cut_path(symbolic), loads
+
+
+def test_off_linux_a_factorisation_takes_one_thread(poroelastic, monkeypatch):
+    """The two threads' waits call Linux's clock_gettime and usleep: on another platform a
+    factorisation that would take two threads (THREADS_ABOVE at 0) starts none, and its
+    factors are those of one thread bit for bit."""
+    M, nB = _free_block(poroelastic, 600.0, symmetric_form=True)
+    monkeypatch.setattr(ldl, "THREADS_ABOVE", np.inf)
+    one = BorderedLU(M, nB, ldl.SymbolicAnalyses())
+    monkeypatch.setattr(ldl, "THREADS_ABOVE", 0.0)
+    monkeypatch.setattr(ldl.sys, "platform", "win32")
+
+    def no_thread(*args):
+        raise AssertionError("a second thread was started")
+
+    monkeypatch.setattr(ldl, "_in_background", no_thread)
+    other = BorderedLU(M, nB, ldl.SymbolicAnalyses())
+    assert np.array_equal(one.schur, other.schur) and np.array_equal(one._D, other._D)
+    assert all(np.array_equal(x, y) for x, y in zip(one._L.arrays, other._L.arrays))
