@@ -45,6 +45,16 @@ GZIP_LEVEL = 1
 #: growing datasets stayed cached, and a long run's memory grew with its steps (the Basel 2006
 #: replay: 244 -> 272 MB over 111,708 steps); with this the same file bytes, the same CPU time
 CHUNK_CACHE_BYTES = 256 * 1024
+
+
+def _opened_for_writing(path, mode):
+    """The result file ``path`` opened to write (``mode`` "w" or "r+") as the writer opens it:
+    HDF5's latest format (SWMR) and the chunk cache of CHUNK_CACHE_BYTES a dataset."""
+    import h5py
+
+    return h5py.File(path, mode, libver="latest", rdcc_nbytes=CHUNK_CACHE_BYTES)
+
+
 #: root attribute listing what close() wrote (removed again when the file is reopened)
 _FINAL = "final_groups"
 
@@ -82,10 +92,8 @@ class ResultWriter:
     @classmethod
     def create(cls, path, *, streams: dict, fixed: dict, attrs: dict, compress=("profiles",),
                batch: int | None = None) -> "ResultWriter":
-        import h5py
-
         path = Path(path)
-        h5 = h5py.File(path, "w", libver="latest", rdcc_nbytes=CHUNK_CACHE_BYTES)
+        h5 = _opened_for_writing(path, "w")
         try:
             for k, v in attrs.items():
                 h5.attrs[k] = v
@@ -106,18 +114,16 @@ class ResultWriter:
                batch: int | None = None) -> "ResultWriter":
         """The file ``path`` truncated to ``counts`` records per stream, open for appending.
         Streams missing from the file (``streams`` declares them) are created."""
-        import h5py
-
         path = Path(path)
         if not path.exists():
             raise FileNotFoundError(f"{path}: the result file this checkpoint streamed to is missing")
         try:
-            h5 = h5py.File(path, "r+", libver="latest", rdcc_nbytes=CHUNK_CACHE_BYTES)
+            h5 = _opened_for_writing(path, "r+")
         except OSError as exc:
             if "already open for write" not in str(exc):
                 raise
             _copy_from_reader(path)             # left marked open by a killed writer
-            h5 = h5py.File(path, "r+", libver="latest", rdcc_nbytes=CHUNK_CACHE_BYTES)
+            h5 = _opened_for_writing(path, "r+")
         try:
             for p in json.loads(h5.attrs.get(_FINAL, "[]")):
                 if p in h5:
@@ -182,12 +188,9 @@ class ResultWriter:
     def close(self, *, meta: dict | None = None, groups: dict | None = None) -> Path:
         """Write what is buffered, then ``meta`` (root attribute, JSON) and ``groups`` (group ->
         {name: array}: known only at the end), sync, close."""
-        import h5py
-
         self.flush()
         self.h5.close()
-        with h5py.File(self.path, "r+", libver="latest",
-                       rdcc_nbytes=CHUNK_CACHE_BYTES) as h5:
+        with _opened_for_writing(self.path, "r+") as h5:
             if meta is not None:
                 h5.attrs["meta"] = json.dumps(meta, default=float)
             written = []
