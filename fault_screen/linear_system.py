@@ -282,6 +282,11 @@ class CondensedSystem:
             self._prepare_factorised(rung, nonlinear_tangent)
         self._rung_step(dt, theta)
 
+    def _row_factors(self, dt):
+        """Per free unknown in the factors' order: -dt on a flow row, 1 on a mechanical one (the
+        symmetric form's row factors at step size dt)."""
+        return np.where(self._mechanical[self._order], 1.0, -dt)
+
     def _rung_step(self, dt, theta):
         """The linear system of a step inside the rung of the factors (``prepare``)."""
         self._L = None
@@ -291,7 +296,7 @@ class CondensedSystem:
             self.P = self._P_factored * np.where(flow_N, ratio, 1.0)[:, None]
             self.P_symmetric = False
         self._rung_rows = np.where(flow_N, dt / self._factored_dt, 1.0)
-        self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
+        self._row_factor = self._row_factors(dt)
         self._L_fixed_B = self._sum_fixed.matrix(dt, theta)
         self._L_rows_N_fixed = self._sum_rows_N_fixed.matrix(dt, theta)
         self.dt, self.theta = dt, theta
@@ -363,7 +368,7 @@ class CondensedSystem:
                     # summed the general way: the fixed pattern (``_factorise_symmetric``) is
                     # made when the step size first changes, and never for a run on one step
                     # size (on 200 x 201 it cost 3.9 s of 24); its values equal these bit for bit
-                    self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
+                    self._row_factor = self._row_factors(dt)
                     held[0].data *= self._row_factor[held[0].indices]
                 # an elastic bulk (positive definite, symmetric) takes the L D L^T too: on the
                 # fine 30 deg scene its factorisation took half SuperLU's CPU time; factorised
@@ -377,7 +382,7 @@ class CondensedSystem:
                     self._analyses = None
             else:   # the symmetric form in its fixed pattern (made ahead, or now)
                 self.lu = ahead if ahead is not None else self._factorise_symmetric(dt)
-                self._row_factor = np.where(self._mechanical[self._order], 1.0, -dt)
+                self._row_factor = self._row_factors(dt)
             self.factorizations += 1
             if self._row_factor is not None:   # (the Schur complement of the rows as they are)
                 self.lu.schur /= self._row_factor[len(B):, None]
