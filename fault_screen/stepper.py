@@ -267,7 +267,6 @@ class Simulation:
         if (weight.get("rung") != dt_try or weight.get("rung") == self.rung
                 or (injection is not None and injection.control == "pressure")):
             return None
-        ts = self.scene.time
         dt, recover, hold = dt_try, self.dt_recover, self.recovery_hold
         t1, steps = t + dt_try, 1
         while steps_left is None or steps < steps_left:
@@ -278,7 +277,7 @@ class Simulation:
                 return None   # (a plateau: this rung's steps from here on)
             if following > t_next - t1 or (align and t1 + following > t_next * (1 + 1e-12)):
                 return None   # (shortened to meet the end, or not taken)
-            if not ts.theta_min <= ts.theta * dt_try / following <= ts.theta:
+            if not self._in_rung(dt_try, following):
                 return following
             dt, t1, steps = following, t1 + following, steps + 1
         return None
@@ -311,11 +310,15 @@ class Simulation:
         ts = self.scene.time
         if ts.theta_min is None or not self.solver.system.keeps_factors_at_theta_dt:
             return {}
-        if self.rung > 0.0:
-            theta = ts.theta * self.rung / dt
-            if ts.theta_min <= theta <= ts.theta:
-                return dict(time_weight=theta, rung=self.rung)
+        if self.rung > 0.0 and self._in_rung(self.rung, dt):
+            return dict(time_weight=ts.theta * self.rung / dt, rung=self.rung)
         return dict(time_weight=ts.theta, rung=dt)
+
+    def _in_rung(self, rung, dt) -> bool:
+        """Is a step of size dt in the rung whose first size is ``rung``: its weight theta rung /
+        dt (theta the scene's) in [theta_min, theta]?"""
+        ts = self.scene.time
+        return ts.theta_min <= ts.theta * rung / dt <= ts.theta
 
     def _step(self, dt, step_value):
         """One step of size dt: full Newton; if that fails a damped Newton (line search); if
