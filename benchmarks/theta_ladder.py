@@ -22,23 +22,25 @@ import argparse
 import dataclasses
 import resource
 import statistics
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-PAPER = ROOT / "configs" / "rustrel-2015-calibrated-paper-units.toml"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 #: the end of injection in the paper-units scene (s)
 INJECTION_END = 1400.0
 
 
 def growing_scene(theta_min=None):
-    from fault_screen import Scene
+    """performance.py's [stepsize] scene with ``time.theta_min`` set to ``theta_min`` (None:
+    backward Euler's growing run)."""
+    import fault_screen  # noqa: F401 (first: performance puts its own tree on sys.path)
+    import performance
 
-    s = Scene.from_toml(PAPER)
-    return s.replace(time=dataclasses.replace(s.time, growth=1.2, dt_max=600.0,
-                                              end=s.time.end + 3 * 3600.0, theta_min=theta_min))
+    s = performance._scene("paper-growing")
+    return s.replace(time=dataclasses.replace(s.time, theta_min=theta_min))
 
 
 def timed_run(theta_min):
