@@ -137,7 +137,7 @@ class CondensedSystem:
     _blocks_rows_N_fixed = None
     _blas_limited = False
     _restored_P = None
-    _restored_condensed = None   # (tangent, dt) of the checkpoint's condensed block
+    _restored_condensed = None   # [(tangent, dt)] of the checkpoint's condensed blocks, recalled first
     lu = None
     P = None
     P_symmetric = False   # P made exactly symmetric (``condensation_symmetrised``)
@@ -203,10 +203,15 @@ class CondensedSystem:
             out["condensation"] = self.P
         d = self._dense
         if d is not None and d.tangent0 is not None:
-            rows, cols, vals = d.tangent0
-            out.update(condensed_tangent_rows=rows, condensed_tangent_cols=cols,
-                       condensed_tangent_values=vals, condensed_step=np.array(d.factored_step),
-                       condensed_current=np.array(d._base0 == self.factorizations))
+            blocks = {"condensed": vars(d)}
+            if d._recalled is not None:
+                blocks["condensed_recalled"] = d._recalled
+            for key, block in blocks.items():
+                rows, cols, vals = block["tangent0"]
+                out.update({f"{key}_tangent_rows": rows, f"{key}_tangent_cols": cols,
+                            f"{key}_tangent_values": vals,
+                            f"{key}_step": np.array(block["factored_step"]),
+                            f"{key}_current": np.array(block["_base0"] == self.factorizations)})
         return out
 
     def restore_state(self, state: dict):
@@ -216,10 +221,12 @@ class CondensedSystem:
         it is not used, the first iteration factorises its own block.)"""
         if "condensation" in state:
             self._restored_P = np.array(state["condensation"])
-        if "condensed_tangent_rows" in state and bool(state["condensed_current"]):
-            self._restored_condensed = (
-                (np.array(state["condensed_tangent_rows"]), np.array(state["condensed_tangent_cols"]),
-                 np.array(state["condensed_tangent_values"])), float(state["condensed_step"]))
+        # the recalled block first: factorising the current one then recalls it (``condensed``)
+        self._restored_condensed = [
+            ((np.array(state[f"{key}_tangent_rows"]), np.array(state[f"{key}_tangent_cols"]),
+              np.array(state[f"{key}_tangent_values"])), float(state[f"{key}_step"]))
+            for key in ("condensed_recalled", "condensed")
+            if f"{key}_tangent_rows" in state and bool(state[f"{key}_current"])] or None
 
     def fork(self) -> "CondensedSystem":
         """A system for a fork of the run: the same state, the constant blocks, the bulk's
@@ -668,16 +675,17 @@ class CondensedSystem:
             return None
         if self._dense is None:
             self._dense = self._new_condensed_solver()
-            if self._restored_condensed is not None:
-                # the block of the restored checkpoint, formed from the condensation it was
-                # formed from: the restored one, or the one made again at its step size (at
-                # another step size the next block is factorised anyway)
-                tangent, dt0 = self._restored_condensed
-                self._restored_condensed = None
+            restored, self._restored_condensed = self._restored_condensed or [], None
+            for tangent, dt0 in restored:
+                # the blocks of the restored checkpoint (the recalled one, then M0), each formed
+                # from the condensation it was formed from: the restored one, or the one made
+                # again at its step size (at another step size the next block is factorised
+                # anyway)
                 if self.factors_any_dt or dt0 == self._factored_dt or dt0 == self.dt:
                     P, symmetric = self._condensation_of(dt0)
                     self._dense.set(P, self._linear_entries(dt0), tangent, dt0,
                                     base=self.factorizations, symmetric=symmetric)
+                    self._dense.factorise_set()
         D = self._rung_rows
         if D is None:
             tangent = (rows, cols, vals)
@@ -930,6 +938,13 @@ class _Ahead:
         self._failed.clear()
 
 
+#: the condensed solver keeps the factorised block before the last one (and what it solved with
+#: it) while the block has at most this many rows: a Newton iteration whose block is close to
+#: that one again takes its factors instead of a new LU (``CondensedSolver``; two n x n arrays
+#: more at most, 17 MB at this size; the fine 30 deg scene's 2059 rows keep one)
+RECALL_UP_TO = 1024
+
+
 #: GMRES iterations allowed before the condensed block is factorised anew: an LU of n unknowns
 #: costs about as much as 12 iterations (each a product with M and a solve with the old factors)
 #: at n = 400, where fixed costs dominate, and about n/40 beyond
@@ -956,6 +971,27 @@ def _zeros_filled_later(shape):
     if size == 0:
         return np.zeros(shape, order="F")
     return np.ndarray(shape, dtype=float, buffer=mmap.mmap(-1, size), order="F")
+
+
+#: what the condensed solver keeps of one factorised block M0 (``CondensedSolver``: M0's and
+#: the recalled block's): its factors, its tangent and step size, the columns solved with it
+#: and the step size's correction of them
+BASE_STATE = ("factors", "_M0_largest", "factored_inv_dt", "factored_step", "_base0", "tangent0",
+              "_tangent0_sums", "_Z", "_have", "_T", "_have1", "_Z_R", "_K_R", "_delta",
+              "_capacitance_R", "_front")
+
+
+def _solved_columns_of(state):
+    """For a fork: copies of the columns solved with a block (``_Z``, ``_T``) and of the marks
+    of which are solved, from ``state`` (a solver's attributes, or its recalled block's)."""
+    out = {}
+    for name, have in (("_Z", "_have"), ("_T", "_have1")):
+        solved = state.get(have)
+        if solved is not None:
+            out[have] = solved.copy()
+        if state.get(name) is not None:
+            out[name] = _solved_columns_copied(state[name], solved)
+    return out
 
 
 def _solved_columns_copied(kept, have):
@@ -1094,6 +1130,14 @@ class CondensedSolver:
       refinement with M1's factors and, if that contracts slowly, GMRES preconditioned with them
       (right preconditioning: the true residual of M is what converges), to CONDENSED_RTOL.
     Every result is checked against M itself. When none serves, M is factorised and becomes M0.
+    - The block factorised before M0 is kept too (``_recalled``, up to RECALL_UP_TO rows), with
+      what was solved with it. When M0 does not serve by a low-rank change and the recalled
+      block does (the same condensation and step size), the two trade places instead of a new
+      LU. Under constant friction a step's first Newton iteration finds every point of the fault
+      stuck (the trial traction lies on the friction limit), its second finds the slipping
+      patch again, and each step alternates between the same two blocks but for a moved front:
+      the peer scene's graded run took 58 LUs of 576 rows for 105 iterations, all but
+      one each way of them such a return.
     (GMRES preconditioned across a step size change of 6 % took 9 iterations per solve on the
     30 deg T = 0.7 scene, more than an LU: hence the exact update on R.)"""
 
@@ -1115,6 +1159,8 @@ class CondensedSolver:
         self.factorizations = 0
         self.iterations = 0        # GMRES and refinement iterations, for diagnostics
         self.updates = 0           # low-rank (Woodbury) solves, for diagnostics
+        self.recalls = 0           # the recalled block's factors taken up, for diagnostics
+        self._recalled = None      # the block factorised before M0: its BASE_STATE, or None
         self.storage = None
         if storage is not None:
             self.storage = sp.csr_matrix(storage, copy=True)
@@ -1147,9 +1193,32 @@ class CondensedSolver:
         pattern = self._pattern
         self._sparse = pattern.values(linear, tangent)
         self.factored = False
-        if (self.factors is None or base is None or base != self._base0
-                or (self.inv_dt != self.factored_inv_dt and self.storage is None)):
+        if self.factors is None or not self._fits(self._base0, self.factored_inv_dt):
+            if self._recalled is not None and self._fits(self._recalled["_base0"],
+                                                         self._recalled["factored_inv_dt"]):
+                self._trade()
+            else:
+                self._recalled = None
+                self._factorise()
+
+    def factorise_set(self):
+        """Factorise the block set unless ``set`` did (a restored checkpoint's blocks)."""
+        if not self.factored:
             self._factorise()
+
+    def _fits(self, base0, inv_dt0):
+        """Do factors made of condensation ``base0`` at 1/dt = ``inv_dt0`` serve the block set
+        (the same condensation, and the same step size unless the storage change is taken
+        from them)?"""
+        return (self._base is not None and base0 == self._base
+                and (inv_dt0 == self.inv_dt or self.storage is not None))
+
+    def _trade(self):
+        """M0 and the recalled block trade places, each with what was solved with it."""
+        kept = self._recalled
+        self._recalled = {name: getattr(self, name) for name in BASE_STATE}
+        for name in BASE_STATE:
+            setattr(self, name, kept[name])
 
     def fork(self) -> "CondensedSolver":
         """The same solver for a fork: the factors shared read-only, the columns of the inverse
@@ -1157,14 +1226,11 @@ class CondensedSolver:
         own (it remembers the arrays it last matched)."""
         twin = copy.copy(self)
         twin._pattern = copy.copy(self._pattern)
-        for name, have in (("_Z", "_have"), ("_T", "_have1")):
-            solved = getattr(self, have, None)
-            if solved is not None:
-                setattr(twin, have, solved.copy())
-            value = getattr(self, name, None)
-            if value is not None:
-                setattr(twin, name, _solved_columns_copied(value, solved))
+        for name, value in _solved_columns_of(vars(self)).items():
+            setattr(twin, name, value)
         twin._front = None   # (views of this solver's columns)
+        if self._recalled is not None:
+            twin._recalled = {**self._recalled, **_solved_columns_of(self._recalled), "_front": None}
         return twin
 
     def _times(self, v):
@@ -1191,8 +1257,14 @@ class CondensedSolver:
         return M
 
     def _factorise(self):
-        # the old factors and what was solved with them go before the new block is formed (the
-        # run's peak memory on the fine 30 deg scene: three n x n arrays at once, not four)
+        # M0 is recalled from now on where it serves the block set and is small; the block
+        # recalled so far goes. Else the old factors and what was solved with them go before
+        # the new block is formed (the run's peak memory on the fine 30 deg scene: three n x n
+        # arrays at once, not four)
+        self._recalled = None
+        if (self.factors is not None and len(self.P) <= RECALL_UP_TO
+                and self._fits(self._base0, self.factored_inv_dt)):
+            self._recalled = {name: getattr(self, name) for name in BASE_STATE}
         self.factors = None
         self._Z = self._T = self._Z_R = self._K_R = None
         M = self._form()
@@ -1264,12 +1336,32 @@ class CondensedSolver:
                 D, K, DK, largest = self._tangent_change()
                 if len(K) * LOW_RANK_FRACTION <= len(b):
                     x = self._low_rank(b, DK, K)
-                elif largest <= SMALL_CHANGE * self._M0_largest:
-                    x = self._iterate(b, D)
+                else:
+                    x = self._recalled_low_rank(b)
+                    if x is None and largest <= SMALL_CHANGE * self._M0_largest:
+                        x = self._iterate(b, D)
             if x is not None:
                 return x
             self._factorise()
         return self._precondition(b)
+
+    def _recalled_low_rank(self, b):
+        """M^-1 b by a low-rank change of the recalled block, which then becomes M0 (and M0 the
+        recalled one); None, the two as they were, when it is not close enough or misses the
+        check."""
+        kept = self._recalled
+        if kept is None or not self._fits(kept["_base0"], kept["factored_inv_dt"]):
+            return None
+        self._trade()
+        if self._step_size_update():
+            _, K, DK, _ = self._tangent_change()
+            if len(K) * LOW_RANK_FRACTION <= len(b):
+                x = self._low_rank(b, DK, K)
+                if x is not None:
+                    self.recalls += 1
+                    return x
+        self._trade()
+        return None
 
     def _tangent_change(self):
         """M - M1 = T - T0 (same condensation and pattern): its values at the slots, the rows

@@ -359,3 +359,63 @@ def test_a_stalled_refinement_goes_on_by_gmres_with_sparse_products(blocks, monk
         assert dense.factorizations == 1
         assert dense.iterations - iterations >= 4   # (a refinement step and GMRES iterations)
         assert len(products) == 1
+
+
+def _stuck_then_slipping(patch_end):
+    """A contact tangent with every point stuck (stiff), and one whose points 10 to
+    ``patch_end`` slip (no tangent): the two blocks differ in over 1/LOW_RANK_FRACTION of the
+    rows, by more than SMALL_CHANGE, so neither serves the other."""
+    stuck = _tangent(np.arange(N_MECH), 50.0)
+    slipping = _tangent(np.setdiff1d(np.arange(N_MECH), np.arange(10, patch_end)), 50.0)
+    return stuck, slipping
+
+
+def test_a_block_that_returns_is_recalled_not_factorised(blocks):
+    """Constant friction's Newton iterations alternate between a stuck fault and a slipping patch
+    whose front moves by a point a step: after the first two LUs every block is solved with the
+    factors of one of them (the stuck block exactly, the patch by a low-rank change of the
+    last one), each solve to CONDENSED_RTOL of M and to numpy's solve."""
+    rng = np.random.default_rng(11)
+    dense = CondensedSolver(blocks[1])
+    for step in range(6):
+        stuck, slipping = _stuck_then_slipping(40 + step)
+        for tangent in (stuck, slipping):
+            _check(dense, _set(dense, blocks, 1e3, tangent), rng)
+    assert (dense.factorizations, dense.recalls) == (2, 10)
+    # the last block is the patch factorised first (to point 40) but for its front's six points
+    assert dense._tangent_change()[1].tolist() == list(range(40, 46))
+
+    # a block from another condensation recalls nothing: it is factorised and the one before goes
+    _check(dense, _set(dense, blocks, 1e3, _stuck_then_slipping(46)[0], base=2), rng)
+    assert dense.factorizations == 3 and dense._recalled is None
+
+
+def test_a_large_block_keeps_one_set_of_factors(blocks, monkeypatch):
+    """Beyond RECALL_UP_TO rows (memory: the fine 30 deg scene's 2059) the block before is not
+    kept: every return is factorised, and the solves are the same to CONDENSED_RTOL."""
+    import fault_screen.linear_system as ls
+
+    monkeypatch.setattr(ls, "RECALL_UP_TO", N - 1)
+    rng = np.random.default_rng(12)
+    dense = CondensedSolver(blocks[1])
+    for step in range(3):
+        for tangent in _stuck_then_slipping(40 + step):
+            _check(dense, _set(dense, blocks, 1e3, tangent), rng)
+    assert (dense.factorizations, dense.recalls) == (6, 0) and dense._recalled is None
+
+
+def test_a_fork_recalls_as_its_run_does(blocks):
+    """A fork made while a block is recalled solves the next blocks bit for bit as its run does,
+    with its own copies of the columns solved with either block."""
+    rng = np.random.default_rng(13)
+    dense = CondensedSolver(blocks[1])
+    for tangent in _stuck_then_slipping(40) + _stuck_then_slipping(41):
+        _check(dense, _set(dense, blocks, 1.0 / 1e-3, tangent), rng)
+    twin = dense.fork()
+    assert twin._Z is not dense._Z and twin._recalled is not dense._recalled
+    b = rng.standard_normal(N)
+    for tangent in _stuck_then_slipping(42):
+        solved = [(_set(solver, blocks, 1.0 / 1.3e-3, tangent), solver.solve(b))[1]
+                  for solver in (dense, twin)]
+        assert np.array_equal(*solved)
+    assert dense.recalls == twin.recalls == 4 and dense.factorizations == twin.factorizations == 2

@@ -5,7 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from conftest import CONFIGS, VERIFICATION
+from conftest import CONFIGS, ROOT, VERIFICATION
 from fault_screen import Scene, Simulation
 from fault_screen.simulate import simulate
 
@@ -73,7 +73,17 @@ def extrapolated_guess():
     return s.replace(solver=dataclasses.replace(s.solver, first_guess="extrapolated"))
 
 
+def constant_friction():
+    """The OpenGeoSys peer scene (benchmarks/peers): held overpressure, constant friction. Each
+    step's first Newton iteration finds the fault stuck and its second the slipping patch
+    again; from about 600 s the patch is too wide for a low-rank change of one block, and the
+    condensed solver recalls the block factorised before the last (2 LUs and 18 recalls in
+    the 30 steps): a restored run and a fork make both blocks again."""
+    return Scene.from_toml(ROOT / "benchmarks" / "peers" / "rustrel-pressure.toml")
+
+
 CASES = {"rate, rate-and-state, evolving aperture": hard_rustrel,
+         "constant friction, recalled blocks": constant_friction,
          "extrapolated first guess": extrapolated_guess,
          "pressure control": pressure_controlled,
          "poroelastic, growing steps": poroelastic_growing,
@@ -194,3 +204,25 @@ def test_a_converging_fault_brings_the_bulk_up_to_date_once_a_step(monkeypatch):
     slip = bounded.fault["slip"]
     assert np.max(np.abs(slip)) > 0
     assert np.max(np.abs(slip - unbounded.fault["slip"])) <= 1e-10 * np.max(np.abs(slip))
+
+
+def test_a_restored_run_recalls_the_block_its_run_kept(tmp_path):
+    """A checkpoint holds both condensed blocks (the recalled one too): the restored run makes
+    them again, and its next step recalls where the run recalls, with no LU the run did not
+    make (without the recalled block it would factorise the stuck block again: one recall
+    fewer), and ends the step with the same factors bit for bit."""
+    scene = constant_friction()
+    sim = Simulation(scene)
+    sim.advance(scene.time.end, max_steps=24)
+    restored = Simulation.restore(sim.checkpoint(tmp_path / "state.h5"))
+    run = sim.solver.system._dense
+    recalls, factorizations = run.recalls, run.factorizations
+    next_time = sim.time + scene.time.dt
+    for each in (sim, restored):
+        each.advance(next_time)
+    again = restored.solver.system._dense
+    assert run.recalls - recalls == again.recalls == 2
+    assert run.factorizations == factorizations and again.factorizations == 2   # (its two made again)
+    assert np.array_equal(run.factors[0], again.factors[0])
+    assert np.array_equal(run._recalled["factors"][0], again._recalled["factors"][0])
+    assert np.array_equal(sim.x, restored.x)
