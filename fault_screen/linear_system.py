@@ -203,15 +203,10 @@ class CondensedSystem:
             out["condensation"] = self.P
         d = self._dense
         if d is not None and d.tangent0 is not None:
-            blocks = {"condensed": vars(d)}
-            if d._recalled is not None:
-                blocks["condensed_recalled"] = d._recalled
-            for key, block in blocks.items():
-                rows, cols, vals = block["tangent0"]
+            for key, ((rows, cols, vals), step, base) in d.factorised_blocks().items():
                 out.update({f"{key}_tangent_rows": rows, f"{key}_tangent_cols": cols,
-                            f"{key}_tangent_values": vals,
-                            f"{key}_step": np.array(block["factored_step"]),
-                            f"{key}_current": np.array(block["_base0"] == self.factorizations)})
+                            f"{key}_tangent_values": vals, f"{key}_step": np.array(step),
+                            f"{key}_current": np.array(base == self.factorizations)})
         return out
 
     def restore_state(self, state: dict):
@@ -1193,8 +1188,7 @@ class CondensedSolver:
         self._sparse = pattern.values(linear, tangent)
         self.factored = False
         if self.factors is None or not self._fits(self._base0, self.factored_inv_dt):
-            if self._recalled is not None and self._fits(self._recalled["_base0"],
-                                                         self._recalled["factored_inv_dt"]):
+            if self._recall_fits():
                 self._trade()
             else:
                 self._factorise()
@@ -1203,6 +1197,22 @@ class CondensedSolver:
         """Factorise the block set unless ``set`` did (a restored checkpoint's blocks)."""
         if not self.factored:
             self._factorise()
+
+    def factorised_blocks(self) -> dict:
+        """(tangent, step size, condensation count) of each block whose factors are kept, by
+        its checkpoint name: "condensed_recalled" (if any) first, then "condensed" (M0)."""
+        kept = {} if self._recalled is None else {"condensed_recalled": self._recalled}
+        kept["condensed"] = self._base_state()
+        return {key: (b["tangent0"], b["factored_step"], b["_base0"]) for key, b in kept.items()}
+
+    def _base_state(self) -> dict:
+        """M0's BASE_STATE, as the recalled block keeps it."""
+        return {name: getattr(self, name) for name in BASE_STATE}
+
+    def _recall_fits(self) -> bool:
+        """Is there a recalled block, of the condensation and step size of the block set?"""
+        kept = self._recalled
+        return kept is not None and self._fits(kept["_base0"], kept["factored_inv_dt"])
 
     def _fits(self, base0, inv_dt0):
         """Do factors made of condensation ``base0`` at 1/dt = ``inv_dt0`` serve the block set
@@ -1213,8 +1223,7 @@ class CondensedSolver:
 
     def _trade(self):
         """M0 and the recalled block trade places, each with what was solved with it."""
-        kept = self._recalled
-        self._recalled = {name: getattr(self, name) for name in BASE_STATE}
+        kept, self._recalled = self._recalled, self._base_state()
         for name in BASE_STATE:
             setattr(self, name, kept[name])
 
@@ -1262,7 +1271,7 @@ class CondensedSolver:
         self._recalled = None
         if (self.factors is not None and len(self.P) <= RECALL_UP_TO
                 and self._fits(self._base0, self.factored_inv_dt)):
-            self._recalled = {name: getattr(self, name) for name in BASE_STATE}
+            self._recalled = self._base_state()
         self.factors = None
         self._Z = self._T = self._Z_R = self._K_R = None
         M = self._form()
@@ -1347,8 +1356,7 @@ class CondensedSolver:
         """M^-1 b by a low-rank change of the recalled block, which then becomes M0 (and M0 the
         recalled one); None, the two as they were, when it is not close enough or misses the
         check."""
-        kept = self._recalled
-        if kept is None or not self._fits(kept["_base0"], kept["factored_inv_dt"]):
+        if not self._recall_fits():
             return None
         self._trade()
         if self._step_size_update():
