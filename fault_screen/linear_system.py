@@ -1359,13 +1359,13 @@ class CondensedSolver:
         if not self._recall_fits():
             return None
         self._trade()
-        if self._step_size_update():
-            _, K, DK, _ = self._tangent_change()
-            if len(K) * LOW_RANK_FRACTION <= len(b):
-                x = self._low_rank(b, DK, K)
-                if x is not None:
-                    self.recalls += 1
-                    return x
+        # its distance first: the step size's columns (an n x |R| solve) only for a block that serves
+        _, K, DK, _ = self._tangent_change()
+        if len(K) * LOW_RANK_FRACTION <= len(b) and self._step_size_update():
+            x = self._low_rank(b, DK, K)
+            if x is not None:
+                self.recalls += 1
+                return x
         self._trade()
         return None
 
